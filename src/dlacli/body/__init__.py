@@ -1,0 +1,1 @@
+"""Body model layer: the only package that imports anny."""

@@ -1,0 +1,69 @@
+"""Recognise any dla artifact (or supported third-party input) and summarise it as a JSON-able dict."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from dlacli.errors import DlaInputError
+
+
+def _npz_format(path: Path) -> str:
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if "format" in data.files:
+                return str(data["format"])
+            keys = set(data.files)
+    except Exception as err:  # zip errors, truncated files
+        raise DlaInputError(path, f"not a readable .npz file ({type(err).__name__}: {err})") from None
+    if "poses" in keys:
+        return "amass"
+    raise DlaInputError(path, "npz without a 'format' key (expected dla.motion/1 or dla.avatar/1)")
+
+
+def _summarizer(path: Path) -> Callable[[Path], dict[str, Any]]:
+    if path.is_dir():
+        from dlacli.io.views import summarize_views
+
+        return summarize_views
+    suffix = path.suffix.lower()
+    if suffix == ".json":
+        from dlacli.io.body import summarize_body
+
+        return summarize_body
+    if suffix == ".ply":
+        from dlacli.io.ply import summarize_ply
+
+        return summarize_ply
+    if suffix in (".usd", ".usda", ".usdc"):
+        from dlacli.io.usd import summarize_usd
+
+        return summarize_usd
+    if suffix == ".npz":
+        fmt = _npz_format(path)
+        if fmt.startswith("dla.motion/"):
+            from dlacli.io.motion import summarize_motion
+
+            return summarize_motion
+        if fmt.startswith("dla.avatar/"):
+            from dlacli.io.avatar import summarize_avatar
+
+            return summarize_avatar
+        raise DlaInputError(path, f"unknown npz format {fmt!r} (expected dla.motion/1 or dla.avatar/1)")
+    raise DlaInputError(
+        path,
+        "unrecognised artifact (expected a view folder, body .json, motion or avatar .npz, "
+        "Gaussians .ply, or .usd/.usda/.usdc)",
+    )
+
+
+def summarize(path: str | os.PathLike) -> dict[str, Any]:
+    """One JSON-able dict describing the artifact at `path`; always has "path" and "kind"."""
+    path = Path(path)
+    if not path.exists():
+        raise DlaInputError(path, "no such file or folder")
+    summary = _summarizer(path)(path)
+    return {"path": str(path), **summary}

@@ -1,0 +1,1 @@
+"""Rendering: Gaussian splatting (CPU numba kernel, gsplat on CUDA) and triangle rasterisation."""

@@ -1,0 +1,210 @@
+"""Plain data passed between layers (io, body, render, nn, stages).
+
+Conventions are written once in docs/conventions.md; in short:
+- world frame: anny's (metres, +Z up, the body at rest faces -Y);
+- quaternions are (w, x, y, z), unit length;
+- Gaussians hold *activated* values: linear scales (metres), linear opacity in [0, 1];
+  colour as real spherical-harmonic coefficients, rgb = 0.5 + SH_C0 * sh[:, 0];
+- cameras are stored as world-to-camera matrices in OpenCV axes (+X right, +Y down, +Z forward),
+  the convention the renderers use; view folders store camera-to-world in OpenGL axes and
+  `Cameras.from_c2w_opengl` / `Cameras.c2w_opengl` convert.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+SH_C0 = 0.28209479177387814  # Y_0^0 = 1 / (2 sqrt(pi))
+
+# OpenGL camera axes (+Y up, looking down -Z) <-> OpenCV camera axes (+Y down, looking down +Z).
+_GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def sh_coeffs_for_degree(degree: int) -> int:
+    """Number of SH coefficients per colour channel for a degree 0..3."""
+    return (degree + 1) ** 2
+
+
+def sh_degree_for_coeffs(k: int) -> int:
+    """Inverse of `sh_coeffs_for_degree`; raises ValueError for counts that are not (d+1)^2."""
+    for d in range(4):
+        if (d + 1) ** 2 == k:
+            return d
+    raise ValueError(f"{k} SH coefficients per channel is not (d+1)^2 for a degree 0..3")
+
+
+def rgb_to_sh0(rgb: torch.Tensor) -> torch.Tensor:
+    """[..., 3] rgb in [0, 1] -> [..., 3] DC SH coefficient."""
+    return (rgb - 0.5) / SH_C0
+
+
+def sh0_to_rgb(sh0: torch.Tensor) -> torch.Tensor:
+    """[..., 3] DC SH coefficient -> [..., 3] rgb (not clamped)."""
+    return sh0 * SH_C0 + 0.5
+
+
+@dataclass
+class Gaussians:
+    """A set of N 3D Gaussians in activated parameters (see module docstring)."""
+
+    means: torch.Tensor  # [N, 3] world position, metres
+    quats: torch.Tensor  # [N, 4] (w, x, y, z), unit
+    scales: torch.Tensor  # [N, 3] standard deviations along the local axes, metres
+    opacities: torch.Tensor  # [N] in [0, 1]
+    sh: torch.Tensor  # [N, K, 3] SH coefficients, K = (degree + 1)^2; sh[:, 0] is the DC term
+
+    def __post_init__(self) -> None:
+        n = self.means.shape[0]
+        assert self.means.shape == (n, 3), self.means.shape
+        assert self.quats.shape == (n, 4), self.quats.shape
+        assert self.scales.shape == (n, 3), self.scales.shape
+        assert self.opacities.shape == (n,), self.opacities.shape
+        assert self.sh.ndim == 3 and self.sh.shape[0] == n and self.sh.shape[2] == 3, self.sh.shape
+        sh_degree_for_coeffs(self.sh.shape[1])
+
+    def __len__(self) -> int:
+        return self.means.shape[0]
+
+    @property
+    def sh_degree(self) -> int:
+        return sh_degree_for_coeffs(self.sh.shape[1])
+
+    @property
+    def rgb(self) -> torch.Tensor:
+        """[N, 3] view-independent colour from the DC term, clamped to [0, 1]."""
+        return sh0_to_rgb(self.sh[:, 0]).clamp(0.0, 1.0)
+
+    @classmethod
+    def from_rgb(cls, means, quats, scales, opacities, rgb) -> "Gaussians":
+        """Build degree-0 Gaussians from [N, 3] rgb colours."""
+        return cls(means, quats, scales, opacities, rgb_to_sh0(rgb)[:, None, :])
+
+    def to(self, *args, **kwargs) -> "Gaussians":
+        return Gaussians(*(t.to(*args, **kwargs) for t in self._tensors()))
+
+    def subset(self, index: torch.Tensor) -> "Gaussians":
+        """Gaussians selected by a boolean mask [N] or an index tensor [M]."""
+        return Gaussians(*(t[index] for t in self._tensors()))
+
+    def _tensors(self) -> tuple[torch.Tensor, ...]:
+        return (self.means, self.quats, self.scales, self.opacities, self.sh)
+
+
+@dataclass
+class Cameras:
+    """C pinhole cameras sharing one image size (no distortion)."""
+
+    viewmats: torch.Tensor  # [C, 4, 4] world-to-camera, OpenCV axes
+    Ks: torch.Tensor  # [C, 3, 3] intrinsics: fx, fy, cx, cy in pixels
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        c = self.viewmats.shape[0]
+        assert self.viewmats.shape == (c, 4, 4), self.viewmats.shape
+        assert self.Ks.shape == (c, 3, 3), self.Ks.shape
+
+    def __len__(self) -> int:
+        return self.viewmats.shape[0]
+
+    @classmethod
+    def from_c2w_opengl(cls, c2w, fx, fy, cx, cy, width: int, height: int) -> "Cameras":
+        """From camera-to-world matrices in OpenGL axes [C, 4, 4] (the transforms.json convention).
+
+        fx, fy, cx, cy are scalars or length-C sequences.
+        """
+        c2w = np.asarray(c2w, dtype=np.float64).reshape(-1, 4, 4)
+        c = c2w.shape[0]
+        w2c = np.linalg.inv(c2w @ _GL_TO_CV)
+        ks = np.zeros((c, 3, 3))
+        ks[:, 0, 0] = np.broadcast_to(np.asarray(fx, dtype=np.float64), (c,))
+        ks[:, 1, 1] = np.broadcast_to(np.asarray(fy, dtype=np.float64), (c,))
+        ks[:, 0, 2] = np.broadcast_to(np.asarray(cx, dtype=np.float64), (c,))
+        ks[:, 1, 2] = np.broadcast_to(np.asarray(cy, dtype=np.float64), (c,))
+        ks[:, 2, 2] = 1.0
+        return cls(
+            torch.from_numpy(w2c).float(), torch.from_numpy(ks).float(), int(width), int(height)
+        )
+
+    def c2w_opengl(self) -> np.ndarray:
+        """[C, 4, 4] camera-to-world in OpenGL axes, float64."""
+        w2c = self.viewmats.detach().cpu().double().numpy()
+        return np.linalg.inv(w2c) @ _GL_TO_CV
+
+    def to(self, *args, **kwargs) -> "Cameras":
+        return Cameras(
+            self.viewmats.to(*args, **kwargs), self.Ks.to(*args, **kwargs), self.width, self.height
+        )
+
+
+PHENOTYPE_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")
+
+
+@dataclass
+class BodyParams:
+    """Body model parameters (the body.json contract, formats/body.md)."""
+
+    phenotype: dict[str, float] = field(
+        default_factory=lambda: {k: 0.5 for k in PHENOTYPE_KEYS}
+    )
+    root_rotation: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [3] axis-angle
+    root_translation: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [3] metres
+    pose: dict[str, np.ndarray] = field(default_factory=dict)  # bone label -> [3] axis-angle
+    model: str = "anny"
+
+
+@dataclass
+class Motion:
+    """A motion clip on the body model's rig (the motion.npz contract, formats/motion.md)."""
+
+    bone_labels: list[str]  # [J]
+    rotations: np.ndarray  # [T, J, 3] axis-angle, radians, local-ref
+    root_rotation: np.ndarray  # [T, 3] axis-angle
+    root_translation: np.ndarray  # [T, 3] metres
+    fps: float
+    model: str = "anny"
+
+    def __post_init__(self) -> None:
+        t, j = self.rotations.shape[:2]
+        assert self.rotations.shape == (t, j, 3), self.rotations.shape
+        assert len(self.bone_labels) == j, (len(self.bone_labels), j)
+        assert self.root_rotation.shape == (t, 3), self.root_rotation.shape
+        assert self.root_translation.shape == (t, 3), self.root_translation.shape
+
+    @property
+    def num_frames(self) -> int:
+        return self.rotations.shape[0]
+
+
+@dataclass
+class ViewSet:
+    """A view folder in memory (formats/views.md)."""
+
+    images: np.ndarray  # [V, H, W, 3] float32 rgb in [0, 1]
+    masks: np.ndarray  # [V, H, W] float32 person alpha in [0, 1]
+    cameras: Cameras
+    body: BodyParams
+    file_paths: list[str]  # [V] image paths relative to the folder
+    times: list[int | None]  # [V] motion frame index per view, or None
+    extra: dict[str, Any] = field(default_factory=dict)  # the top-level "dla" object
+
+    def __len__(self) -> int:
+        return self.images.shape[0]
+
+
+@dataclass
+class Avatar:
+    """An avatar code Z aligned with the body's UV space (formats/avatar.md)."""
+
+    z: np.ndarray  # [C, H, W] float32
+    encoder: str  # e.g. "unproject" or "learned"
+    decoder: str  # e.g. "identity" or "gpd"
+    body: BodyParams
+    uv_layout: str  # e.g. "anny"
+    checkpoint: str = ""  # sha256 of the learned weights, "" for non-learned paths
+    canonical: np.ndarray | None = None  # [14, H, W] cached canonical Gaussian map, optional
+    extra: dict[str, Any] = field(default_factory=dict)
