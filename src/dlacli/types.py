@@ -187,7 +187,7 @@ class ViewSet:
     images: np.ndarray  # [V, H, W, 3] float32 rgb in [0, 1]
     masks: np.ndarray  # [V, H, W] float32 person alpha in [0, 1]
     cameras: Cameras
-    body: BodyParams
+    body: BodyParams | None  # None when read without body.json (require_body=False)
     file_paths: list[str]  # [V] image paths relative to the folder
     times: list[int | None]  # [V] motion frame index per view, or None
     extra: dict[str, Any] = field(default_factory=dict)  # the top-level "dla" object
