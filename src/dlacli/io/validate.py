@@ -1,0 +1,152 @@
+"""Small validation helpers shared by the readers in dlacli.io.
+
+Every helper raises `DlaInputError(where, problem)` with a one-line problem; `where` is the file
+(optionally followed by ":key") so the message names what is wrong and where.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dlacli.errors import DlaInputError
+
+
+def load_json(path: str | os.PathLike) -> Any:
+    """Parse a JSON file; a missing, unreadable or malformed (e.g. truncated) file is a DlaInputError."""
+    path = Path(path)
+    if not path.is_file():
+        raise DlaInputError(path, "no such file")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise DlaInputError(path, f"cannot read the file ({type(err).__name__}: {err})") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as err:
+        raise DlaInputError(
+            path, f"not valid JSON: {err.msg} at line {err.lineno} column {err.colno}"
+        ) from None
+
+
+def check_format(found: Any, supported: str, where: Any) -> None:
+    """`found` must equal `supported` (e.g. "dla.body/1"); otherwise say what was found."""
+    if found is None:
+        raise DlaInputError(where, f"missing 'format' key (expected {supported!r})")
+    if found != supported:
+        family = supported.rsplit("/", 1)[0]
+        if isinstance(found, str) and found.startswith(family + "/"):
+            problem = f"format {found!r} is not supported by this version of dla (it reads {supported!r})"
+        else:
+            problem = f"format is {found!r}, expected {supported!r}"
+        raise DlaInputError(where, problem)
+
+
+def require_keys(mapping: Any, keys: tuple[str, ...] | list[str], where: Any, what: str = "") -> None:
+    """`mapping` must be a dict holding every key in `keys`."""
+    if not isinstance(mapping, dict):
+        raise DlaInputError(where, f"expected a JSON object{' for ' + what if what else ''}, found {type(mapping).__name__}")
+    missing = [k for k in keys if k not in mapping]
+    if missing:
+        raise DlaInputError(where, f"missing key{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))}")
+
+
+def as_float(value: Any, where: Any, name: str) -> float:
+    """A finite real number (JSON number or numeric 0-d array); bools and strings are rejected."""
+    if isinstance(value, np.ndarray) and value.shape == () and value.dtype.kind in "fiu":
+        value = value.item()
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise DlaInputError(where, f"{name} must be a number, found {_describe(value)}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise DlaInputError(where, f"{name} is not finite ({value})")
+    return value
+
+
+def as_array(
+    value: Any, shape: tuple[int | None, ...], where: Any, name: str, dtype=np.float32
+) -> np.ndarray:
+    """A finite numeric array of `shape` (None = any size) converted to `dtype`.
+
+    Accepts nested JSON lists or numpy arrays; bool, string and object data are rejected.
+    """
+    try:
+        arr = np.asarray(value)
+    except (ValueError, TypeError):
+        raise DlaInputError(where, f"{name} is not a rectangular array of numbers") from None
+    if arr.dtype.kind not in "fiu":
+        raise DlaInputError(where, f"{name} must hold numbers, found {_describe(value)} (dtype {arr.dtype})")
+    check_shape(arr, shape, where, name)
+    arr = arr.astype(dtype)
+    check_finite(arr, where, name)
+    return arr
+
+
+def check_shape(arr: np.ndarray, shape: tuple[int | None, ...], where: Any, name: str) -> None:
+    """`arr.shape` must match `shape`, where None matches any size."""
+    ok = arr.ndim == len(shape) and all(s is None or s == a for s, a in zip(shape, arr.shape))
+    if not ok:
+        expected = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
+        raise DlaInputError(where, f"{name} has shape {tuple(arr.shape)}, expected {expected}")
+
+
+def check_finite(arr: np.ndarray, where: Any, name: str) -> None:
+    """No NaN or Inf in `arr`."""
+    if arr.size and not np.all(np.isfinite(arr)):
+        bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
+        raise DlaInputError(where, f"{name} has {bad} non-finite value{'s' if bad > 1 else ''} (NaN or Inf)")
+
+
+def as_str(value: Any, where: Any, name: str, allow_empty: bool = False) -> str:
+    """A (non-empty) string; also accepts a 0-d numpy unicode array as stored in .npz files."""
+    if isinstance(value, np.ndarray) and value.shape == () and value.dtype.kind == "U":
+        value = str(value)
+    if not isinstance(value, str):
+        raise DlaInputError(where, f"{name} must be a string, found {_describe(value)}")
+    if not value and not allow_empty:
+        raise DlaInputError(where, f"{name} is an empty string")
+    return value
+
+
+def load_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Every array of an .npz file, loaded eagerly without pickles (so truncation shows up here)."""
+    path = Path(path)
+    if not path.is_file():
+        raise DlaInputError(path, "no such file")
+    with open(path, "rb") as f:
+        magic = f.read(4)
+    if magic not in (b"PK\x03\x04", b"PK\x05\x06"):
+        raise DlaInputError(path, "not a readable .npz file (no zip header)")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {key: data[key] for key in data.files}
+    except ValueError as err:
+        if "pickle" in str(err).lower():
+            raise DlaInputError(path, "holds pickled Python objects, which dla never reads (store strings as unicode arrays)") from None
+        raise DlaInputError(path, f"not a readable .npz file ({err})") from None
+    except Exception as err:  # zipfile.BadZipFile, EOFError, OSError on truncated files
+        raise DlaInputError(path, f"not a readable .npz file ({type(err).__name__}: {err})") from None
+
+
+def _describe(value: Any) -> str:
+    text = " ".join(repr(value).split())
+    if len(text) > 40:
+        text = text[:37] + "..."
+    return f"{type(value).__name__} {text}"
+
+
+def dump_json(obj: Any, indent: int = 0) -> str:
+    """JSON text, indented, with arrays of plain values (vectors, matrix rows) kept on one line."""
+    pad = " " * indent
+    if isinstance(obj, dict) and obj:
+        items = [f"{pad}  {json.dumps(str(k))}: {dump_json(v, indent + 2)}" for k, v in obj.items()]
+        return "{\n" + ",\n".join(items) + f"\n{pad}}}"
+    if isinstance(obj, (list, tuple)) and any(isinstance(x, (dict, list, tuple)) for x in obj):
+        items = [f"{pad}  {dump_json(v, indent + 2)}" for v in obj]
+        return "[\n" + ",\n".join(items) + f"\n{pad}]"
+    return json.dumps(obj, allow_nan=False)
