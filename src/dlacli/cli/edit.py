@@ -1,0 +1,38 @@
+"""`dla edit swap`: replace a body region of one avatar with another's."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+edit_app = typer.Typer(
+    help="Edit avatars in their UV-aligned latent space.",
+    no_args_is_help=True,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+
+@edit_app.command("swap")
+def swap(
+    a: Path = typer.Argument(..., metavar="A", help="The avatar to edit (avatar.npz)."),
+    b: Path = typer.Argument(..., metavar="B", help="The avatar that gives the region (avatar.npz)."),
+    region: str = typer.Option(..., "--region", "-r", help="Region name, e.g. face, hair, hands, upper_body (see `dla body regions`)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Where to write the edited avatar.npz."),
+    feather: float = typer.Option(0.0, "--feather", min=0.0, help="Blend over this many UV texels (at Z's resolution) outside the region."),
+) -> None:
+    """Replace REGION of avatar A with avatar B's; everything else stays A's (body included)."""
+    from dlacli.body.regions import REGION_NAMES
+    from dlacli.errors import DlaInputError
+    from dlacli.io.avatar import read_avatar, write_avatar
+    from dlacli.stages.edit import swap_region
+
+    if region not in REGION_NAMES:
+        raise DlaInputError("--region", f"unknown region {region!r} (known: {', '.join(REGION_NAMES)})")
+    avatar = swap_region(read_avatar(a), read_avatar(b), region, feather, where_a=str(a), where_b=str(b))
+    write_avatar(avatar, output)
+    typer.echo(str(output))
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(edit_app, name="edit")

@@ -1,0 +1,38 @@
+"""`dla interp`: blend two avatars by interpolating their latent codes Z."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def interp(
+    a: Path = typer.Argument(..., metavar="A", help="Avatar at t = 0 (avatar.npz)."),
+    b: Path = typer.Argument(..., metavar="B", help="Avatar at t = 1 (avatar.npz)."),
+    output: Path = typer.Option(..., "--output", "-o", help="avatar.npz to write, or a folder with --steps."),
+    t: float = typer.Option(0.5, "--t", help="Blend fraction: 0 gives A exactly, 1 gives B exactly."),
+    steps: int = typer.Option(0, "--steps", min=0, help="Write this many avatars from t=0 to t=1 (inclusive) into the folder OUTPUT instead."),
+) -> None:
+    """Blend avatars A and B: z = (1 - t) z_A + t z_B; the body blends too."""
+    from dlacli.errors import DlaInputError
+    from dlacli.io.atomic import atomic_dir
+    from dlacli.io.avatar import read_avatar, write_avatar
+    from dlacli.stages.edit import interpolate
+
+    avatar_a, avatar_b = read_avatar(a), read_avatar(b)
+    if steps == 0:
+        write_avatar(interpolate(avatar_a, avatar_b, t, str(a), str(b)), output)
+        typer.echo(str(output))
+        return
+    if steps < 2:
+        raise DlaInputError("--steps", f"needs at least 2 avatars (t = 0 and t = 1), got {steps}")
+    with atomic_dir(output) as tmp:
+        for k in range(steps):
+            tk = k / (steps - 1)
+            write_avatar(interpolate(avatar_a, avatar_b, tk, str(a), str(b)), tmp / f"interp_{k:03d}.npz")
+    typer.echo(str(output))
+
+
+def register(app: typer.Typer) -> None:
+    app.command("interp")(interp)
