@@ -1,0 +1,61 @@
+"""Gaussian skinning: Gaussians stored in the body's UV tangent frames -> world Gaussians per pose.
+
+A Gaussian attached to a surface sample point (face id + barycentrics) has its parameters in the
+sample's tangent frame (docs/body.md "Tangent frames"): an offset dxyz, a rotation dR (unit
+quaternion, w-first) and a scale multiplier ds. With the posed frame (T, R, S) of the sample,
+
+    mean  = T + R dxyz
+    R_g   = R dR
+    scale = S ds
+
+Offsets `dxyz` are in metres (not texel units), so a decoder's offsets mean the same thing on every
+body; scales use S (metres per texel), so ds = 1 is "about one texel" wide.
+Everything is vectorised over frames and differentiable (torch).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from dlacli.body.rotations import matrix_to_quat, quat_multiply, quat_normalize
+
+
+def skin_gaussians(
+    frames_T: torch.Tensor,  # [T, N, 3] sample positions
+    frames_R: torch.Tensor,  # [T, N, 3, 3] columns (tangent, bitangent, normal)
+    frames_S: torch.Tensor,  # [T, N] metres per texel
+    dxyz: torch.Tensor,  # [N, 3] or [T, N, 3] offsets in the tangent frame, metres
+    dquat: torch.Tensor,  # [N, 4] or [T, N, 4] rotations in the tangent frame, (w, x, y, z)
+    ds: torch.Tensor,  # [N, 3] or [T, N, 3] scale multipliers (texel units)
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """-> means [T, N, 3], quats [T, N, 4] (w, x, y, z, unit, w >= 0 not enforced), scales [T, N, 3]."""
+    if frames_T.ndim != 3 or frames_T.shape[-1] != 3:
+        raise ValueError(f"frames_T must be [T, N, 3], got {tuple(frames_T.shape)}")
+    t, n = frames_T.shape[:2]
+    if frames_R.shape != (t, n, 3, 3):
+        raise ValueError(f"frames_R must be [{t}, {n}, 3, 3], got {tuple(frames_R.shape)}")
+    if frames_S.shape != (t, n):
+        raise ValueError(f"frames_S must be [{t}, {n}], got {tuple(frames_S.shape)}")
+    for name, x, k in (("dxyz", dxyz, 3), ("dquat", dquat, 4), ("ds", ds, 3)):
+        if x.shape not in ((n, k), (t, n, k)):
+            raise ValueError(f"{name} must be [{n}, {k}] or [{t}, {n}, {k}], got {tuple(x.shape)}")
+    means = frames_T + (frames_R @ dxyz.expand(t, n, 3)[..., None])[..., 0]
+    frame_q = matrix_to_quat(frames_R)  # [T, N, 4]
+    quats = quat_normalize(quat_multiply(frame_q, dquat.expand(t, n, 4)))
+    scales = frames_S[..., None] * ds.expand(t, n, 3)
+    return means, quats, scales
+
+
+def skin_gaussians_on_body(
+    vertices: torch.Tensor,  # [T, V, 3] posed vertices (BodyOutput.vertices)
+    face_id: torch.Tensor,  # [N] sample faces
+    bary: torch.Tensor,  # [N, 3] sample barycentrics
+    dxyz: torch.Tensor,  # [N, 3] or [T, N, 3]
+    dquat: torch.Tensor,  # [N, 4] or [T, N, 4]
+    ds: torch.Tensor,  # [N, 3] or [T, N, 3]
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Tangent frames of the posed body at the samples, then `skin_gaussians`."""
+    from dlacli.body.uv import tangent_frames
+
+    frames_T, frames_R, frames_S = tangent_frames(vertices, face_id, bary)
+    return skin_gaussians(frames_T, frames_R, frames_S, dxyz, dquat, ds)
