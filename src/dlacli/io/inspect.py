@@ -52,11 +52,27 @@ def _summarizer(path: Path) -> Callable[[Path], dict[str, Any]]:
             from dlacli.io.avatar import summarize_avatar
 
             return summarize_avatar
+        if fmt == "amass":
+            from dlacli.io.amass import summarize_amass
+
+            return summarize_amass
         raise DlaInputError(path, f"unknown npz format {fmt!r} (expected dla.motion/1 or dla.avatar/1)")
+    if suffix == ".bvh":
+        from dlacli.io.bvh import summarize_bvh
+
+        return summarize_bvh
+    if suffix == ".asf":
+        from dlacli.io.asf_amc import summarize_asf
+
+        return summarize_asf
+    if suffix == ".amc":
+        from dlacli.io.asf_amc import summarize_amc
+
+        return summarize_amc
     raise DlaInputError(
         path,
         "unrecognised artifact (expected a view folder, body .json, motion or avatar .npz, "
-        "Gaussians .ply, or .usd/.usda/.usdc)",
+        "Gaussians .ply, .usd/.usda/.usdc, or a .bvh, .asf, .amc or AMASS .npz motion)",
     )
 
 

@@ -1,0 +1,112 @@
+"""`load_motion(spec)`: any motion the toolkit accepts, as a native Motion on anny's rig.
+
+A spec is one of (checked in this order):
+- a path to a native motion.npz (`format` = "dla.motion/1");
+- a path to an AMASS .npz (has a `poses` array);
+- a path to a .bvh file;
+- a path to an .amc file: its ASF skeleton is found beside it (`dlacli.io.asf_amc.find_asf`),
+  or named explicitly as "CLIP.amc:SUBJECT.asf" (or with the `asf` argument);
+- a built-in motion name: idle, walk, turnaround, wave.
+Third-party motions are retargeted (`dlacli.body.retarget`); `fps` resamples the result.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from dlacli.body.builtin_motions import BUILTINS, builtin_motion
+from dlacli.errors import DlaInputError
+from dlacli.types import Motion
+
+SUFFIXES = (".npz", ".bvh", ".amc")
+
+
+def split_spec(spec: str) -> tuple[Path, Path | None]:
+    """(motion path, explicit ASF path or None) from a spec string."""
+    path = Path(spec)
+    if not path.exists() and ":" in spec:
+        left, right = spec.rsplit(":", 1)
+        if left.lower().endswith(".amc") and right.lower().endswith(".asf"):
+            return Path(left), Path(right)
+    return path, None
+
+
+def _npz_kind(path: Path) -> str:
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            keys = set(data.files)
+    except Exception as err:  # zip errors, truncated files
+        raise DlaInputError(path, f"not a readable .npz file ({type(err).__name__}: {err})") from None
+    if "format" in keys:
+        return "native"
+    if "poses" in keys:
+        return "amass"
+    raise DlaInputError(path, "npz is neither a dla motion (no 'format') nor an AMASS motion (no 'poses')")
+
+
+def load_motion(
+    spec: str | os.PathLike,
+    *,
+    fps: float | None = None,
+    asf: str | os.PathLike | None = None,
+    phenotype: dict[str, float] | None = None,
+) -> Motion:
+    """Load and (for third-party files) retarget a motion; see the module docstring.
+
+    `phenotype` is the body the retargeting scales the root path for (default body if None).
+    Bad input raises DlaInputError naming the file (or spec) and the problem.
+    """
+    spec = str(spec)
+    path, asf_path = split_spec(spec)
+    if asf is not None:
+        asf_path = Path(asf)
+    if not path.exists():
+        if spec in BUILTINS:
+            motion = builtin_motion(spec)
+            return motion if fps is None else _resample(motion, fps)
+        raise DlaInputError(
+            spec, f"no such file, and not a built-in motion ({', '.join(BUILTINS)})"
+        )
+    if path.is_dir():
+        raise DlaInputError(path, "is a folder; expected a motion file (.npz, .bvh, .amc)")
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        kind = _npz_kind(path)
+        if kind == "native":
+            from dlacli.io.motion import read_motion
+
+            motion = read_motion(path)
+            return motion if fps is None else _resample(motion, fps)
+        from dlacli.io.amass import read_amass
+
+        skel = read_amass(path)
+    elif suffix == ".bvh":
+        from dlacli.io.bvh import read_bvh
+
+        skel = read_bvh(path)
+    elif suffix == ".amc":
+        from dlacli.io.asf_amc import find_asf, read_amc
+
+        if asf_path is None:
+            asf_path = find_asf(path)
+        elif not asf_path.is_file():
+            raise DlaInputError(asf_path, "no such ASF skeleton file")
+        skel = read_amc(path, asf_path)
+    elif suffix == ".asf":
+        raise DlaInputError(path, "an ASF file holds a skeleton only; give its AMC motion (CLIP.amc or CLIP.amc:SUBJECT.asf)")
+    else:
+        raise DlaInputError(path, f"unsupported motion file type {path.suffix!r} (expected {', '.join(SUFFIXES)} or a built-in name)")
+
+    from dlacli.body.retarget import anny_rig, retarget
+
+    motion = retarget(skel, anny_rig(phenotype))
+    return motion if fps is None else _resample(motion, fps)
+
+
+def _resample(motion: Motion, fps: float) -> Motion:
+    from dlacli.body.retarget import resample_motion
+
+    return resample_motion(motion, float(fps))

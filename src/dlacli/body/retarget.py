@@ -1,0 +1,412 @@
+"""Retargeting: a third-party skeleton motion (`SkeletonMotion`) -> a native Motion on anny's rig.
+
+Method (docs/motion.md has the derivation):
+1. Joints are matched to anny bones by name (`DIALECTS`: CMU 3dsMax-style and MotionBuilder-style
+   BVH names, CMU ASF bone names, Mixamo, SMPL). Source joints without a counterpart (fingers,
+   toes, hip and collar helpers) are ignored; their rotations still reach the mapped joints below
+   them, because the transfer works on world rotations.
+2. Forward kinematics gives each source joint's world rotation G_s(t) (a delta from the source's
+   rest pose). Axes change with A (Y-up, facing +Z -> anny's Z-up, facing -Y).
+3. Rest-pose correction Q_b: a rotation taking the source's rest bone to anny's zero-pose bone:
+   for limbs the shortest rotation between the two bone directions (this is what turns a T-pose
+   source into anny's A-pose); for the torso (root, spine, neck, head) one rotation aligning the
+   pelvis frames (up = pelvis->neck, left = right hip->left hip).
+4. anny bone b's world delta is W_b = M_world G_s M_rest^-1 Q_b^-1, so that b points where the
+   source bone points; unmapped bones follow their parent. anny's "local-ref" rotations compose
+   root-first in world-aligned axes (W_c = W_parent L_c), so L_c = W_parent^-1 W_c; the root's W
+   goes to `root_rotation`.
+5. The hip centre's path (mean of the two hip joints, the root joint if the legs are unmapped)
+   is scaled by anny leg length / source leg length (hip -> knee -> ankle) and anny's hip centre
+   follows it: horizontally from the origin at frame 0; vertically a source hip centre at height h
+   above the source ground (y = 0, or z = 0 for Z-up files: CMU and AMASS are ground-registered)
+   goes to scale * h above anny's soles (the zero pose's lowest vertex), so feet stay on the ground.
+
+The motion is made for one phenotype (the default unless given); it transfers to others as is.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+
+from dlacli.errors import DlaInputError
+from dlacli.io.bvh import SkeletonMotion, forward_kinematics, rest_positions
+from dlacli.types import Motion
+
+# Y-up, facing +Z (BVH, ASF, SMPL canonical) -> anny (Z-up, facing -Y): (x, y, z) -> (x, -z, y)
+Y_UP_TO_ANNY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+TORSO = ("root", "spine05", "spine04", "spine03", "spine02", "spine01", "neck01", "neck02", "neck03", "head")
+
+
+def _sided(table: dict[str, str], left: str, right: str) -> dict[str, str]:
+    """Expand '{S}'/'{s}' templates in a name table to both sides."""
+    out = {}
+    for src, dst in table.items():
+        if "{" in src:
+            for side, s, lr in (("Left", "l", "L"), ("Right", "r", "R")):
+                out[src.format(S=side, s=s).lower()] = dst.format(side=lr)
+        else:
+            out[src.lower()] = dst
+    return out
+
+
+_LIMBS_MB = {
+    "{S}Shoulder": "clavicle.{side}", "{S}Arm": "upperarm01.{side}",
+    "{S}ForeArm": "lowerarm01.{side}", "{S}Hand": "wrist.{side}",
+    "{S}UpLeg": "upperleg01.{side}", "{S}Leg": "lowerleg01.{side}", "{S}Foot": "foot.{side}",
+}  # fmt: skip
+DIALECTS: dict[str, dict[str, str]] = {
+    "cmu-3dsmax": _sided({
+        "Hips": "root", "lowerback": "spine05", "Chest": "spine03", "Chest2": "spine01",
+        "lowerneck": "neck01", "Neck": "neck02", "Head": "head",
+        "{S}Collar": "clavicle.{side}", "{S}Shoulder": "upperarm01.{side}",
+        "{S}Elbow": "lowerarm01.{side}", "{S}Wrist": "wrist.{side}",
+        "{S}Hip": "upperleg01.{side}", "{S}Knee": "lowerleg01.{side}", "{S}Ankle": "foot.{side}",
+    }, "L", "R"),  # fmt: skip
+    "cmu-motionbuilder": _sided({
+        "Hips": "root", "LowerBack": "spine05", "Spine": "spine03", "Spine1": "spine01",
+        "Neck": "neck01", "Neck1": "neck02", "Head": "head", **_LIMBS_MB,
+    }, "L", "R"),  # fmt: skip
+    "cmu-asf": _sided({
+        "root": "root", "lowerback": "spine05", "upperback": "spine03", "thorax": "spine01",
+        "lowerneck": "neck01", "upperneck": "neck02", "head": "head",
+        "{s}clavicle": "clavicle.{side}", "{s}humerus": "upperarm01.{side}",
+        "{s}radius": "lowerarm01.{side}", "{s}wrist": "wrist.{side}",
+        "{s}femur": "upperleg01.{side}", "{s}tibia": "lowerleg01.{side}", "{s}foot": "foot.{side}",
+    }, "L", "R"),  # fmt: skip
+    "mixamo": _sided({
+        "Hips": "root", "Spine": "spine04", "Spine1": "spine02", "Spine2": "spine01",
+        "Neck": "neck01", "Head": "head", **_LIMBS_MB,
+    }, "L", "R"),  # fmt: skip
+    "smpl": {
+        "pelvis": "root", "spine1": "spine04", "spine2": "spine02", "spine3": "spine01",
+        "neck": "neck01", "head": "head",
+        **{f"{side}_{src}": f"{dst}.{lr}" for side, lr in (("left", "L"), ("right", "R"))
+           for src, dst in (("collar", "clavicle"), ("shoulder", "upperarm01"),
+                            ("elbow", "lowerarm01"), ("wrist", "wrist"), ("hip", "upperleg01"),
+                            ("knee", "lowerleg01"), ("ankle", "foot"))},
+    },  # fmt: skip
+}
+
+# joints known to have no anny counterpart (no warning when ignored)
+_KNOWN_EXTRA = (
+    "hipjoint", "toe", "finger", "thumb", "hand", "end", "site", "clavicle", "collar", "foot",
+    "eye", "jaw", "neck", "spine", "index", "middle", "ring", "pinky", "chest",
+)
+
+
+@dataclass
+class AnnyRig:
+    """The constants of anny's rig that retargeting needs (for one phenotype)."""
+
+    bone_labels: list[str]  # [J]
+    bone_parents: np.ndarray  # [J] int, -1 for the root
+    rest_heads: np.ndarray  # [J, 3] zero-pose bone heads, metres
+    ground_z: float  # height of the soles in the zero pose (lowest vertex z), metres
+
+    def index(self, label: str) -> int:
+        return self.bone_labels.index(label)
+
+
+def anny_rig(phenotype: dict[str, float] | None = None) -> AnnyRig:
+    """AnnyRig of the body model (default phenotype unless given)."""
+    from dlacli.body.model import get_body_model
+
+    model = get_body_model()
+    zero = model.zero_pose(phenotype)
+    return AnnyRig(
+        bone_labels=list(model.bone_labels),
+        bone_parents=np.asarray(model.bone_parents),
+        rest_heads=zero.bone_heads[0].double().numpy(),
+        ground_z=float(zero.vertices[0, :, 2].min()),
+    )
+
+
+def match_joints(names: list[str], dialect: str = "") -> tuple[str, dict[int, str]]:
+    """(dialect, {source joint index: anny bone label}) for the best-matching name table.
+
+    Names are compared case-insensitively after dropping a "prefix:" (e.g. "mixamorig:").
+    """
+    keys = [n.rsplit(":", 1)[-1].lower() for n in names]
+    tables = {dialect: DIALECTS[dialect]} if dialect in DIALECTS else DIALECTS
+    best, best_map = "", {}
+    for name, table in tables.items():
+        found = {i: table[k] for i, k in enumerate(keys) if k in table}
+        if len(set(found.values())) > len(set(best_map.values())):
+            best, best_map = name, found
+    # one source joint per anny bone: keep the first (closest to the root)
+    seen: set[str] = set()
+    unique = {}
+    for i, label in sorted(best_map.items()):
+        if label not in seen:
+            unique[i] = label
+            seen.add(label)
+    return best, unique
+
+
+def _shortest_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """[3, 3] rotation turning direction a [3] onto direction b [3] about a x b."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v = np.cross(a, b)
+    c = float(np.dot(a, b))
+    if c < -1.0 + 1e-9:  # opposite: turn 180 degrees about any axis perpendicular to a
+        axis = np.cross(a, [1.0, 0.0, 0.0])
+        if np.linalg.norm(axis) < 1e-6:
+            axis = np.cross(a, [0.0, 1.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        return 2.0 * np.outer(axis, axis) - np.eye(3)
+    k = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + k + k @ k / (1.0 + c)
+
+
+def _frame(up: np.ndarray, left: np.ndarray) -> np.ndarray:
+    """[3, 3] orthonormal frame with columns (left, forward, up) from rough up and left vectors."""
+    z = up / np.linalg.norm(up)
+    x = left - np.dot(left, z) * z
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def _segment_end(skel: SkeletonMotion, rest: np.ndarray, s: int, mapped: dict[int, str], children) -> int | None:
+    """The source joint that ends joint s's segment: its first mapped descendant, else the first
+    descendant (or End Site, returned as -1 - s) at a non-zero distance."""
+    stack = list(children[s])
+    first_far = None
+    while stack:
+        c = stack.pop(0)
+        if c in mapped:
+            return c
+        if first_far is None and np.linalg.norm(rest[c] - rest[s]) > 1e-6:
+            first_far = c
+        stack.extend(children[c])
+    if first_far is None and s in skel.end_sites and np.linalg.norm(skel.end_sites[s]) > 1e-6:
+        return -1 - s
+    return first_far
+
+
+def rest_corrections(skel: SkeletonMotion, rig: AnnyRig, mapped: dict[int, str]) -> dict[int, np.ndarray]:
+    """{source joint: Q [3, 3]} taking the source rest bone (in anny axes) onto anny's zero pose."""
+    rest = rest_positions(skel) @ Y_UP_TO_ANNY.T  # [J, 3] rest skeleton in anny axes
+    children: dict[int, list[int]] = {k: [] for k in range(skel.num_joints)}
+    for k in range(1, skel.num_joints):
+        children[int(skel.parents[k])].append(k)
+    heads = rig.rest_heads
+    by_label = {label: s for s, label in mapped.items()}
+
+    def anny_head(label: str) -> np.ndarray:
+        return heads[rig.index(label)]
+
+    # torso: align pelvis frames
+    src_top = next((by_label[b] for b in ("head", "neck02", "neck01", "spine01") if b in by_label), None)
+    q_torso = np.eye(3)
+    if src_top is not None and "upperleg01.L" in by_label and "upperleg01.R" in by_label:
+        dst_top = next(b for b in ("head", "neck02", "neck01", "spine01") if b in by_label)
+        src = _frame(rest[src_top] - rest[by_label.get("root", 0)],
+                     rest[by_label["upperleg01.L"]] - rest[by_label["upperleg01.R"]])
+        dst = _frame(anny_head(dst_top) - anny_head("root"),
+                     anny_head("upperleg01.L") - anny_head("upperleg01.R"))
+        q_torso = dst @ src.T
+
+    q: dict[int, np.ndarray] = {}
+    for s in sorted(mapped):
+        label = mapped[s]
+        if label in TORSO:
+            q[s] = q_torso
+            continue
+        end = _segment_end(skel, rest, s, mapped, children)
+        b = rig.index(label)
+        if end is None:
+            d_src = None
+        elif end < 0:
+            d_src = Y_UP_TO_ANNY @ skel.end_sites[-1 - end]
+        else:
+            d_src = rest[end] - rest[s]
+        if end is not None and end >= 0 and end in mapped:
+            d_dst = anny_head(mapped[end]) - heads[b]
+        else:  # an end joint: towards the mean of anny's child heads (fingers, toes)
+            kids = np.flatnonzero(rig.bone_parents == b)
+            d_dst = heads[kids].mean(axis=0) - heads[b] if kids.size else None
+        if d_src is None or d_dst is None or np.linalg.norm(d_src) < 1e-9 or np.linalg.norm(d_dst) < 1e-9:
+            p = int(skel.parents[s])
+            while p >= 0 and p not in q:
+                p = int(skel.parents[p])
+            q[s] = q[p] if p >= 0 else q_torso
+        else:
+            q[s] = _shortest_rotation(d_src, d_dst)
+    return q
+
+
+def _leg_length(points: np.ndarray, chain: list[int]) -> float:
+    return float(sum(np.linalg.norm(points[b] - points[a]) for a, b in zip(chain, chain[1:])))
+
+
+def _warn(message: str) -> None:
+    print(f"warning: {message}", file=sys.stderr)
+
+
+def retarget(skel: SkeletonMotion, rig: AnnyRig) -> Motion:
+    """Turn a source skeleton motion into a native Motion on anny's rig (see module docstring).
+
+    Raises DlaInputError when no joint (or not the root) matches anny's rig; warns on stderr about
+    unknown joints that are ignored.
+    """
+    dialect, mapped = match_joints(skel.names, skel.dialect)
+    if not mapped:
+        raise DlaInputError(
+            skel.source,
+            f"none of its {skel.num_joints} joints match anny's rig (known naming: "
+            f"{', '.join(DIALECTS)}; e.g. Hips, LeftUpLeg, LeftArm)",
+        )
+    if "root" not in mapped.values() or len(mapped) < 2:
+        raise DlaInputError(
+            skel.source, f"too few joints match anny's rig ({', '.join(skel.names[i] for i in mapped)}); a root "
+            "(Hips/root/pelvis) and limbs are needed",
+        )
+    unknown = [n for i, n in enumerate(skel.names) if i not in mapped
+               and not any(k in n.lower() for k in _KNOWN_EXTRA)]  # fmt: skip
+    if unknown:
+        _warn(f"{skel.source}: ignoring {len(unknown)} joint(s) with no anny counterpart: {', '.join(unknown[:8])}"
+              + (" ..." if len(unknown) > 8 else ""))
+
+    q = rest_corrections(skel, rig, mapped)
+    glob, pos = forward_kinematics(skel)  # [T, J, 3, 3], [T, J, 3]
+    m_rest = Y_UP_TO_ANNY
+    m_world = Y_UP_TO_ANNY if skel.up == "y" else np.eye(3)
+    t = skel.num_frames
+    nb = len(rig.bone_labels)
+
+    world = np.empty((t, nb, 3, 3))  # W_b: world rotation deltas of anny's bones
+    src_of = {rig.index(label): s for s, label in mapped.items()}
+    for b in range(nb):  # parents precede children in anny's rig
+        if b in src_of:
+            s = src_of[b]
+            world[:, b] = m_world @ glob[:, s] @ m_rest.T @ q[s].T
+        elif rig.bone_parents[b] >= 0:
+            world[:, b] = world[:, rig.bone_parents[b]]
+        else:
+            world[:, b] = np.eye(3)
+    local = np.empty_like(world)
+    local[:, 0] = np.eye(3)
+    par = rig.bone_parents[1:]
+    local[:, 1:] = np.swapaxes(world[:, par], -1, -2) @ world[:, 1:]
+
+    # pelvis path: anny's hip centre goes where the scaled source hip centre is (metres, Z up),
+    # heights measured from each one's ground; horizontally the path starts at the origin
+    by_label = {label: s for s, label in mapped.items()}
+    hips = [by_label[b] for b in ("upperleg01.L", "upperleg01.R") if b in by_label]
+    anchor = hips if len(hips) == 2 else [by_label["root"]]
+    src_centre = pos[:, anchor].mean(axis=1) * skel.metres_per_unit @ m_world.T  # [T, 3]
+    labels = ("upperleg01.L", "upperleg01.R") if len(hips) == 2 else ("root",)
+    offset = rig.rest_heads[[rig.index(b) for b in labels]].mean(axis=0) - rig.rest_heads[0]  # [3]
+    trans = _scale(skel, rig, mapped) * src_centre - world[:, 0] @ offset  # [T, 3]
+    trans[:, :2] -= trans[0, :2]
+    trans[:, 2] += rig.ground_z
+
+    return Motion(
+        bone_labels=list(rig.bone_labels),
+        rotations=matrix_to_axis_angle(local).astype(np.float32),
+        root_rotation=matrix_to_axis_angle(world[:, 0]).astype(np.float32),
+        root_translation=trans.astype(np.float32),
+        fps=float(skel.fps),
+    )
+
+
+def _scale(skel: SkeletonMotion, rig: AnnyRig, mapped: dict[int, str]) -> float:
+    """anny leg length / source leg length (hip -> knee -> ankle, mean of both sides); 1 if unknown."""
+    by_label = {label: s for s, label in mapped.items()}
+    rest = rest_positions(skel) * skel.metres_per_unit
+    ratios = []
+    for side in "LR":
+        chain = [f"upperleg01.{side}", f"lowerleg01.{side}", f"foot.{side}"]
+        if all(c in by_label for c in chain):
+            src = _leg_length(rest, [by_label[c] for c in chain])
+            dst = _leg_length(rig.rest_heads, [rig.index(c) for c in chain])
+            if src > 1e-6:
+                ratios.append(dst / src)
+    return float(np.mean(ratios)) if ratios else 1.0
+
+
+def matrix_to_axis_angle(m: np.ndarray) -> np.ndarray:
+    """[..., 3, 3] rotation matrices -> [..., 3] axis-angles (radians, angle in [0, pi])."""
+    from scipy.spatial.transform import Rotation
+
+    shape = m.shape[:-2]
+    return Rotation.from_matrix(m.reshape(-1, 3, 3)).as_rotvec().reshape(shape + (3,))
+
+
+# ---------------------------------------------------------------------------------------------
+# frame-rate resampling
+
+
+def _aa_to_quat(aa: np.ndarray) -> np.ndarray:
+    """[..., 3] axis-angle -> [..., 4] (w, x, y, z)."""
+    theta = np.linalg.norm(aa, axis=-1, keepdims=True)
+    half = 0.5 * theta
+    scale = np.where(theta < 1e-8, 0.5 - theta**2 / 48.0, np.sin(half) / np.where(theta < 1e-8, 1.0, theta))
+    return np.concatenate([np.cos(half), aa * scale], axis=-1)
+
+
+def _quat_to_aa(q: np.ndarray) -> np.ndarray:
+    """[..., 4] (w, x, y, z) -> [..., 3] axis-angle with angle in [0, pi]."""
+    q = q * np.where(q[..., :1] < 0, -1.0, 1.0)
+    v = q[..., 1:]
+    s = np.linalg.norm(v, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, q[..., :1])
+    factor = np.where(s < 1e-8, 2.0, angle / np.where(s < 1e-8, 1.0, s))
+    return v * factor
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Shortest-path spherical interpolation: q0, q1 [..., 4] unit (w, x, y, z), w [...] in [0, 1]."""
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)
+    dot = np.abs(dot).clip(max=1.0)
+    w = w[..., None]
+    theta = np.arccos(dot)
+    sin = np.sin(theta)
+    near = sin < 1e-6
+    a = np.where(near, 1.0 - w, np.sin((1.0 - w) * theta) / np.where(near, 1.0, sin))
+    b = np.where(near, w, np.sin(w * theta) / np.where(near, 1.0, sin))
+    out = a * q0 + b * q1
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def resample_motion(motion: Motion, fps: float) -> Motion:
+    """The motion at another frame rate over the same duration: frame n is at time n / fps;
+    rotations are slerped, translations linearly interpolated. Exact source frames come back
+    unchanged when fps divides the source rate (120 -> 30 keeps every 4th frame)."""
+    if not np.isfinite(fps) or fps <= 0:
+        raise DlaInputError("--fps", f"{fps} must be > 0")
+    src_t = motion.num_frames
+    if abs(fps - motion.fps) < 1e-9 or src_t == 1:
+        return Motion(list(motion.bone_labels), motion.rotations, motion.root_rotation,
+                      motion.root_translation, float(fps), motion.model)  # fmt: skip
+    duration = (src_t - 1) / motion.fps
+    count = int(np.floor(duration * fps + 1e-6)) + 1
+    pos = np.arange(count) * (motion.fps / fps)  # fractional source frame of each new frame
+    i0 = np.clip(np.floor(pos + 1e-9).astype(np.int64), 0, src_t - 1)
+    i1 = np.minimum(i0 + 1, src_t - 1)
+    w = np.clip(pos - i0, 0.0, 1.0)
+    w = np.where(w < 1e-9, 0.0, w)
+
+    def rot(aa: np.ndarray) -> np.ndarray:  # [T, ..., 3]
+        q = _aa_to_quat(np.asarray(aa, dtype=np.float64))
+        extra = (1,) * (q.ndim - 2)
+        out = slerp(q[i0], q[i1], w.reshape((-1,) + extra))
+        exact = (w == 0).reshape((-1,) + extra + (1,))
+        return np.where(exact[..., :1], np.asarray(aa, dtype=np.float64)[i0], _quat_to_aa(out))
+
+    trans = np.asarray(motion.root_translation, dtype=np.float64)
+    trans = (1.0 - w)[:, None] * trans[i0] + w[:, None] * trans[i1]
+    return Motion(
+        list(motion.bone_labels),
+        rot(motion.rotations).astype(np.float32),
+        rot(motion.root_rotation).astype(np.float32),
+        trans.astype(np.float32),
+        float(fps),
+        motion.model,
+    )

@@ -1,0 +1,79 @@
+"""`dla motion convert|preview`: import third-party motions, look at any motion."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+motion_app = typer.Typer(
+    name="motion",
+    help="Motions: convert CMU BVH / ASF-AMC / AMASS to motion.npz, preview any motion as mp4.",
+    no_args_is_help=True,
+    add_completion=False,
+)
+
+_SPEC_HELP = (
+    "A motion.npz, AMASS .npz, .bvh, .amc (its .asf beside it, or CLIP.amc:SUBJECT.asf), "
+    "or a built-in name: idle, walk, turnaround, wave."
+)
+
+def convert(
+    source: str = typer.Argument(..., help=_SPEC_HELP),
+    output: Path = typer.Option(..., "-o", "--output", help="motion.npz to write."),
+    fps: Optional[float] = typer.Option(None, "--fps", help="Resample to this frame rate (default: keep the source's)."),
+    asf: Optional[Path] = typer.Option(None, "--asf", help="ASF skeleton for an .amc source (default: found beside it)."),
+) -> None:
+    """Retarget a motion onto anny's rig and write it as a native motion.npz."""
+    from dlacli.body.motion_source import load_motion
+    from dlacli.errors import DlaInputError
+    from dlacli.io.motion import write_motion
+
+    if output.suffix.lower() != ".npz":
+        raise DlaInputError(output, "the output must be a .npz file")
+    _check_fps(fps)
+    motion = load_motion(source, fps=fps, asf=asf)
+    write_motion(motion, output)
+    typer.echo(f"{output}  {motion.num_frames} frames at {motion.fps:g} fps")
+
+
+def _check_fps(fps: Optional[float]) -> None:
+    from dlacli.errors import DlaInputError
+
+    if fps is not None and not (0.0 < fps <= 1000.0):
+        raise DlaInputError("--fps", f"{fps} must be in (0, 1000]")
+
+
+def preview(
+    motion_spec: str = typer.Argument(..., metavar="MOTION", help=_SPEC_HELP),
+    output: Path = typer.Option(..., "-o", "--output", help="mp4 file to write."),
+    fps: Optional[float] = typer.Option(None, "--fps", help="Frame rate of the video (default: the motion's, at most 30)."),
+    res: int = typer.Option(384, "--res", min=64, max=2048, help="Video width and height in pixels (rounded up to a multiple of 16)."),
+) -> None:
+    """Render the default body doing a motion into an mp4 (left side blue, right side red)."""
+    from dlacli.body.motion_source import load_motion
+    from dlacli.errors import DlaInputError
+    from dlacli.io.video import write_video
+    from dlacli.stages.motion_preview import preview_frames
+
+    if output.suffix.lower() != ".mp4":
+        raise DlaInputError(output, "the output must be a .mp4 file")
+    _check_fps(fps)
+    motion = load_motion(motion_spec)
+    video_fps = fps if fps is not None else min(motion.fps, 30.0)
+    if abs(video_fps - motion.fps) > 1e-9:
+        from dlacli.body.retarget import resample_motion
+
+        motion = resample_motion(motion, video_fps)
+    res = -(-res // 16) * 16
+    write_video(preview_frames(motion, res), output, video_fps)
+    typer.echo(f"{output}  {motion.num_frames} frames at {video_fps:g} fps, {res}x{res}")
+
+
+motion_app.command("convert")(convert)
+motion_app.command("preview")(preview)
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(motion_app, name="motion")

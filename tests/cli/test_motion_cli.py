@@ -1,0 +1,107 @@
+"""`dla motion convert|preview`: files written and read back by independent readers; bad input
+is one line on stderr and exit code 2."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import imageio.v2 as imageio
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from dlacli.cli.app import app, main
+from dlacli.io.motion import read_motion
+
+
+def _dla(*args: str) -> subprocess.CompletedProcess:
+    script = Path(sys.executable).with_name("dla")
+    cmd = [str(script)] if script.exists() else [sys.executable, "-c", "from dlacli.cli.app import main; main()"]
+    return subprocess.run(cmd + list(args), capture_output=True, text=True, timeout=300)
+
+
+def _main(monkeypatch, capsys, *args: str) -> tuple[int, str]:
+    """The console entry point in-process: (exit code, stderr)."""
+    monkeypatch.setattr(sys, "argv", ["dla", *args])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    return exit_info.value.code, capsys.readouterr().err
+
+
+def test_convert_bvh_with_resampling(tmp_path, shared_data):
+    out = tmp_path / "m.npz"
+    result = CliRunner().invoke(app, ["motion", "convert", str(shared_data / "motion" / "131_01.bvh"), "-o", str(out), "--fps", "30"])
+    assert result.exit_code == 0, result.output
+    motion = read_motion(out)
+    assert motion.fps == 30.0 and motion.num_frames == (994 - 1) // 4 + 1 and len(motion.bone_labels) == 104
+    with np.load(out) as raw:  # the file itself, as numpy sees it
+        assert str(raw["format"]) == "dla.motion/1" and raw["rotations"].shape == (249, 104, 3)
+
+
+def test_convert_amc_with_explicit_and_found_asf(tmp_path, shared_data):
+    d = shared_data / "motion"
+    runner = CliRunner()
+    found, spec, option = tmp_path / "a.npz", tmp_path / "b.npz", tmp_path / "c.npz"
+    assert runner.invoke(app, ["motion", "convert", str(d / "cmu_01_01.amc"), "-o", str(found), "--fps", "10"]).exit_code == 0
+    assert runner.invoke(app, ["motion", "convert", f"{d / 'cmu_01_01.amc'}:{d / 'cmu_01.asf'}", "-o", str(spec), "--fps", "10"]).exit_code == 0
+    assert runner.invoke(app, ["motion", "convert", str(d / "cmu_01_01.amc"), "--asf", str(d / "cmu_01.asf"), "-o", str(option), "--fps", "10"]).exit_code == 0
+    a, b, c = read_motion(found), read_motion(spec), read_motion(option)
+    assert a.num_frames == 2750 // 12 + 1
+    np.testing.assert_array_equal(a.rotations, b.rotations)
+    np.testing.assert_array_equal(a.rotations, c.rotations)
+
+
+def test_convert_builtin_and_native_roundtrip(tmp_path):
+    runner = CliRunner()
+    first, second = tmp_path / "walk.npz", tmp_path / "again.npz"
+    assert runner.invoke(app, ["motion", "convert", "walk", "-o", str(first)]).exit_code == 0
+    assert runner.invoke(app, ["motion", "convert", str(first), "-o", str(second)]).exit_code == 0
+    a, b = read_motion(first), read_motion(second)
+    assert a.bone_labels == b.bone_labels and a.fps == b.fps == 30.0
+    np.testing.assert_array_equal(a.rotations, b.rotations)
+
+
+@pytest.mark.parametrize(
+    "content, name, problem",
+    [
+        ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Xrotation Zrotation\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n0 0 0\n", "order.bvh", "unsupported rotation order"),
+        ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\nMOTION\nFrames: 0\nFrame Time: 0.1\n", "empty.bvh", "0 frames"),
+        ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\nMOTION\nFrames: 2\nFrame Time: 0.1\n1 2 3\n4 5\n", "cut.bvh", "truncated"),
+        ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 nan 3\n", "nan.bvh", "non-finite"),
+        ("1\nroot 0 0 0 0 0 0\n", "lonely.amc", "no ASF skeleton found"),
+        ("", "motion.txt", "unsupported motion file type"),
+    ],
+)
+def test_bad_inputs_exit_2_with_one_line(tmp_path, monkeypatch, capsys, content, name, problem):
+    path = tmp_path / name
+    path.write_text(content)
+    code, err = _main(monkeypatch, capsys, "motion", "convert", str(path), "-o", str(tmp_path / "out.npz"))
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {path}: ") and problem in lines[0]
+    assert not (tmp_path / "out.npz").exists()
+
+
+def test_unknown_spec_and_bad_options(tmp_path, monkeypatch, capsys):
+    result = _dla("motion", "convert", "moonwalk", "-o", str(tmp_path / "m.npz"))  # the real script
+    assert result.returncode == 2 and result.stderr == "error: moonwalk: no such file, and not a built-in motion (idle, walk, turnaround, wave)\n"
+    code, err = _main(monkeypatch, capsys, "motion", "convert", "walk", "-o", str(tmp_path / "m.npz"), "--fps", "-3")
+    assert code == 2 and "--fps" in err and len(err.strip().splitlines()) == 1
+    code, err = _main(monkeypatch, capsys, "motion", "preview", "walk", "-o", str(tmp_path / "m.gif"))
+    assert code == 2 and ".mp4" in err
+
+
+def test_preview_writes_a_readable_mp4(tmp_path):
+    out = tmp_path / "wave.mp4"
+    result = CliRunner().invoke(app, ["motion", "preview", "wave", "-o", str(out), "--fps", "5", "--res", "64"])
+    assert result.exit_code == 0, result.output
+    reader = imageio.get_reader(out)  # imageio-ffmpeg decodes it independently
+    frames = list(reader.iter_data())
+    reader.close()
+    assert len(frames) == 3 * 5 + 1 and frames[0].shape == (64, 64, 3)
+    # the body is in the picture: a bright, skin-coloured blob on the dark background
+    centre = np.stack(frames)[:, 8:56, 20:44].astype(float)
+    assert centre.mean() > 1.5 * np.stack(frames)[:, :8, :8].astype(float).mean()
+    assert not list(tmp_path.glob(".*tmp*"))  # the atomic writer left nothing behind
