@@ -173,3 +173,13 @@ def test_summary(formats_dir):
     assert s["max_rotation_deg"] == pytest.approx(max_deg, rel=1e-5)
     assert s["moving_bones"] == moving
     json.dumps(s)
+
+
+def test_writer_is_byte_deterministic(tmp_path):
+    import time
+
+    motion = Motion(["root", "spine01"], np.ones((4, 2, 3), np.float32), np.zeros((4, 3)), np.zeros((4, 3)), 24.0)
+    write_motion(motion, tmp_path / "a.npz")
+    time.sleep(2.1)  # zip timestamps have 2 s resolution
+    write_motion(motion, tmp_path / "b.npz")
+    assert (tmp_path / "a.npz").read_bytes() == (tmp_path / "b.npz").read_bytes()

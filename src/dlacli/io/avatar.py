@@ -15,9 +15,8 @@ from typing import Any
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.io.atomic import atomic_path
 from dlacli.io.body import body_from_dict, body_to_dict
-from dlacli.io.validate import as_str, check_finite, check_format, check_shape, load_npz
+from dlacli.io.validate import as_str, check_finite, check_format, check_shape, load_npz, save_npz
 from dlacli.types import Avatar
 
 FORMAT = "dla.avatar/1"
@@ -136,9 +135,7 @@ def write_avatar(avatar: Avatar, path: str | os.PathLike) -> None:
     """Write `avatar` as avatar.npz (compressed, atomic); an invalid avatar raises DlaInputError."""
     arrays = avatar_to_arrays(avatar)
     avatar_from_arrays(arrays, "avatar")  # the writer never produces a file its reader rejects
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:  # a file object: np.savez would otherwise append ".npz"
-            np.savez_compressed(f, **arrays)
+    save_npz(arrays, path)
 
 
 def summarize_avatar(path: str | os.PathLike) -> dict[str, Any]:

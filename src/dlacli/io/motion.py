@@ -12,8 +12,7 @@ from typing import Any
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.io.atomic import atomic_path
-from dlacli.io.validate import as_float, as_str, check_finite, check_format, check_shape, load_npz
+from dlacli.io.validate import as_float, as_str, check_finite, check_format, check_shape, load_npz, save_npz
 from dlacli.types import Motion
 
 FORMAT = "dla.motion/1"
@@ -90,9 +89,7 @@ def write_motion(motion: Motion, path: str | os.PathLike) -> None:
         "fps": np.array(motion.fps, dtype=np.float64),
     }
     motion_from_arrays(arrays, "motion")  # the writer never produces a file its reader rejects
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:  # a file object: np.savez would otherwise append ".npz"
-            np.savez_compressed(f, **arrays)
+    save_npz(arrays, path)
 
 
 def summarize_motion(path: str | os.PathLike) -> dict[str, Any]:

@@ -150,3 +150,22 @@ def dump_json(obj: Any, indent: int = 0) -> str:
         items = [f"{pad}  {dump_json(v, indent + 2)}" for v in obj]
         return "[\n" + ",\n".join(items) + f"\n{pad}]"
     return json.dumps(obj, allow_nan=False)
+
+
+def save_npz(arrays: dict[str, Any], path: str | os.PathLike) -> None:
+    """Write arrays as a compressed .npz, atomically and byte-for-byte deterministic (fixed zip
+    timestamps, sorted members), at exactly `path` (no ".npz" is appended)."""
+    import io
+    import zipfile
+
+    import numpy as np
+
+    from dlacli.io.atomic import atomic_path
+
+    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name in sorted(arrays):
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.asanyarray(arrays[name]), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            zf.writestr(info, buf.getvalue())
