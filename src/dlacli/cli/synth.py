@@ -1,0 +1,34 @@
+"""`dla synth`: a synthetic subject (anny dressed in MakeHuman garments) with ground truth."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import typer
+
+
+def synth(
+    seed: int = typer.Option(..., "--seed", help="Subject seed (>= 0): the same seed gives the same files."),
+    output: Path = typer.Option(..., "-o", "--output", help="Subject folder to write (replaced whole)."),
+    res: int = typer.Option(512, "--res", help="Image width and height in pixels."),
+    novel_views: int = typer.Option(12, "--novel-views", help="Ground-truth views of the input pose (0: none)."),
+    novel_poses: int = typer.Option(8, "--novel-poses", help="Ground-truth poses, 3 cameras each (0: none)."),
+) -> None:
+    """Write a synthetic subject: 4 input views + its true body.json, novel views and poses."""
+    from dlacli.stages.synth import synth as run
+
+    kwargs = dict(res=res, novel_views=novel_views, novel_poses=novel_poses)
+    if sys.stderr.isatty():
+        from rich.console import Console
+
+        console = Console(stderr=True)
+        with console.status("dla synth") as status:
+            path = run(seed, output, progress=lambda msg: status.update(f"dla synth: {msg}"), **kwargs)
+    else:
+        path = run(seed, output, **kwargs)
+    typer.echo(str(path))
+
+
+def register(app: typer.Typer) -> None:
+    app.command("synth")(synth)

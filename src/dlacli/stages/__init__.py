@@ -1,0 +1,1 @@
+"""Stages: plain functions from inputs to outputs."""
