@@ -1,0 +1,469 @@
+"""Dream: one photo of a person -> a view folder (input view + novel views) and the fitted body.
+
+Steps (docs/dream.md):
+1. person mask (--mask, else the photo's alpha channel, else mediapipe) and COCO-17 keypoints
+   (--keypoints, else mediapipe); the body fit (`dlacli.stages.fit.fit_body`) gives the body and the photo's camera;
+2. framing: a square crop of the photo around the person, resampled to res x res; the crop's
+   camera is the input camera with adjusted intrinsics (`frame_crop`);
+3. novel views at azimuths 90 / 180 / 270 degrees: the input camera turned about the vertical
+   (+Z) axis through the body's centre, counter-clockwise seen from above (`orbit_cameras`), so
+   azimuth 90 puts the camera on the +X side when the input camera is at azimuth 0 (-Y side);
+4. backend "template" (`template_views`, CPU, no weights): a 2.5D shell built from the photo's
+   silhouette and the fitted body's depth (`shell_mesh`), coloured from the photo in front and from
+   the mirrored front behind (`back_colours`), rendered by the triangle rasteriser; backend
+   "diffusion" (`diffusion_views`): the paper's pose-controlled video diffusion
+   (dlacli.nn.video_diffusion).
+View 0 is always the cropped photo itself, so the input view is exact.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from scipy import ndimage
+
+from dlacli.errors import DlaInputError
+from dlacli.types import Cameras, ViewSet
+
+AZIMUTHS = (0.0, 90.0, 180.0, 270.0)  # degrees, view order in the folder
+MARGIN = 0.08  # crop margin around the person's bounding box, fraction of its longer side
+MIN_PERSON_PX = 32  # the person must be at least this many pixels tall in the photo
+CUT_DEPTH = 0.04  # metres: a shell triangle over two body parts spanning a larger jump is left out
+CUT_FAR = 0.3  # metres: any shell triangle spanning a larger depth jump is left out
+INFLATE = 0.8  # thickness of the shell outside the body (hair, loose cloth), x a round profile
+BACKENDS = ("template", "diffusion")
+
+Progress = Callable[[str], None]
+
+
+def sample_photo() -> Path:
+    """The bundled sample photo (a Pexels photo, background removed; see assets/LICENSES.md)."""
+    return Path(__file__).resolve().parent.parent / "assets" / "sample_photo.png"
+
+
+def sample_keypoints() -> Path:
+    """COCO-17 keypoints of the sample photo (MediaPipe Pose output, scaled to its size)."""
+    return sample_photo().with_name("sample_photo_keypoints.json")
+
+
+# ------------------------------------------------------------------------------- framing
+
+
+def crop_box(mask: np.ndarray, margin: float = MARGIN) -> tuple[int, int, int]:
+    """[H, W] person mask -> (x0, y0, side): an integer square around the person (may extend
+    past the image; the outside is transparent)."""
+    ys, xs = np.nonzero(mask > 0.5)
+    if ys.size == 0:
+        raise DlaInputError("mask", "the person mask is empty (no pixel above 0.5)")
+    h = ys.max() + 1 - ys.min()
+    if h < MIN_PERSON_PX:
+        raise DlaInputError("photo", f"the person is only {h} px tall; need at least {MIN_PERSON_PX} px")
+    side = int(math.ceil(max(h, xs.max() + 1 - xs.min()) * (1.0 + 2.0 * margin)))
+    cx, cy = (xs.min() + xs.max() + 1) / 2.0, (ys.min() + ys.max() + 1) / 2.0
+    return int(round(cx - side / 2.0)), int(round(cy - side / 2.0)), side
+
+
+def _window(arr: np.ndarray, x0: int, y0: int, side: int) -> np.ndarray:
+    """arr [H, W, C] -> [side, side, C] window starting at (x0, y0), zero outside the image."""
+    h, w = arr.shape[:2]
+    out = np.zeros((side, side, arr.shape[2]), np.float32)
+    ax0, ay0, ax1, ay1 = max(x0, 0), max(y0, 0), min(x0 + side, w), min(y0 + side, h)
+    if ax1 > ax0 and ay1 > ay0:
+        out[ay0 - y0 : ay1 - y0, ax0 - x0 : ax1 - x0] = arr[ay0:ay1, ax0:ax1]
+    return out
+
+
+def resample(arr: np.ndarray, res: int) -> np.ndarray:
+    """[S, S, C] -> [res, res, C] area-correct resampling (antialiased bilinear, edges to edges)."""
+    if arr.shape[0] == res:
+        return arr.astype(np.float32)
+    t = torch.from_numpy(np.ascontiguousarray(arr, np.float32)).permute(2, 0, 1)[None]
+    out = torch.nn.functional.interpolate(t, size=(res, res), mode="bilinear", antialias=True, align_corners=False)
+    return out[0].permute(1, 2, 0).numpy()
+
+
+def frame_crop(image: np.ndarray, mask: np.ndarray, camera: Cameras, res: int) -> tuple[np.ndarray, np.ndarray, Cameras]:
+    """Square crop around the person resampled to res x res.
+
+    image [H, W, 3], mask [H, W] in [0, 1], camera: 1 camera of the photo ->
+    (rgb [res, res, 3] straight colour, alpha [res, res], the crop's camera). Pixel coordinates
+    map as u' = (u - x0) * s with s = res / side, so K' = diag(s, s, 1) [fx, 0, cx - x0; ...].
+    """
+    x0, y0, side = crop_box(mask)
+    rgba = np.concatenate([image * mask[..., None], mask[..., None]], axis=-1)  # premultiplied
+    out = np.clip(resample(_window(rgba.astype(np.float32), x0, y0, side), res), 0.0, 1.0)
+    alpha = out[..., 3]
+    rgb = np.where(alpha[..., None] > 1e-6, out[..., :3] / np.maximum(alpha[..., None], 1e-6), 0.0)
+    s = res / side
+    ks = camera.Ks[:1].clone().double()
+    ks[0, 0, 2] -= x0
+    ks[0, 1, 2] -= y0
+    ks[0, :2, :] *= s
+    cam = Cameras(camera.viewmats[:1].clone(), ks.to(camera.Ks.dtype), res, res)
+    return np.clip(rgb, 0.0, 1.0).astype(np.float32), alpha.astype(np.float32), cam
+
+
+def body_pivot(vertices: np.ndarray) -> np.ndarray:
+    """[V, 3] -> [3] the centre of the body's bounding box: the orbit's vertical axis passes here."""
+    v = np.asarray(vertices, np.float64)
+    return (v.min(axis=0) + v.max(axis=0)) / 2.0
+
+
+def orbit_cameras(camera: Cameras, pivot: np.ndarray, azimuths_deg) -> Cameras:
+    """The first camera turned about the vertical (+Z) line through pivot [3] by each azimuth
+    (degrees, counter-clockwise seen from above) -> len(azimuths) cameras, same intrinsics."""
+    c2w = camera.c2w_opengl()[0]  # [4, 4]
+    p = np.asarray(pivot, np.float64)
+    mats = []
+    for a in azimuths_deg:
+        c, s = math.cos(math.radians(a)), math.sin(math.radians(a))
+        rot = np.eye(4)
+        rot[:2, :2] = [[c, -s], [s, c]]
+        move = np.eye(4)
+        move[:3, 3] = p
+        back = np.eye(4)
+        back[:3, 3] = -p
+        mats.append(move @ rot @ back @ c2w)
+    k = camera.Ks[0].double().numpy()
+    return Cameras.from_c2w_opengl(np.stack(mats), k[0, 0], k[1, 1], k[0, 2], k[1, 2], camera.width, camera.height)
+
+
+# ------------------------------------------------------------------------------- the 2.5D shell
+
+
+def body_depth_layers(vertices: np.ndarray, faces: np.ndarray, camera: Cameras):
+    """Nearest and farthest body surface per pixel of one camera.
+
+    vertices [V, 3] world, faces [F, 3], camera: 1 camera (H x W).
+
+    -> (front face id [H, W], front depth [H, W], back face id [H, W], back depth [H, W]); ids -1
+    and depths +inf where the body is not seen. The farthest layer is the nearest layer of the
+    mesh with camera depths mirrored (z -> z_min + z_max - z) and x, y moved along their rays,
+    which keeps every vertex on its pixel and reverses the depth order.
+    """
+    from dlacli.render.raster import interpolate, rasterize_camera_space, world_to_camera
+
+    vc = world_to_camera(vertices, camera.viewmats.double().numpy())[0]  # [V, 3]
+    front = rasterize_camera_space(vc, faces, camera.Ks[0], camera.width, camera.height)
+    z = vc[:, 2]
+    zm = z.min() + z.max() - z
+    flipped = np.concatenate([vc[:, :2] * (zm / z)[:, None], zm[:, None]], axis=1)
+    back = rasterize_camera_space(flipped, faces, camera.Ks[0], camera.width, camera.height)
+    bd = interpolate(z[:, None], faces, back.face_id[0], back.bary[0])[..., 0]  # [H, W]
+    bd = np.where(back.face_id[0] >= 0, bd, np.inf)
+    return front.face_id[0], front.depth[0].astype(np.float64), back.face_id[0], bd
+
+
+def shell_depths(person: np.ndarray, front_id, front_depth, back_depth, focal: float):
+    """Front and back depth maps [H, W] of the person's 2.5D shell (inf outside the person).
+
+    person [H, W] bool, front_id [H, W] int (-1: no body), front_depth / back_depth [H, W] camera
+    z of the body's nearest / farthest surface (inf: none), focal: fx in pixels.
+    Inside the body's silhouette the shell is the body (nearest to farthest surface); outside it
+    (hair, loose clothing) its mid-depth is that of the nearest body pixel and its half thickness
+    a round profile from the silhouette: sqrt(d (2 r - d)) x INFLATE, d the distance to the
+    person's outline and r the local maximum of d (about the local half width).
+    """
+    body = person & (front_id >= 0) & np.isfinite(back_depth)
+    if not body.any():
+        raise DlaInputError("photo", "the fitted body does not overlap the person mask (check --keypoints / --mask)")
+    mid, half = np.zeros(person.shape), np.zeros(person.shape)
+    mid[body] = (front_depth[body] + back_depth[body]) / 2.0
+    half[body] = (back_depth[body] - front_depth[body]) / 2.0
+    _, (iy, ix) = ndimage.distance_transform_edt(~body, return_indices=True)
+    mid = mid[iy, ix]  # nearest body pixel's mid-depth everywhere
+    d = ndimage.distance_transform_edt(np.pad(person, 1))[1:-1, 1:-1]  # px to the outline
+    height = np.ptp(np.nonzero(person)[0]) + 1
+    r = ndimage.maximum_filter(d, size=max(3, int(height * 0.12)) | 1)
+    inflate = np.sqrt(np.clip(d * (2.0 * r - d), 0.0, None)) * mid / focal * INFLATE  # metres
+    half = np.maximum(half, inflate)
+    w = ndimage.gaussian_filter(person.astype(np.float64), 1.0)
+    mid = ndimage.gaussian_filter(mid * person, 1.0) / np.maximum(w, 1e-9)
+    half = ndimage.gaussian_filter(half * person, 1.0) / np.maximum(w, 1e-9)
+    front = np.where(person, mid - half, np.inf)
+    back = np.where(person, mid + half, np.inf)
+    return front, back
+
+
+def _unproject(depth: np.ndarray, ys: np.ndarray, xs: np.ndarray, camera: Cameras) -> np.ndarray:
+    """Pixel centres (ys, xs) [N] at camera depths -> [N, 3] world points."""
+    k = camera.Ks[0].double().numpy()
+    z = depth[ys, xs]
+    pc = np.stack([(xs + 0.5 - k[0, 2]) / k[0, 0] * z, (ys + 0.5 - k[1, 2]) / k[1, 1] * z, z, np.ones_like(z)], 1)
+    c2w = np.linalg.inv(camera.viewmats[0].double().numpy())  # OpenCV camera -> world
+    return (pc @ c2w.T)[:, :3]
+
+
+def shell_mesh(person: np.ndarray, front: np.ndarray, back: np.ndarray, camera: Cameras,
+               front_label: np.ndarray | None = None, back_label: np.ndarray | None = None):
+    """A closed mesh of the shell: one vertex per person pixel on each layer, two triangles per
+    2x2 block of person pixels on each layer, walls along the person's outline.
+
+    -> (vertices [2N, 3] world (front layer first), faces [M, 3], pixel rows [N], pixel cols [N]).
+    Triangles across a depth jump would be rubber sheets (e.g. between an arm and the torso behind
+    it) and are left out: those whose corners lie on different body parts (labels [H, W] int,
+    per layer) and differ in depth by more than CUT_DEPTH, and any spanning more than CUT_FAR.
+    A surface seen at a grazing angle within one part (a thigh pointing at the camera) is kept.
+    """
+    h, w = person.shape  # person [H, W] bool, front / back [H, W] camera depths
+    ys, xs = np.nonzero(person)
+    n = ys.size
+    index = np.full((h, w), -1, np.int64)
+    index[ys, xs] = np.arange(n)
+    verts = np.concatenate([_unproject(front, ys, xs, camera), _unproject(back, ys, xs, camera)])
+    a, b, c, d = index[:-1, :-1], index[:-1, 1:], index[1:, :-1], index[1:, 1:]
+    quad = (a >= 0) & (b >= 0) & (c >= 0) & (d >= 0)
+    a, b, c, d = a[quad], b[quad], c[quad], d[quad]
+    tris = np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)])  # [T, 3] grid triangles
+    edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+    key = np.sort(edges, axis=1)
+    uniq, counts = np.unique(key[:, 0] * n + key[:, 1], return_counts=True)
+    outline = np.isin(key[:, 0] * n + key[:, 1], uniq[counts == 1])
+    e = edges[outline]  # [E, 2] outline edges, oriented as in their triangle
+    walls = np.concatenate([np.stack([e[:, 1], e[:, 0], e[:, 0] + n], 1), np.stack([e[:, 1], e[:, 0] + n, e[:, 1] + n], 1)])
+    keep = []
+    for depth, label in ((front, front_label), (back, back_label)):
+        jump = np.ptp(depth[ys, xs][tris], axis=1)  # [T]
+        lab = np.zeros(n, np.int64) if label is None else label[ys, xs]
+        mixed = np.ptp(lab[tris], axis=1) > 0
+        keep.append((jump <= CUT_FAR) & ~(mixed & (jump > CUT_DEPTH)))
+    keep_f, keep_b = keep
+    faces = np.concatenate([tris[keep_f], tris[keep_b][:, [0, 2, 1]] + n, walls])
+    return verts, faces, ys, xs
+
+
+def back_colours(rgb: np.ndarray, person: np.ndarray, front_part: np.ndarray, back_part: np.ndarray) -> np.ndarray:
+    """Colours [H, W, 3] for the back layer, seen through the front pixel by pixel.
+
+    rgb [H, W, 3] photo colours; front_part / back_part [H, W] body part (index into
+    dlacli.body.regions.PARTS, -1 off the body) of the nearest / farthest body surface. Where both
+    layers are the same part (or one is off the body) the back takes the front's colour: the
+    mirrored front appearance, so skin stays skin and clothes stay clothes. Where they differ (the
+    face in front of the back of the head, an arm in front of the torso), the photo does not show
+    the back: it is filled from the nearest pixel whose back layer is the same part and is known,
+    then smoothed (sigma 2 px).
+    """
+    from dlacli.body.regions import PARTS
+
+    face = PARTS.index("face")
+    known = person & ((front_part == back_part) | (front_part < 0) | (back_part < 0)) & (front_part != face)
+    out = np.where(known[..., None], rgb, 0.0)
+    unknown = person & ~known
+    if not unknown.any():
+        return out
+    if not known.any():
+        return np.broadcast_to(np.median(rgb[person], axis=0), rgb.shape).copy()
+    for part in np.unique(back_part[unknown]):
+        todo = unknown & (back_part == part)
+        src = known & (back_part == part)
+        if not src.any():
+            src = known
+        _, (iy, ix) = ndimage.distance_transform_edt(~src, return_indices=True)
+        out[todo] = rgb[iy[todo], ix[todo]]
+    w = ndimage.gaussian_filter(unknown.astype(np.float64), 2.0)
+    blur = np.stack([ndimage.gaussian_filter(out[..., k] * unknown, 2.0) for k in range(3)], -1)
+    out[unknown] = (blur / np.maximum(w, 1e-9)[..., None])[unknown]
+    return out
+
+
+def _nearest_fill(label: np.ndarray) -> np.ndarray:
+    """[H, W] int labels with -1 replaced by the nearest labelled pixel's (all -1 stays)."""
+    if not (label >= 0).any():
+        return label
+    _, (iy, ix) = ndimage.distance_transform_edt(label < 0, return_indices=True)
+    return label[iy, ix]
+
+
+def template_views(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarray, azimuths=AZIMUTHS):
+    """The template backend on a framed photo.
+
+    rgb [R, R, 3], alpha [R, R] (the cropped photo), camera (its camera), vertices [V, 3] the
+    fitted posed body -> (images [A, R, R, 3], masks [A, R, R], cameras). View 0 is the photo.
+    """
+    from dlacli.body.model import get_body_model
+    from dlacli.body.regions import face_parts
+    from dlacli.render.raster import render_mesh
+
+    faces = get_body_model().faces
+    parts = face_parts()
+    person = alpha > 0.5
+    fid, fdepth, bid, bdepth = body_depth_layers(vertices, faces, camera)
+    front, back = shell_depths(person, fid, fdepth, bdepth, float(camera.Ks[0, 0, 0]))
+    assert np.all(np.isfinite(front[person])) and np.all(np.isfinite(back[person]))
+    fpart = np.where(fid >= 0, parts[np.maximum(fid, 0)], -1)
+    bpart = np.where(bid >= 0, parts[np.maximum(bid, 0)], -1)
+    verts, tris, ys, xs = shell_mesh(person, front, back, camera, _nearest_fill(fpart), _nearest_fill(bpart))
+    colour = np.concatenate([rgb[ys, xs], back_colours(rgb, person, fpart, bpart)[ys, xs]])
+    cams = orbit_cameras(camera, body_pivot(vertices), azimuths)
+    novel = Cameras(cams.viewmats[1:], cams.Ks[1:], cams.width, cams.height)
+    rgba = render_mesh(verts, tris, colour, novel, antialias=2, shading=False)  # [A-1, R, R, 4]
+    a = rgba[..., 3]
+    straight = np.where(a[..., None] > 1e-6, rgba[..., :3] / np.maximum(a[..., None], 1e-6), 0.0)
+    images = np.concatenate([rgb[None], np.clip(straight, 0, 1)]).astype(np.float32)
+    masks = np.concatenate([alpha[None], a]).astype(np.float32)
+    return images, masks, cams
+
+
+# ------------------------------------------------------------------------------- diffusion
+
+
+def orbit_frame_azimuths(frames: int) -> np.ndarray:
+    """[frames + 1] azimuths (degrees) of the orbit video: frame k at 360 k / frames, so frame 0
+    is the input view and frame `frames` closes the circle (360 = 0). With the paper's 80 frames,
+    its 1-based frames 20 / 40 / 60 / 80 are our frames 20 / 40 / 60 / 80 at 90 / 180 / 270 / 360;
+    the leading frame 0 makes the video 81 frames long, which Wan needs (4 k + 1)."""
+    return 360.0 * np.arange(frames + 1) / frames
+
+
+def view_frames(frames: int) -> tuple[int, int, int]:
+    """Video frame indices of the novel views at azimuths 90, 180, 270."""
+    return frames // 4, frames // 2, 3 * frames // 4
+
+
+def key_masks(frames: np.ndarray, prior: np.ndarray, threshold: float = 0.1) -> np.ndarray:
+    """Person masks [N, H, W] of generated frames [N, H, W, 3] on a white background.
+
+    A pixel is the person where it differs from white by more than `threshold` (max over channels)
+    and lies within the dilated prior silhouette [N, H, W] (the template shell seen from the same
+    camera), which removes stray marks elsewhere; where keying finds less than 30 % of the
+    prior's area (a failed generation) the prior itself is used."""
+    out = np.empty(prior.shape, np.float32)
+    for i in range(frames.shape[0]):
+        p = prior[i] > 0.5
+        near = ndimage.binary_dilation(p, iterations=max(1, prior.shape[1] // 32))
+        keyed = (np.abs(1.0 - frames[i]).max(axis=-1) > threshold) & near
+        keyed = ndimage.binary_fill_holes(ndimage.binary_opening(keyed))
+        out[i] = keyed if keyed.sum() >= 0.3 * p.sum() else prior[i]
+    return out
+
+
+def diffusion_views(rgb, alpha, camera: Cameras, vertices: np.ndarray, pipe, *, frames: int = 80,
+                    steps: int = 50, seed: int = 0, progress: Progress | None = None):
+    """The paper's procedure on a framed photo (see dlacli.nn.video_diffusion).
+
+    rgb [R, R, 3], alpha [R, R], camera (the crop's), vertices [V, 3] fitted body ->
+    (images [4, R, R, 3], masks [4, R, R], cameras, skeleton video [frames + 1, R, R, 3] uint8).
+    """
+    from dlacli.body.keypoints import COCO_SKELETON, coco_keypoints
+    from dlacli.nn.video_diffusion import draw_skeletons, generate_orbit, project_points
+
+    if frames < 4 or frames % 4:
+        raise DlaInputError("--frames", f"must be a positive multiple of 4, got {frames}")
+    orbit = orbit_cameras(camera, body_pivot(vertices), orbit_frame_azimuths(frames))
+    pts, front = project_points(coco_keypoints(np.asarray(vertices, np.float64)), orbit)
+    skeletons = draw_skeletons(pts, front, COCO_SKELETON, camera.width)
+    reference = rgb * alpha[..., None] + (1.0 - alpha[..., None])  # on white
+    if progress:
+        progress(f"diffusion: {frames + 1} frames, {steps} steps")
+    video = generate_orbit(pipe, reference, skeletons, steps=steps, seed=seed)
+    pick = list(view_frames(frames))
+    _, prior, cams = template_views(rgb, alpha, camera, vertices)
+    masks = key_masks(video[pick], prior[1:])
+    novel = np.where(masks[..., None] > 0, video[pick], 0.0)
+    images = np.concatenate([rgb[None], novel]).astype(np.float32)
+    return images, np.concatenate([alpha[None], masks]).astype(np.float32), cams, skeletons
+
+
+# ------------------------------------------------------------------------------- orchestration
+
+
+def _read_inputs(photo, mask_path, keypoints_path, notes: list[str]):
+    """-> image [H, W, 3], mask [H, W], keypoints [17, 3]. Mask: --mask, else the photo's alpha
+    channel (dlacli.io.photo's rule), else mediapipe; keypoints: --keypoints, else mediapipe."""
+    from dlacli.io.photo import read_photo
+
+    image, mask, keypoints = read_photo(photo, mask_path=mask_path, keypoints_path=keypoints_path, notes=notes)
+    if mask is None or keypoints is None:
+        try:
+            from dlacli.io.detect import detect_person
+
+            det_mask, det_kp = detect_person(image)
+        except DlaInputError as err:
+            missing = " and ".join(n for n, v in (("--mask", mask), ("--keypoints", keypoints)) if v is None)
+            why = "it has no alpha channel and " if mask is None else ""
+            raise DlaInputError(photo, f"needs {missing}: {why}person detection failed ({err.problem})") from None
+        mask = det_mask if mask is None else mask
+        keypoints = det_kp if keypoints is None else keypoints
+    return image, np.asarray(mask, np.float32), np.asarray(keypoints, np.float32)
+
+
+def build_views(image: np.ndarray, mask: np.ndarray, fit, *, backend: str = "template", res: int = 512,
+                pipe=None, frames: int = 80, steps: int = 50, seed: int = 0, progress: Progress | None = None) -> ViewSet:
+    """Photo [H, W, 3] + person mask [H, W] + body fit (`dlacli.stages.fit.FitResult`) -> the
+    4 views (azimuths 0, 90, 180, 270) as a ViewSet with the fitted body."""
+    say = progress or (lambda msg: None)
+    rgb, alpha, cam = frame_crop(image, mask, fit.camera, res)
+    info = {"backend": backend, "azimuths": list(AZIMUTHS), "fit_overlay": "fit_overlay.png",
+            "fit": {"reprojection_px": float(fit.reprojection_px), "mask_iou": float(fit.mask_iou)}}
+    if backend == "template":
+        say("rendering the template views")
+        images, masks, cams = template_views(rgb, alpha, cam, fit.vertices)
+    elif backend == "diffusion":
+        if pipe is None:
+            raise DlaInputError("--backend diffusion", "no pipeline loaded")
+        images, masks, cams, _ = diffusion_views(rgb, alpha, cam, fit.vertices, pipe, frames=frames, steps=steps, seed=seed, progress=say)
+        info.update({"steps": steps, "frames": frames, "seed": seed, "video_frames": [0, *view_frames(frames)]})
+    else:
+        raise DlaInputError("--backend", f"unknown backend {backend!r} (choose {' or '.join(BACKENDS)})")
+    names = [f"images/view_{i:03d}.png" for i in range(len(images))]
+    return ViewSet(images, masks, cams, fit.body, names, [None] * len(images), {"dream": info})
+
+
+def write_dream_folder(views: ViewSet, overlay: np.ndarray, output: str | os.PathLike) -> Path:
+    """Write the view folder plus fit_overlay.png [H, W, 3] uint8, atomically as a whole."""
+    from PIL import Image
+
+    from dlacli.io.atomic import atomic_dir
+    from dlacli.io.views import write_views
+
+    with atomic_dir(output) as tmp:
+        write_views(views, tmp)
+        Image.fromarray(np.asarray(overlay, np.uint8)).save(tmp / "fit_overlay.png")
+    return Path(output)
+
+
+def dream(photo: str | os.PathLike, output: str | os.PathLike, *, backend: str = "template",
+          keypoints: str | os.PathLike | None = None, mask: str | os.PathLike | None = None,
+          res: int = 512, model: str | None = None, steps: int = 50, frames: int = 80, seed: int = 0,
+          fit_steps: int = 300, device: str | None = None, progress: Progress | None = None) -> Path:
+    """One photo -> a view folder at `output` (written atomically; see the module docstring)."""
+    from dlacli.stages.fit import fit_body, overlay_png
+
+    say = progress or (lambda msg: None)
+    if backend not in BACKENDS:
+        raise DlaInputError("--backend", f"unknown backend {backend!r} (choose {' or '.join(BACKENDS)})")
+    if not 64 <= res <= 4096:
+        raise DlaInputError("--res", f"must be in [64, 4096], got {res}")
+    if steps < 1:
+        raise DlaInputError("--steps", f"must be >= 1, got {steps}")
+    pipe = None
+    if backend == "diffusion":
+        from dlacli.nn.video_diffusion import DEFAULT_MODEL, load_pipeline
+
+        if res % 16:
+            raise DlaInputError("--res", f"the diffusion backend needs a multiple of 16, got {res}")
+        if frames < 4 or frames % 4:
+            raise DlaInputError("--frames", f"must be a positive multiple of 4, got {frames}")
+        say("loading the diffusion pipeline")
+        model = model or DEFAULT_MODEL
+        pipe = load_pipeline(model, device=device)
+    notes: list[str] = []
+    image, person, kps = _read_inputs(photo, mask, keypoints, notes)
+    for note in notes:
+        say(note)
+    crop_box(person)  # fail early on an empty mask or a tiny person
+    say("fitting the body")
+    fit = fit_body(image, person, kps, steps=fit_steps, progress=lambda done, total: say(f"fitting the body {done}/{total}"))
+    views = build_views(image, person, fit, backend=backend, res=res, pipe=pipe, frames=frames, steps=steps, seed=seed, progress=say)
+    views.extra["dream"]["photo"] = Path(photo).name
+    if notes:
+        views.extra["dream"]["notes"] = notes
+    if model is not None:
+        views.extra["dream"]["model"] = str(model)
+    say("writing the view folder")
+    return write_dream_folder(views, overlay_png(image * person[..., None], fit), output)
