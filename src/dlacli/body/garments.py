@@ -396,13 +396,7 @@ def _build_full_anny():
             skinning_method="lbs",
         )
 
-    if sys.stderr.isatty():
-        from rich.console import Console
-
-        with Console(stderr=True).status("loading the anny-full body model (first run: ~1 min)"):
-            model = build()
-    else:
-        model = build()
+    model = body_model.build_with_status(build, "loading the anny-full body model (first run: ~1 min)")
     return model.to(dtype=torch.float32).eval()
 
 

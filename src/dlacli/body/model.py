@@ -147,14 +147,18 @@ def _build_anny():
             skinning_method="lbs",
         )
 
-    if cold and sys.stderr.isatty():
-        from rich.console import Console
-
-        with Console(stderr=True).status("building the anny body model (first run, ~1 min)"):
-            model = build()
-    else:
-        model = build()
+    model = build_with_status(build, "building the anny body model (first run, ~1 min)", cold)
     return model.to(dtype=torch.float32).eval()
+
+
+def build_with_status(build, label: str, show: bool = True):
+    """Run `build()` under a spinner on stderr (when it is a terminal and `show`)."""
+    if not (show and sys.stderr.isatty()):
+        return build()
+    from rich.console import Console
+
+    with Console(stderr=True).status(label):
+        return build()
 
 
 # ---------------------------------------------------------------------------------------------

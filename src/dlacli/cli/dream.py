@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Optional
 
@@ -31,13 +30,10 @@ def dream(
 
     kwargs = dict(backend=backend, keypoints=keypoints, mask=mask, res=res, model=model, steps=steps,
                   frames=frames, seed=seed, fit_steps=fit_steps)  # fmt: skip
-    if sys.stderr.isatty():
-        from rich.console import Console
+    from dlacli.cli.progress import status
 
-        with Console(stderr=True).status("dla dream") as status:
-            path = run(photo, output, progress=lambda msg: status.update(f"dla dream: {msg}"), **kwargs)
-    else:
-        path = run(photo, output, **kwargs)
+    with status("dla dream") as update:
+        path = run(photo, output, progress=update, **kwargs)
     typer.echo(str(path))
 
 

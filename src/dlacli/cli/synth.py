@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import typer
@@ -19,14 +18,10 @@ def synth(
     from dlacli.stages.synth import synth as run
 
     kwargs = dict(res=res, novel_views=novel_views, novel_poses=novel_poses)
-    if sys.stderr.isatty():
-        from rich.console import Console
+    from dlacli.cli.progress import status
 
-        console = Console(stderr=True)
-        with console.status("dla synth") as status:
-            path = run(seed, output, progress=lambda msg: status.update(f"dla synth: {msg}"), **kwargs)
-    else:
-        path = run(seed, output, **kwargs)
+    with status("dla synth") as update:
+        path = run(seed, output, progress=update, **kwargs)
     typer.echo(str(path))
 
 
