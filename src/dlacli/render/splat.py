@@ -1,0 +1,372 @@
+"""Differentiable 3D Gaussian splatting: CPU numba kernels, gsplat on CUDA.
+
+`render_gaussians(gaussians, cameras)` -> RenderOutput(rgb [C, H, W, 3], alpha [C, H, W],
+depth [C, H, W]), differentiable w.r.t. means, quats, scales, opacities and SH coefficients.
+The conventions (gsplat "classic" mode, eps2d 0.3, tile size 16, ...) are written in
+docs/rendering.md. The pieces are plain functions:
+
+- `project_gaussians` (torch): EWA projection to 2D means, conics, depths and integer radii;
+- `eval_sh_colors` (torch): view-dependent colour from SH, + 0.5, clamped at 0 (as 3DGS);
+- `rasterize_projected` (torch.autograd.Function over the numba kernels in splat_kernels.py):
+  tile binning, front-to-back compositing and its backward pass.
+
+On CUDA tensors with gsplat importable, `render_gaussians` calls `gsplat.rasterization` with the
+same settings instead; gsplat is imported lazily there and never sees CPU tensors.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from dlacli.errors import DlaInputError
+from dlacli.render import splat_kernels as K
+from dlacli.types import Cameras, Gaussians
+
+EPS2D = 0.3
+NEAR = 0.01
+FAR = 1e10
+TILE = K.TILE
+
+# Real SH constants (the 3DGS / gsplat sign convention, Condon-Shortley phase included).
+_C0 = 0.28209479177387814
+_C1 = 0.4886025119029199
+_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
+       0.5462742152960396)
+_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
+       -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+
+
+class RenderOutput(NamedTuple):
+    rgb: torch.Tensor  # [C, H, W, 3] composited over the background
+    alpha: torch.Tensor  # [C, H, W] 1 - final transmittance
+    depth: torch.Tensor  # [C, H, W] expected z-depth sum(w_i z_i) / alpha, 0 where alpha == 0
+
+
+class Projected(NamedTuple):
+    means2d: torch.Tensor  # [C, N, 2] pixels
+    conics: torch.Tensor  # [C, N, 3] (a, b, c) of the inverse 2D covariance [[a, b], [b, c]]
+    depths: torch.Tensor  # [C, N] camera z
+    radii: torch.Tensor  # [C, N] int32, 0 = culled
+
+
+def _check_shape(name: str, t: torch.Tensor, shape: tuple) -> None:
+    """Raise DlaInputError unless `t` has `shape` (None matches any size)."""
+    ok = t.ndim == len(shape) and all(s is None or s == d for s, d in zip(shape, t.shape))
+    if not ok:
+        want = "[" + ", ".join("*" if s is None else str(s) for s in shape) + "]"
+        raise DlaInputError(name, f"expected shape {want}, got {list(t.shape)}")
+
+
+def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
+    """[N, 4] (w, x, y, z), normalised here -> [N, 3, 3] rotation matrices."""
+    q = torch.nn.functional.normalize(quats, dim=-1)
+    w, x, y, z = q.unbind(-1)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        dim=-1,
+    ).reshape(q.shape[:-1] + (3, 3))
+
+
+def project_gaussians(
+    means: torch.Tensor,  # [N, 3] world
+    quats: torch.Tensor,  # [N, 4] (w, x, y, z), any norm
+    scales: torch.Tensor,  # [N, 3] linear
+    viewmats: torch.Tensor,  # [C, 4, 4] world-to-camera, OpenCV axes
+    Ks: torch.Tensor,  # [C, 3, 3]
+    width: int,
+    height: int,
+    eps2d: float = EPS2D,
+    near: float = NEAR,
+    far: float = FAR,
+) -> Projected:
+    """EWA projection as gsplat's pinhole `fully_fused_projection` (classic mode).
+
+    Covariance R S S^T R^T -> camera frame -> J Sigma J^T with the pinhole Jacobian J evaluated
+    at the mean whose x/z, y/z are clamped to 1.3 x the half field of view (gsplat does this to
+    keep off-screen Gaussians bounded), + eps2d on the diagonal. radius = ceil(3 sqrt(lambda_max))
+    with lambda_max = b + sqrt(max(b^2 - det, 0.01)), b = trace / 2. Culled (radius 0): depth
+    < near or > far, det <= 0, or the square of half-side `radius` entirely off the image.
+    """
+    n = means.shape[0] if means.ndim == 2 else -1
+    _check_shape("means", means, (None, 3))
+    _check_shape("quats", quats, (n, 4))
+    _check_shape("scales", scales, (n, 3))
+    _check_shape("viewmats", viewmats, (None, 4, 4))
+    _check_shape("Ks", Ks, (viewmats.shape[0], 3, 3))
+    M = quat_to_rotmat(quats) * scales[:, None, :]  # [N, 3, 3] columns R_i s_i
+    R = viewmats[:, :3, :3]  # [C, 3, 3]
+    t = viewmats[:, :3, 3]  # [C, 3]
+    pc = torch.einsum("cij,nj->cni", R, means) + t[:, None, :]  # [C, N, 3]
+    x, y, z = pc.unbind(-1)  # [C, N]
+    fx = Ks[:, 0, 0, None]  # [C, 1]
+    fy = Ks[:, 1, 1, None]
+    cx = Ks[:, 0, 2, None]
+    cy = Ks[:, 1, 2, None]
+    tanx = 0.5 * width / fx
+    tany = 0.5 * height / fy
+    rz = 1.0 / z
+    u = torch.minimum(torch.maximum(x * rz, -(cx / fx + 0.3 * tanx)), (width - cx) / fx + 0.3 * tanx)
+    v = torch.minimum(torch.maximum(y * rz, -(cy / fy + 0.3 * tany)), (height - cy) / fy + 0.3 * tany)
+    # rows of J R (camera Jacobian times view rotation): [C, 3] broadcast with [C, N]
+    j0 = (fx * rz)[..., None] * (R[:, None, 0, :] - u[..., None] * R[:, None, 2, :])  # [C, N, 3]
+    j1 = (fy * rz)[..., None] * (R[:, None, 1, :] - v[..., None] * R[:, None, 2, :])  # [C, N, 3]
+    a0 = torch.einsum("cnj,njk->cnk", j0, M)  # [C, N, 3] row 0 of J R M
+    a1 = torch.einsum("cnj,njk->cnk", j1, M)
+    cov_xx = (a0 * a0).sum(-1) + eps2d  # [C, N]
+    cov_xy = (a0 * a1).sum(-1)
+    cov_yy = (a1 * a1).sum(-1) + eps2d
+    det = cov_xx * cov_yy - cov_xy * cov_xy
+    det_safe = torch.where(det > 0, det, torch.ones_like(det))
+    conics = torch.stack([cov_yy / det_safe, -cov_xy / det_safe, cov_xx / det_safe], dim=-1)
+    means2d = torch.stack([fx * x * rz + cx, fy * y * rz + cy], dim=-1)  # [C, N, 2]
+    with torch.no_grad():
+        b = 0.5 * (cov_xx + cov_yy)
+        lam = b + torch.sqrt(torch.clamp(b * b - det, min=0.01))
+        radius = torch.ceil(3.0 * torch.sqrt(lam))
+        mx, my = means2d.unbind(-1)
+        keep = (z >= near) & (z <= far) & (det > 0) & torch.isfinite(radius)
+        keep &= (mx + radius > 0) & (mx - radius < width) & (my + radius > 0) & (my - radius < height)
+        radii = torch.where(keep, radius.clamp(max=2.0**30), torch.zeros_like(radius)).to(torch.int32)
+    return Projected(means2d, conics, z, radii)
+
+
+def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
+    """[..., 3] unit directions -> [..., (degree + 1)^2] real SH basis (3DGS convention)."""
+    x, y, z = dirs.unbind(-1)
+    out = [torch.full_like(x, _C0)]
+    if degree >= 1:
+        out += [-_C1 * y, _C1 * z, -_C1 * x]
+    if degree >= 2:
+        xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+        out += [_C2[0] * xy, _C2[1] * yz, _C2[2] * (2 * zz - xx - yy), _C2[3] * xz,
+                _C2[4] * (xx - yy)]
+    if degree >= 3:
+        out += [
+            _C3[0] * y * (3 * xx - yy), _C3[1] * xy * z, _C3[2] * y * (4 * zz - xx - yy),
+            _C3[3] * z * (2 * zz - 3 * xx - 3 * yy), _C3[4] * x * (4 * zz - xx - yy),
+            _C3[5] * z * (xx - yy), _C3[6] * x * (xx - 3 * yy),
+        ]
+    return torch.stack(out, dim=-1)
+
+
+def eval_sh_colors(
+    sh: torch.Tensor,  # [N, K, 3]
+    means: torch.Tensor,  # [N, 3]
+    viewmats: torch.Tensor,  # [C, 4, 4]
+    degree: int,
+) -> torch.Tensor:
+    """[C, N, 3] colour = sum_k basis_k(normalised mean - camera centre) sh_k + 0.5, >= 0."""
+    ncam = viewmats.shape[0]
+    if degree == 0:
+        col = (_C0 * sh[:, 0, :] + 0.5).clamp(min=0.0)
+        return col[None].expand(ncam, -1, -1)
+    R = viewmats[:, :3, :3]
+    centres = -torch.einsum("cji,cj->ci", R, viewmats[:, :3, 3])  # [C, 3] = -R^T t
+    dirs = torch.nn.functional.normalize(means[None] - centres[:, None], dim=-1)  # [C, N, 3]
+    basis = sh_basis(degree, dirs)  # [C, N, B]
+    kb = basis.shape[-1]
+    col = torch.einsum("cnk,nkd->cnd", basis, sh[:, :kb, :]) + 0.5
+    return col.clamp(min=0.0)
+
+
+class _RasterizeCPU(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means2d, conics, colors, opacities, radii, depths, width, height):
+        dtype = means2d.dtype
+        npd = np.float64 if dtype == torch.float64 else np.float32
+        m2 = means2d.detach().cpu().numpy().astype(npd, copy=False)
+        co = conics.detach().cpu().numpy().astype(npd, copy=False)
+        cl = colors.detach().cpu().numpy().astype(npd, copy=False)
+        op = opacities.detach().cpu().numpy().astype(npd, copy=False)
+        rd = radii.detach().cpu().numpy().astype(np.int64, copy=False)
+        dk = np.ascontiguousarray(depths.detach().cpu().numpy().astype(np.float32))
+        dk = np.where(rd > 0, dk, np.float32(1.0)).astype(np.float32).view(np.uint32)
+        params, src, offsets, lists = K.bin_gaussians(
+            np.ascontiguousarray(m2), np.ascontiguousarray(co), np.ascontiguousarray(op),
+            np.ascontiguousarray(cl), np.ascontiguousarray(rd), dk, width, height
+        )
+        ncam = means2d.shape[0]
+        nw = K.num_threads()
+        cost = np.diff(offsets).astype(np.float64)
+        wptr, wtiles = K.assign_workers(cost, nw)
+        acc = np.empty((ncam, height, width, 4), dtype=npd)
+        tfin = np.empty((ncam, height, width), dtype=np.float64)
+        last = np.empty((ncam, height, width), dtype=np.int64)
+        work = np.zeros(cost.shape[0], dtype=np.float64)
+        K.raster_forward(params, offsets, lists, wptr, wtiles, ncam, width, height,
+                         acc, tfin, last, work)
+        ctx.saved = (params, src, offsets, lists, tfin, last, work)
+        ctx.meta = (width, height, means2d.shape, dtype, means2d.device)
+        alpha = torch.from_numpy(1.0 - tfin).to(dtype=dtype, device=means2d.device)
+        return torch.from_numpy(acc).to(means2d.device), alpha
+
+    @staticmethod
+    def backward(ctx, g_acc, g_alpha):
+        params, src, offsets, lists, tfin, last, work = ctx.saved
+        width, height, shape, dtype, device = ctx.meta
+        ncam, n = shape[0], shape[1]
+        if g_acc is None:
+            g_acc = torch.zeros((ncam, height, width, 4), dtype=dtype)
+        if g_alpha is None:
+            g_alpha = torch.zeros((ncam, height, width), dtype=dtype)
+        ga = np.ascontiguousarray(g_acc.detach().cpu().numpy())
+        gl = np.ascontiguousarray(g_alpha.detach().cpu().numpy())
+        nw = K.num_threads()
+        wptr, wtiles = K.assign_workers(work, nw)
+        slabs = np.zeros((nw, params.shape[0], K.NGRAD), dtype=np.float64)
+        K.raster_backward(params, offsets, lists, wptr, wtiles, ncam, width, height,
+                          tfin, last, ga, gl, slabs)
+        full = np.zeros((ncam * n, K.NGRAD), dtype=np.float32 if dtype != torch.float64 else np.float64)
+        K.scatter_grads(slabs, src, ncam * n, full)
+        full_t = torch.from_numpy(full).to(dtype=dtype, device=device).reshape(ncam, n, K.NGRAD)
+        return (full_t[..., 0:2], full_t[..., 2:5], full_t[..., 6:10], full_t[..., 5],
+                None, None, None, None)
+
+
+def rasterize_projected(
+    means2d: torch.Tensor,  # [C, N, 2]
+    conics: torch.Tensor,  # [C, N, 3]
+    colors: torch.Tensor,  # [C, N, 4] composited channels (rgb + z-depth)
+    opacities: torch.Tensor,  # [C, N]
+    radii: torch.Tensor,  # [C, N] int, 0 = skip
+    depths: torch.Tensor,  # [C, N] sort key (front to back); not differentiated
+    width: int,
+    height: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """CPU tile rasteriser: ([C, H, W, 4] sum_i w_i colour_i, [C, H, W] alpha), no background.
+
+    w_i = alpha_i prod_{j<i} (1 - alpha_j) over the Gaussians that count at the pixel
+    (docs/rendering.md). Differentiable w.r.t. means2d, conics, colors and opacities. `depths`
+    must be positive where radii > 0 (true for `project_gaussians` output).
+    """
+    _check_shape("means2d", means2d, (None, None, 2))
+    c, n = means2d.shape[:2]
+    _check_shape("conics", conics, (c, n, 3))
+    _check_shape("colors", colors, (c, n, 4))
+    _check_shape("opacities", opacities, (c, n))
+    _check_shape("radii", radii, (c, n))
+    _check_shape("depths", depths, (c, n))
+    if width < 1 or height < 1:
+        raise DlaInputError("rasterize_projected", f"image size must be >= 1, got {width}x{height}")
+    return _RasterizeCPU.apply(means2d, conics, colors, opacities, radii, depths, width, height)
+
+
+def _check_inputs(g: Gaussians, cameras: Cameras, background, sh_degree):
+    n = len(g)
+    for name, t, shape in (
+        ("gaussians.means", g.means, (n, 3)),
+        ("gaussians.quats", g.quats, (n, 4)),
+        ("gaussians.scales", g.scales, (n, 3)),
+        ("gaussians.opacities", g.opacities, (n,)),
+    ):
+        if tuple(t.shape) != shape:
+            raise DlaInputError(name, f"expected shape {list(shape)}, got {list(t.shape)}")
+        if not t.is_floating_point():
+            raise DlaInputError(name, f"expected a floating-point tensor, got {t.dtype}")
+    if g.sh.ndim != 3 or g.sh.shape[0] != n or g.sh.shape[2] != 3:
+        raise DlaInputError("gaussians.sh", f"expected shape [N, K, 3], got {list(g.sh.shape)}")
+    if cameras.width < 1 or cameras.height < 1:
+        raise DlaInputError("cameras", f"image size must be >= 1, got {cameras.width}x{cameras.height}")
+    if len(cameras) < 1:
+        raise DlaInputError("cameras", "no cameras")
+    degree = g.sh_degree if sh_degree is None else int(sh_degree)
+    if not 0 <= degree <= g.sh_degree:
+        raise DlaInputError(
+            "sh_degree", f"must be in 0..{g.sh_degree} for {g.sh.shape[1]} coefficients, got {degree}"
+        )
+    ncam = len(cameras)
+    if background is None:
+        bg = torch.zeros((ncam, 3), dtype=g.means.dtype, device=g.means.device)
+    else:
+        bg = torch.as_tensor(background, dtype=g.means.dtype, device=g.means.device)
+        if tuple(bg.shape) == (3,):
+            bg = bg[None].expand(ncam, 3)
+        elif tuple(bg.shape) != (ncam, 3):
+            raise DlaInputError("background", f"expected shape [3] or [{ncam}, 3], got {list(bg.shape)}")
+    return degree, bg
+
+
+def render_gaussians(
+    gaussians: Gaussians,
+    cameras: Cameras,
+    *,
+    background=None,  # [3] or [C, 3], default black
+    sh_degree: int | None = None,
+) -> RenderOutput:
+    """Render C views of N Gaussians; differentiable w.r.t. every Gaussian parameter.
+
+    Device and dtype follow `gaussians.means`; cameras are moved there. float32 CUDA tensors with
+    gsplat installed -> gsplat; otherwise the numba CPU path (CUDA tensors without gsplat, or
+    not float32, are rendered on the CPU and the results moved back).
+    """
+    degree, bg = _check_inputs(gaussians, cameras, background, sh_degree)
+    device, dtype = gaussians.means.device, gaussians.means.dtype
+    viewmats = cameras.viewmats.to(device=device, dtype=dtype)
+    Ks = cameras.Ks.to(device=device, dtype=dtype)
+    w, h = int(cameras.width), int(cameras.height)
+    if device.type == "cuda" and dtype == torch.float32 and _gsplat_available():
+        return _render_gsplat(gaussians, viewmats, Ks, w, h, bg, degree)
+    g = gaussians
+    if device.type != "cpu":
+        cpu = torch.device("cpu")
+        g = gaussians.to(cpu)
+        viewmats, Ks, bg = viewmats.to(cpu), Ks.to(cpu), bg.to(cpu)
+    proj = project_gaussians(g.means, g.quats, g.scales, viewmats, Ks, w, h)
+    rgb = eval_sh_colors(g.sh, g.means, viewmats, degree)  # [C, N, 3]
+    colors = torch.cat([rgb, proj.depths[..., None]], dim=-1)  # [C, N, 4]
+    ncam = viewmats.shape[0]
+    opac = g.opacities[None].expand(ncam, -1)
+    acc, alpha = rasterize_projected(
+        proj.means2d, proj.conics, colors, opac, proj.radii, proj.depths.detach(), w, h
+    )
+    out_rgb = acc[..., :3] + (1.0 - alpha)[..., None] * bg[:, None, None, :]
+    depth = acc[..., 3] / alpha.clamp(min=1e-10)
+    out = RenderOutput(out_rgb, alpha, depth)
+    if device.type != "cpu":
+        out = RenderOutput(*(t.to(device) for t in out))
+    return out
+
+
+def _gsplat_available() -> bool:
+    try:
+        import gsplat  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _render_gsplat(g: Gaussians, viewmats, Ks, width, height, bg, degree) -> RenderOutput:
+    """gsplat.rasterization with this module's conventions (CUDA tensors only)."""
+    import gsplat
+
+    assert g.means.device.type == "cuda", "gsplat must only be called with CUDA tensors"
+    colors, alphas, _ = gsplat.rasterization(
+        means=g.means,
+        quats=g.quats,
+        scales=g.scales,
+        opacities=g.opacities,
+        colors=g.sh,
+        viewmats=viewmats,
+        Ks=Ks,
+        width=width,
+        height=height,
+        near_plane=NEAR,
+        far_plane=FAR,
+        eps2d=EPS2D,
+        sh_degree=degree,
+        packed=False,
+        tile_size=TILE,
+        backgrounds=bg.contiguous(),
+        render_mode="RGB+ED",
+        rasterize_mode="classic",
+    )
+    alpha = alphas[..., 0]
+    depth = torch.where(alpha > 0, colors[..., 3], torch.zeros_like(alpha))
+    return RenderOutput(colors[..., :3], alpha, depth)

@@ -1,0 +1,549 @@
+"""Numba kernels of the CPU Gaussian rasteriser: tile binning, forward and backward compositing.
+
+Conventions (docs/rendering.md): 16 x 16 tiles; pixel centres at (x + 0.5, y + 0.5);
+sigma = 0.5 (a dx^2 + c dy^2) + b dx dy with dx = mean_x - px (conic = (a, b, c));
+alpha = min(0.999, opacity * exp(-sigma)); a Gaussian is skipped at a pixel when sigma < 0 or
+alpha < 1/255; a pixel stops *before* the Gaussian whose next transmittance T (1 - alpha) would be
+<= 1e-4 (gsplat's rule). Inside a tile Gaussians are walked front to back by camera depth, ties
+broken by index (a stable sort), exactly the order of gsplat's (tile, depth) radix sort.
+
+Layout used between the kernels (S = visible (camera, Gaussian) pairs over all cameras, sorted by
+camera then depth):
+- params [S, 16] (one 64-byte row in float32): mean x, mean y, conic a, b, c, opacity, sigma
+  cut-off log(255 opacity) + margin, pixel box x0, x1, y0, y1 (inclusive, stored as floats)
+  outside of which alpha < 1/255 for certain (an optimisation only: it never changes which
+  Gaussians count), unused, colour[4] (rgb + depth)
+- src [S] int64: flat index c * N + g of each sorted pair
+- tile_offsets [C * TH * TW + 1] int64, lists [n_isects] int64 (indices into S): the per-tile
+  lists, front to back.
+All arithmetic is float64 inside the kernels (parameters may be stored as float32); fastmath off.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+# numba's OpenMP thread pool and torch's are separate runtimes sharing the same few cores; their
+# busy-waiting threads starve each other (2 cores: 2k Gaussians at 128^2 took ~50 ms instead of
+# ~2.5 ms). Wait passively unless the user chose otherwise; numba's libgomp reads this when it
+# starts its pool (torch's reads it when torch is imported, so set it earlier to cover both).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+TILE = 16
+ALPHA_MIN = 1.0 / 255.0
+ALPHA_MAX = 0.999
+T_MIN = 1e-4
+# Extra room on the sigma cut-off used for the pixel bounding boxes, far above float32 rounding
+# of sigma, so that the boxes never drop a pixel where alpha >= 1/255.
+SIGMA_MARGIN = 0.05
+NPARAM = 16
+NGRAD = 10  # d mean2d (2), d conic (3), d opacity (1), d colour (4)
+BATCH = 32  # list entries copied at once into a small local buffer (many loads in flight)
+
+
+@njit(cache=True, nogil=True)
+def _radix_argsort_u32(keys):  # keys: [M] uint32 -> [M] int64 stable ascending order
+    m = keys.shape[0]
+    order = np.arange(m)
+    tmp = np.empty(m, dtype=np.int64)
+    counts = np.empty(2049, dtype=np.int64)
+    for shift in (0, 11, 22):
+        counts[:] = 0
+        for i in range(m):
+            counts[((keys[order[i]] >> shift) & 2047) + 1] += 1
+        for d in range(2048):
+            counts[d + 1] += counts[d]
+        for i in range(m):
+            o = order[i]
+            d = (keys[o] >> shift) & 2047
+            tmp[counts[d]] = o
+            counts[d] += 1
+        order, tmp = tmp, order
+    return order
+
+
+@njit(parallel=True, cache=True)
+def _prepare(means2d, conics, opacities, colors, radii, width, height, params, trect):
+    """Per (camera, Gaussian) in input order: packed parameters, pixel box, tile rectangle."""
+    ncam, n = radii.shape[0], radii.shape[1]
+    tw = (width + TILE - 1) // TILE
+    th = (height + TILE - 1) // TILE
+    for i in prange(ncam * n):
+        c = i // n
+        g = i - c * n
+        trect[i, 0] = 0
+        trect[i, 1] = 0
+        trect[i, 2] = 0
+        trect[i, 3] = 0
+        if radii[c, g] <= 0:
+            continue
+        mx = np.float64(means2d[c, g, 0])
+        my = np.float64(means2d[c, g, 1])
+        a = np.float64(conics[c, g, 0])
+        b = np.float64(conics[c, g, 1])
+        cc = np.float64(conics[c, g, 2])
+        op = np.float64(opacities[c, g])
+        params[i, 0] = means2d[c, g, 0]
+        params[i, 1] = means2d[c, g, 1]
+        params[i, 2] = conics[c, g, 0]
+        params[i, 3] = conics[c, g, 1]
+        params[i, 4] = conics[c, g, 2]
+        params[i, 5] = opacities[c, g]
+        params[i, 11] = 0.0
+        for k in range(4):
+            params[i, 12 + k] = colors[c, g, k]
+        # gsplat's tile rectangle from the integer radius (this decides membership)
+        r = np.float64(radii[c, g])
+        tx0 = int(min(max(np.floor(mx / TILE - r / TILE), 0.0), tw))
+        tx1 = int(min(max(np.ceil(mx / TILE + r / TILE), 0.0), tw))
+        ty0 = int(min(max(np.floor(my / TILE - r / TILE), 0.0), th))
+        ty1 = int(min(max(np.ceil(my / TILE + r / TILE), 0.0), th))
+        # pixel box outside of which sigma > log(255 opacity): alpha < 1/255 there
+        det = a * cc - b * b
+        ok = np.isfinite(mx) and np.isfinite(my) and det > 0.0 and a > 0.0 and cc > 0.0
+        if not ok or not (op * 255.0 >= 1.0):
+            thr = -1.0
+            bx0, bx1, by0, by1 = 0, -1, 0, -1
+        else:
+            thr = math.log(op * 255.0) + SIGMA_MARGIN
+            ex = math.sqrt(2.0 * thr * cc / det)  # sqrt(2 thr cov_xx)
+            ey = math.sqrt(2.0 * thr * a / det)
+            if not (np.isfinite(ex) and np.isfinite(ey)):
+                ex = 1e30
+                ey = 1e30
+            bx0 = int(min(max(np.ceil(mx - ex - 0.5), 0.0), width))
+            bx1 = int(min(max(np.floor(mx + ex - 0.5), -1.0), width - 1))
+            by0 = int(min(max(np.ceil(my - ey - 0.5), 0.0), height))
+            by1 = int(min(max(np.floor(my + ey - 0.5), -1.0), height - 1))
+        params[i, 6] = thr
+        params[i, 7] = bx0
+        params[i, 8] = bx1
+        params[i, 9] = by0
+        params[i, 10] = by1
+        if bx0 > bx1 or by0 > by1:
+            continue
+        trect[i, 0] = max(tx0, bx0 // TILE)
+        trect[i, 1] = max(min(tx1, bx1 // TILE + 1), trect[i, 0])
+        trect[i, 2] = max(ty0, by0 // TILE)
+        trect[i, 3] = max(min(ty1, by1 // TILE + 1), trect[i, 2])
+
+
+@njit(cache=True, nogil=True)
+def _depth_order(radii, depth_keys):
+    """Flat indices c * N + g of the visible pairs, sorted by camera then depth (stable)."""
+    ncam, n = radii.shape[0], radii.shape[1]
+    nvis = 0
+    for c in range(ncam):
+        for g in range(n):
+            if radii[c, g] > 0:
+                nvis += 1
+    out = np.empty(nvis, dtype=np.int64)
+    s = 0
+    vis = np.empty(n, dtype=np.int64)
+    for c in range(ncam):
+        m = 0
+        for g in range(n):
+            if radii[c, g] > 0:
+                vis[m] = g
+                m += 1
+        keys = np.empty(m, dtype=np.uint32)
+        for i in range(m):
+            keys[i] = depth_keys[c, vis[i]]
+        order = _radix_argsort_u32(keys)
+        for i in range(m):
+            out[s] = c * n + vis[order[i]]
+            s += 1
+    return out
+
+
+@njit(parallel=True, cache=True)
+def _gather(src, params, trect):
+    m = src.shape[0]
+    p2 = np.empty((m, NPARAM), dtype=params.dtype)
+    t2 = np.empty((m, 4), dtype=np.int32)
+    for s in prange(m):
+        i = src[s]
+        for k in range(NPARAM):
+            p2[s, k] = params[i, k]
+        for k in range(4):
+            t2[s, k] = trect[i, k]
+    return p2, t2
+
+
+@njit(cache=True, nogil=True)
+def _tile_lists(src, trect, n, ncam, width, height):
+    tw = (width + TILE - 1) // TILE
+    th = (height + TILE - 1) // TILE
+    ntiles = tw * th
+    counts = np.zeros(ncam * ntiles + 1, dtype=np.int64)
+    m = src.shape[0]
+    for s in range(m):
+        base = (src[s] // n) * ntiles + 1
+        for ty in range(trect[s, 2], trect[s, 3]):
+            for tx in range(trect[s, 0], trect[s, 1]):
+                counts[base + ty * tw + tx] += 1
+    for t in range(ncam * ntiles):
+        counts[t + 1] += counts[t]
+    lists = np.empty(counts[ncam * ntiles], dtype=np.int64)
+    fill = counts[:-1].copy()
+    for s in range(m):
+        base = (src[s] // n) * ntiles
+        for ty in range(trect[s, 2], trect[s, 3]):
+            for tx in range(trect[s, 0], trect[s, 1]):
+                t = base + ty * tw + tx
+                lists[fill[t]] = s
+                fill[t] += 1
+    return counts, lists
+
+
+def bin_gaussians(means2d, conics, opacities, colors, radii, depth_keys, width, height):
+    """Sort visible Gaussians by (camera, depth) and build per-tile lists.
+
+    means2d [C, N, 2], conics [C, N, 3], opacities [C, N], colors [C, N, 4], radii [C, N] int,
+    depth_keys [C, N] uint32 (float32 bits of positive depths, same order as the depths).
+    Returns params [S, 16], src [S], tile_offsets [C*TH*TW + 1], lists [n_isects].
+    """
+    ncam, n = radii.shape
+    params = np.empty((ncam * n, NPARAM), dtype=means2d.dtype)
+    trect = np.empty((ncam * n, 4), dtype=np.int32)
+    _prepare(means2d, conics, opacities, colors, radii, width, height, params, trect)
+    src = _depth_order(radii, depth_keys)
+    params, trect = _gather(src, params, trect)
+    offsets, lists = _tile_lists(src, trect, n, ncam, width, height)
+    return params, src, offsets, lists
+
+
+@njit(cache=True, nogil=True)
+def assign_workers(cost, nworkers):
+    """Greedy longest-first split of tiles over workers. cost [T] -> (ptr [W+1], tiles [T])."""
+    nt = cost.shape[0]
+    order = np.argsort(-cost, kind="mergesort")
+    load = np.zeros(nworkers, dtype=np.float64)
+    owner = np.empty(nt, dtype=np.int64)
+    for i in range(nt):
+        t = order[i]
+        w = np.argmin(load)
+        owner[t] = w
+        load[w] += cost[t] + 1.0
+    ptr = np.zeros(nworkers + 1, dtype=np.int64)
+    for t in range(nt):
+        ptr[owner[t] + 1] += 1
+    for w in range(nworkers):
+        ptr[w + 1] += ptr[w]
+    fill = ptr[:-1].copy()
+    tiles = np.empty(nt, dtype=np.int64)
+    for i in range(nt):
+        t = order[i]
+        tiles[fill[owner[t]]] = t
+        fill[owner[t]] += 1
+    return ptr, tiles
+
+
+@njit(cache=True, inline="always")
+def _load_batch(params, lists, k0, nb, buf):
+    """buf[j] = params[lists[k0 + j]] for j < nb: one tight loop of independent row loads."""
+    for j in range(nb):
+        s = lists[k0 + j]
+        for q in range(NPARAM):
+            buf[j, q] = params[s, q]
+
+
+@njit(cache=True, inline="always")
+def _row_span(ca, cb, cc, thr, mx, dy, xlo, xhi):
+    """Pixels x in [xlo, xhi] of one row (mean-to-row offset dy) where sigma <= thr, as an
+    inclusive range; sigma = 0.5 (a dx^2 + c dy^2) + b dx dy is a parabola in dx."""
+    disc = cb * cb * dy * dy - ca * (cc * dy * dy - 2.0 * thr)
+    if not (disc >= 0.0):
+        return 1, 0
+    sq = math.sqrt(disc)
+    lo = mx - (sq - cb * dy) / ca - 0.5  # x + 0.5 = mx - dx, dx in [(-b dy - sq) / a, (-b dy + sq) / a]
+    hi = mx + (sq + cb * dy) / ca - 0.5
+    x0 = xlo if not (lo > xlo) else (xhi + 1 if lo > xhi else int(np.ceil(lo)))
+    x1 = xhi if not (hi < xhi) else (xlo - 1 if hi < xlo else int(np.floor(hi)))
+    return x0, x1
+
+
+@njit(parallel=True, cache=True)
+def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, height,
+                   out_acc, out_t, out_last, out_work):
+    """Composite front to back. out_acc [C, H, W, 4] (sum of w_i colour_i, no background),
+    out_t [C, H, W] float64 final transmittance, out_last [C, H, W] int64 position (in `lists`)
+    of the last contributing Gaussian or -1, out_work [C*TH*TW] float64 pixel evaluations."""
+    tw = (width + TILE - 1) // TILE
+    th = (height + TILE - 1) // TILE
+    ntiles = tw * th
+    nworkers = wptr.shape[0] - 1
+    for wk in prange(nworkers):
+        tr = np.empty(TILE * TILE, dtype=np.float64)
+        acc = np.empty((TILE * TILE, 4), dtype=np.float64)
+        last = np.empty(TILE * TILE, dtype=np.int64)
+        done = np.empty(TILE * TILE, dtype=np.bool_)
+        rowleft = np.empty(TILE, dtype=np.int64)  # pixels of each tile row not finished yet
+        buf = np.empty((BATCH, NPARAM), dtype=params.dtype)
+        for it in range(wptr[wk], wptr[wk + 1]):
+            tid = wtiles[it]
+            c = tid // ntiles
+            rem = tid - c * ntiles
+            ty = rem // tw
+            tx = rem - ty * tw
+            x0 = tx * TILE
+            y0 = ty * TILE
+            x1 = min(x0 + TILE, width)  # exclusive
+            y1 = min(y0 + TILE, height)
+            npix = (x1 - x0) * (y1 - y0)
+            for p in range(TILE * TILE):
+                tr[p] = 1.0
+                acc[p, 0] = 0.0
+                acc[p, 1] = 0.0
+                acc[p, 2] = 0.0
+                acc[p, 3] = 0.0
+                last[p] = -1
+                done[p] = False
+            ndone = 0
+            work = 0
+            for r in range(TILE):
+                rowleft[r] = x1 - x0
+            kend = tile_offsets[tid + 1]
+            for kb in range(tile_offsets[tid], kend, BATCH):
+                if ndone >= npix:
+                    break
+                nb = min(BATCH, kend - kb)
+                _load_batch(params, lists, kb, nb, buf)
+                for j in range(nb):
+                    if ndone >= npix:
+                        break
+                    k = kb + j
+                    bx0 = max(int(buf[j, 7]), x0)
+                    bx1 = min(int(buf[j, 8]), x1 - 1)
+                    by0 = max(int(buf[j, 9]), y0)
+                    by1 = min(int(buf[j, 10]), y1 - 1)
+                    if bx0 > bx1 or by0 > by1:
+                        continue
+                    mx = np.float64(buf[j, 0])
+                    my = np.float64(buf[j, 1])
+                    ca = np.float64(buf[j, 2])
+                    cb = np.float64(buf[j, 3])
+                    cc = np.float64(buf[j, 4])
+                    op = np.float64(buf[j, 5])
+                    thr = np.float64(buf[j, 6])
+                    c0 = np.float64(buf[j, 12])
+                    c1 = np.float64(buf[j, 13])
+                    c2 = np.float64(buf[j, 14])
+                    c3 = np.float64(buf[j, 15])
+                    for y in range(by0, by1 + 1):
+                        if rowleft[y - y0] == 0:
+                            continue
+                        dy = my - (y + 0.5)
+                        row = (y - y0) * TILE - x0
+                        rx0, rx1 = _row_span(ca, cb, cc, thr, mx, dy, bx0, bx1)
+                        for x in range(rx0, rx1 + 1):
+                            p = row + x
+                            work += 1
+                            if done[p]:
+                                continue
+                            dx = mx - (x + 0.5)
+                            sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                            if sigma < 0.0 or sigma > thr:
+                                continue
+                            alpha = min(ALPHA_MAX, op * math.exp(-sigma))
+                            if alpha < ALPHA_MIN:
+                                continue
+                            t = tr[p]
+                            nt = t * (1.0 - alpha)
+                            if nt <= T_MIN:
+                                done[p] = True
+                                ndone += 1
+                                rowleft[y - y0] -= 1
+                                continue
+                            wgt = alpha * t
+                            acc[p, 0] += wgt * c0
+                            acc[p, 1] += wgt * c1
+                            acc[p, 2] += wgt * c2
+                            acc[p, 3] += wgt * c3
+                            tr[p] = nt
+                            last[p] = k
+            out_work[tid] = work
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    p = (y - y0) * TILE + (x - x0)
+                    for ch in range(4):
+                        out_acc[c, y, x, ch] = acc[p, ch]
+                    out_t[c, y, x] = tr[p]
+                    out_last[c, y, x] = last[p]
+
+
+@njit(parallel=True, cache=True)
+def raster_backward(params, tile_offsets, lists, wptr, wtiles, ncam, width, height,
+                    t_final, last_ids, g_acc, g_alpha, out_grad):
+    """Back to front pass (3DGS): recovers T_i = T_{i+1} / (1 - alpha_i) from the saved final
+    transmittance and accumulates per sorted Gaussian gradients into out_grad [W, S, 10]
+    (one slab per worker, summed by the caller): d mean2d (2), d conic (3), d opacity, d colour (4).
+    g_acc [C, H, W, 4] = dL/d out_acc, g_alpha [C, H, W] = dL/d alpha where alpha = 1 - T_final."""
+    tw = (width + TILE - 1) // TILE
+    th = (height + TILE - 1) // TILE
+    ntiles = tw * th
+    nworkers = wptr.shape[0] - 1
+    for wk in prange(nworkers):
+        grad = out_grad[wk]
+        tr = np.empty(TILE * TILE, dtype=np.float64)
+        tfin = np.empty(TILE * TILE, dtype=np.float64)
+        behind = np.zeros((TILE * TILE, 4), dtype=np.float64)
+        gc = np.zeros((TILE * TILE, 4), dtype=np.float64)
+        ga = np.zeros(TILE * TILE, dtype=np.float64)
+        last = np.empty(TILE * TILE, dtype=np.int64)
+        rowlast = np.empty(TILE, dtype=np.int64)  # largest last index of each tile row
+        buf = np.empty((BATCH, NPARAM), dtype=params.dtype)
+        gb = np.zeros((BATCH, NGRAD), dtype=np.float64)
+        hits = np.zeros(BATCH, dtype=np.bool_)
+        for it in range(wptr[wk], wptr[wk + 1]):
+            tid = wtiles[it]
+            c = tid // ntiles
+            rem = tid - c * ntiles
+            ty = rem // tw
+            tx = rem - ty * tw
+            x0 = tx * TILE
+            y0 = ty * TILE
+            x1 = min(x0 + TILE, width)
+            y1 = min(y0 + TILE, height)
+            kmax = -1
+            for p in range(TILE * TILE):
+                last[p] = -1
+            for r in range(TILE):
+                rowlast[r] = -1
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    p = (y - y0) * TILE + (x - x0)
+                    tr[p] = t_final[c, y, x]
+                    tfin[p] = t_final[c, y, x]
+                    last[p] = last_ids[c, y, x]
+                    if last[p] > kmax:
+                        kmax = last[p]
+                    if last[p] > rowlast[y - y0]:
+                        rowlast[y - y0] = last[p]
+                    for ch in range(4):
+                        behind[p, ch] = 0.0
+                        gc[p, ch] = g_acc[c, y, x, ch]
+                    ga[p] = g_alpha[c, y, x]
+            kstart = tile_offsets[tid]
+            for kb_end in range(kmax + 1, kstart, -BATCH):
+                kb = max(kb_end - BATCH, kstart)
+                nb = kb_end - kb
+                _load_batch(params, lists, kb, nb, buf)
+                for j in range(nb - 1, -1, -1):
+                    k = kb + j
+                    hits[j] = False
+                    bx0 = max(int(buf[j, 7]), x0)
+                    bx1 = min(int(buf[j, 8]), x1 - 1)
+                    by0 = max(int(buf[j, 9]), y0)
+                    by1 = min(int(buf[j, 10]), y1 - 1)
+                    if bx0 > bx1 or by0 > by1:
+                        continue
+                    mx = np.float64(buf[j, 0])
+                    my = np.float64(buf[j, 1])
+                    ca = np.float64(buf[j, 2])
+                    cb = np.float64(buf[j, 3])
+                    cc = np.float64(buf[j, 4])
+                    op = np.float64(buf[j, 5])
+                    thr = np.float64(buf[j, 6])
+                    c0 = np.float64(buf[j, 12])
+                    c1 = np.float64(buf[j, 13])
+                    c2 = np.float64(buf[j, 14])
+                    c3 = np.float64(buf[j, 15])
+                    gmx = 0.0
+                    gmy = 0.0
+                    gca = 0.0
+                    gcb = 0.0
+                    gcc = 0.0
+                    gop = 0.0
+                    g0 = 0.0
+                    g1 = 0.0
+                    g2 = 0.0
+                    g3 = 0.0
+                    hit = False
+                    for y in range(by0, by1 + 1):
+                        if k > rowlast[y - y0]:
+                            continue
+                        dy = my - (y + 0.5)
+                        row = (y - y0) * TILE - x0
+                        rx0, rx1 = _row_span(ca, cb, cc, thr, mx, dy, bx0, bx1)
+                        for x in range(rx0, rx1 + 1):
+                            p = row + x
+                            if k > last[p]:
+                                continue
+                            dx = mx - (x + 0.5)
+                            sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                            if sigma < 0.0 or sigma > thr:
+                                continue
+                            vis = math.exp(-sigma)
+                            raw = op * vis
+                            alpha = min(ALPHA_MAX, raw)
+                            if alpha < ALPHA_MIN:
+                                continue
+                            hit = True
+                            ra = 1.0 / (1.0 - alpha)
+                            t = tr[p] * ra  # transmittance in front of this Gaussian
+                            wgt = alpha * t
+                            gp0 = gc[p, 0]
+                            gp1 = gc[p, 1]
+                            gp2 = gc[p, 2]
+                            gp3 = gc[p, 3]
+                            g0 += wgt * gp0
+                            g1 += wgt * gp1
+                            g2 += wgt * gp2
+                            g3 += wgt * gp3
+                            dalpha = (gp0 * (c0 * t - behind[p, 0] * ra)
+                                      + gp1 * (c1 * t - behind[p, 1] * ra)
+                                      + gp2 * (c2 * t - behind[p, 2] * ra)
+                                      + gp3 * (c3 * t - behind[p, 3] * ra)
+                                      + ga[p] * tfin[p] * ra)
+                            behind[p, 0] += c0 * wgt
+                            behind[p, 1] += c1 * wgt
+                            behind[p, 2] += c2 * wgt
+                            behind[p, 3] += c3 * wgt
+                            tr[p] = t
+                            if raw <= ALPHA_MAX:
+                                gop += vis * dalpha
+                                dsig = -alpha * dalpha
+                                gca += 0.5 * dx * dx * dsig
+                                gcb += dx * dy * dsig
+                                gcc += 0.5 * dy * dy * dsig
+                                gmx += (ca * dx + cb * dy) * dsig
+                                gmy += (cb * dx + cc * dy) * dsig
+                    gb[j, 0] = gmx
+                    gb[j, 1] = gmy
+                    gb[j, 2] = gca
+                    gb[j, 3] = gcb
+                    gb[j, 4] = gcc
+                    gb[j, 5] = gop
+                    gb[j, 6] = g0
+                    gb[j, 7] = g1
+                    gb[j, 8] = g2
+                    gb[j, 9] = g3
+                    hits[j] = hit
+                for j in range(nb):  # flush the batch's sums (again many stores in flight)
+                    if hits[j]:
+                        s = lists[kb + j]
+                        for q in range(NGRAD):
+                            grad[s, q] += gb[j, q]
+
+
+@njit(parallel=True, cache=True)
+def scatter_grads(slabs, src, total, out):
+    """out [total, 10] (zeroed by the caller) <- sum over workers of slabs [W, S, 10] at rows src."""
+    nw, m = slabs.shape[0], slabs.shape[1]
+    for s in prange(m):
+        i = src[s]
+        for k in range(NGRAD):
+            v = 0.0
+            for w in range(nw):
+                v += slabs[w, s, k]
+            out[i, k] = v
+
+
+def num_threads() -> int:
+    return numba.get_num_threads()
