@@ -27,8 +27,12 @@ def skin_gaussians(
     dxyz: torch.Tensor,  # [N, 3] or [T, N, 3] offsets in the tangent frame, metres
     dquat: torch.Tensor,  # [N, 4] or [T, N, 4] rotations in the tangent frame, (w, x, y, z)
     ds: torch.Tensor,  # [N, 3] or [T, N, 3] scale multipliers (texel units)
+    frames_q: torch.Tensor | None = None,  # [T, N, 4] matrix_to_quat(frames_R), when reused
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """-> means [T, N, 3], quats [T, N, 4] (w, x, y, z, unit, w >= 0 not enforced), scales [T, N, 3]."""
+    """-> means [T, N, 3], quats [T, N, 4] (w, x, y, z, unit, w >= 0 not enforced), scales [T, N, 3].
+
+    Pass `frames_q` when the same frames are skinned many times (optimisation, animation).
+    """
     if frames_T.ndim != 3 or frames_T.shape[-1] != 3:
         raise ValueError(f"frames_T must be [T, N, 3], got {tuple(frames_T.shape)}")
     t, n = frames_T.shape[:2]
@@ -40,7 +44,7 @@ def skin_gaussians(
         if x.shape not in ((n, k), (t, n, k)):
             raise ValueError(f"{name} must be [{n}, {k}] or [{t}, {n}, {k}], got {tuple(x.shape)}")
     means = frames_T + (frames_R @ dxyz.expand(t, n, 3)[..., None])[..., 0]
-    frame_q = matrix_to_quat(frames_R)  # [T, N, 4]
+    frame_q = matrix_to_quat(frames_R) if frames_q is None else frames_q  # [T, N, 4]
     quats = quat_normalize(quat_multiply(frame_q, dquat.expand(t, n, 4)))
     scales = frames_S[..., None] * ds.expand(t, n, 3)
     return means, quats, scales

@@ -1,0 +1,352 @@
+"""Lift: a view folder -> unstructured pose-space Gaussians -> avatar code Z (DESIGN.md §1).
+
+The non-learned path (paper ablation A.i, "mesh unprojection"), made as accurate as optimisation
+allows:
+a. `unstructured_gaussians`: one Gaussian per (block of) masked pixel, placed along its ray at the
+   depth of the fitted body (slightly in front of it, for clothing) or, where the body is not
+   seen (hair, loose clothing), at the front of the silhouettes' visual hull; colour from the pixel.
+b. `unproject_to_uv`: each Gaussian goes to the nearest body texel that faces its camera; texels
+   average what they receive (colour, offset along the tangent frame), and texels no view saw
+   take the values of the nearest seen texel in 3D. The result is the Gaussian map F = Z
+   (identity decoder; stages/gaussian_map.py).
+c. `refine`: optimise F through sampling + skinning + splatting against the input views
+   (L1 + mask + D-SSIM), `steps` Adam steps.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from scipy.ndimage import distance_transform_edt
+from scipy.spatial import cKDTree
+
+from dlacli.errors import DlaInputError
+from dlacli.stages import gaussian_map as gm
+from dlacli.types import Avatar, Cameras, Gaussians, ViewSet
+
+ENCODER = "unproject"
+DECODER = "identity"
+CLOTH_MARGIN = 0.01  # metres in front of the body surface where the body is seen
+HULL_STEPS = 128  # ray-marching samples through the body's bounding sphere
+HULL_BISECT = 6
+
+
+@dataclass
+class LiftConfig:
+    resolution: int = 256  # the Gaussian map F is resolution x resolution
+    grid: int = 128  # unstructured Gaussians: one per pixel of a grid x grid downsampled view
+    steps: int = 100  # refinement steps (0: unprojection only)
+    gaussians: int = gm.DEFAULT_GAUSSIANS  # sampled during refinement
+    render_size: int = 256  # refinement renders views at most this many pixels on the long side
+    lr: float = 0.01
+    w_mask: float = 1.0
+    w_ssim: float = 0.2
+    seed: int = 0
+    history: list[float] = field(default_factory=list)  # loss per step, filled by refine
+
+
+# ------------------------------------------------------------------------------ a. unstructured
+
+
+def _scaled_cameras(cameras: Cameras, factor: float, width: int, height: int) -> Cameras:
+    ks = cameras.Ks.clone()
+    ks[:, :2, :] *= factor
+    return Cameras(cameras.viewmats.clone(), ks, width, height)
+
+
+def _block_mean(x: np.ndarray, s: int) -> np.ndarray:
+    """[H, W, ...] -> [H // s, W // s, ...] mean over s x s blocks (crops the remainder)."""
+    h, w = x.shape[0] // s * s, x.shape[1] // s * s
+    x = x[:h, :w]
+    return x.reshape(h // s, s, w // s, s, *x.shape[2:]).mean(axis=(1, 3))
+
+
+def _project(points: np.ndarray, w2c: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """points [..., 3] -> pixel coordinates [..., 2] and camera z [...]."""
+    pc = points @ w2c[:3, :3].T + w2c[:3, 3]
+    z = pc[..., 2]
+    zs = np.where(np.abs(z) < 1e-9, 1e-9, z)
+    px = np.stack([k[0, 0] * pc[..., 0] / zs + k[0, 2], k[1, 1] * pc[..., 1] / zs + k[1, 2]], -1)
+    return px, z
+
+
+def _inside_masks(points: np.ndarray, views: ViewSet, skip: int) -> np.ndarray:
+    """[..., 3] -> [...] bool: inside every other view's silhouette. View folders frame the whole
+    person, so a point outside a view's image (or behind its camera) is outside the hull."""
+    inside = np.ones(points.shape[:-1], dtype=bool)
+    w2cs = views.cameras.viewmats.numpy().astype(np.float64)
+    ks = views.cameras.Ks.numpy().astype(np.float64)
+    h, w = views.masks.shape[1:]
+    for v in range(len(views)):
+        if v == skip:
+            continue
+        px, z = _project(points, w2cs[v], ks[v])
+        col, row = np.floor(px[..., 0]).astype(np.int64), np.floor(px[..., 1]).astype(np.int64)
+        in_img = (z > 0) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        m = np.zeros_like(inside)
+        m[in_img] = views.masks[v][row[in_img], col[in_img]] > 0.5
+        inside &= m
+    return inside
+
+
+def _hull_depth(origin, dirs, views: ViewSet, v: int, centre, radius) -> np.ndarray:
+    """Camera-z depth [N] where rays (origin [3], dirs [N, 3] with unit camera-z component) first
+    enter the visual hull of the other views' silhouettes; inf where they never do."""
+    oc = origin - centre
+    d0 = max(float(np.linalg.norm(oc)) - radius, 1e-3)
+    ts = np.linspace(d0, d0 + 2.0 * radius, HULL_STEPS)  # [S]
+    pts = origin + dirs[:, None, :] * ts[None, :, None]  # [N, S, 3]
+    inside = _inside_masks(pts, views, v)
+    hit = inside.any(axis=1)
+    first = np.argmax(inside, axis=1)
+    lo = ts[np.maximum(first - 1, 0)].copy()
+    hi = ts[first].copy()
+    for _ in range(HULL_BISECT):
+        mid = 0.5 * (lo + hi)
+        m_in = _inside_masks(origin + dirs * mid[:, None], views, v)
+        hi = np.where(m_in, mid, hi)
+        lo = np.where(m_in, lo, mid)
+    return np.where(hit, hi, np.inf)
+
+
+def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128):
+    """Pixel-aligned Gaussians in the input pose.
+
+    views: the view folder; vertices [V, 3] the fitted body in the input pose.
+    -> (Gaussians, view index per Gaussian [N] int64, camera centre per Gaussian [N, 3]).
+    """
+    from dlacli.body.model import get_body_model
+    from dlacli.render.raster import rasterize
+
+    faces = get_body_model().faces
+    h, w = views.masks.shape[1:]
+    stride = max(1, int(round(max(h, w) / grid)))
+    gh, gw = h // stride, w // stride
+    cams = _scaled_cameras(views.cameras, 1.0 / stride, gw, gh)
+    body = rasterize(vertices, faces, cams)
+    centre = vertices.mean(axis=0)
+    radius = float(np.linalg.norm(vertices - centre, axis=1).max()) + 0.4
+    out_means, out_rgb, out_alpha, out_scale, out_view, out_eye = [], [], [], [], [], []
+    for v in range(len(views)):
+        alpha = _block_mean(views.masks[v], stride)  # [gh, gw]
+        rgb = _block_mean(views.images[v] * views.masks[v][..., None], stride)
+        rgb = rgb / np.maximum(alpha[..., None], 1e-6)
+        keep = alpha > 0.5  # low-opacity filtering
+        rows, cols = np.nonzero(keep)
+        if rows.size == 0:
+            continue
+        k = cams.Ks[v].numpy().astype(np.float64)
+        c2w = np.linalg.inv(cams.viewmats[v].numpy().astype(np.float64))
+        xc = (cols + 0.5 - k[0, 2]) / k[0, 0]
+        yc = (rows + 0.5 - k[1, 2]) / k[1, 1]
+        dirs = np.stack([xc, yc, np.ones_like(xc)], -1) @ c2w[:3, :3].T  # camera z = 1 per unit
+        origin = c2w[:3, 3]
+        hull = _hull_depth(origin, dirs, views, v, centre, radius)
+        bdepth = body.depth[v][rows, cols].astype(np.float64)
+        depth = np.where(np.isfinite(bdepth), np.maximum(hull, bdepth - CLOTH_MARGIN), hull)
+        if not np.isfinite(hull).all():  # rays that miss the hull (inconsistent masks): use the body
+            depth = np.where(np.isfinite(depth), depth, bdepth)
+        ok = np.isfinite(depth)
+        means = origin + dirs[ok] * depth[ok, None]
+        footprint = depth[ok] / k[0, 0]  # metres per grid pixel at that depth
+        out_means.append(means)
+        out_rgb.append(rgb[rows[ok], cols[ok]])
+        out_alpha.append(alpha[rows[ok], cols[ok]])
+        out_scale.append(0.5 * footprint)
+        out_view.append(np.full(ok.sum(), v))
+        out_eye.append(np.broadcast_to(origin, means.shape))
+    if not out_means:
+        raise DlaInputError("views", "no masked pixels in any view")
+    means = torch.from_numpy(np.concatenate(out_means)).float()
+    n = means.shape[0]
+    scales = torch.from_numpy(np.concatenate(out_scale)).float()[:, None].expand(n, 3).contiguous()
+    quats = torch.zeros(n, 4)
+    quats[:, 0] = 1.0
+    gaussians = Gaussians.from_rgb(
+        means, quats, scales,
+        torch.from_numpy(np.concatenate(out_alpha)).float().clamp(0.0, 1.0),
+        torch.from_numpy(np.concatenate(out_rgb)).float().clamp(0.0, 1.0),
+    )  # fmt: skip
+    return gaussians, np.concatenate(out_view), np.concatenate(out_eye)
+
+
+# --------------------------------------------------------------------------- b. unprojection
+
+
+def _fill_outside_charts(fmap: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Copy each empty texel's nearest valid texel (in UV) so bilinear lookups at chart borders
+    do not blend in zeros. fmap [C, R, R], valid [R, R]."""
+    _, (ri, ci) = distance_transform_edt(~valid, return_indices=True)
+    return fmap[:, ri, ci]
+
+
+def unproject_to_uv(
+    gaussians: Gaussians, eyes: np.ndarray, vertices: np.ndarray, resolution: int
+) -> np.ndarray:
+    """The Gaussian map F [14, R, R] from unstructured Gaussians (means [N, 3] seen from camera
+    centres eyes [N, 3]) and the body in the same pose (vertices [V, 3])."""
+    from dlacli.body.uv import FRAME_RESOLUTION, texel_frames, uv_raster
+
+    valid = uv_raster(resolution).mask
+    verts = torch.from_numpy(np.asarray(vertices, dtype=np.float64))
+    t_map, r_map, _ = texel_frames(verts, resolution, FRAME_RESOLUTION)
+    pos, rot = t_map.numpy()[valid], r_map.numpy()[valid]  # [M, 3], [M, 3, 3]
+    normals = rot[:, :, 2]
+    x = gaussians.means.double().numpy()
+    rgb = gaussians.rgb.double().numpy()
+    alpha = gaussians.opacities.double().numpy()
+
+    # nearest texels that face the Gaussian's camera
+    tree = cKDTree(pos)
+    k = 8
+    dist, idx = tree.query(x, k=k)  # [N, k]
+    to_eye = eyes[:, None, :] - pos[idx]  # [N, k, 3]
+    facing = np.einsum("nkc,nkc->nk", to_eye, normals[idx]) > 0
+    pick = np.where(facing.any(axis=1), np.argmax(facing, axis=1), 0)
+    tex = idx[np.arange(len(x)), pick]  # [N]
+    cosine = np.einsum("nc,nc->n", eyes - pos[tex], normals[tex])
+    cosine /= np.linalg.norm(eyes - pos[tex], axis=1) + 1e-12
+    weight = alpha * np.clip(cosine, 0.05, 1.0)
+
+    m = pos.shape[0]
+    wsum = np.bincount(tex, weight, minlength=m)
+    local = np.einsum("nji,nj->ni", rot[tex], x - pos[tex])  # R^T (x - T): offsets in the frame
+    acc = np.zeros((m, 7))
+    for c, values in enumerate((*rgb.T, *local.T, alpha)):
+        acc[:, c] = np.bincount(tex, weight * values, minlength=m)
+    seen = wsum > 0
+    if not seen.any():
+        raise DlaInputError("views", "no Gaussian lands on the body: check body.json against the views")
+    acc[seen] /= wsum[seen, None]
+    if not seen.all():  # texels no view saw: nearest seen texel in 3D
+        _, near = cKDTree(pos[seen]).query(pos[~seen])
+        acc[~seen] = acc[seen][near]
+
+    fmap = np.zeros((gm.CHANNELS, resolution, resolution), dtype=np.float64)
+    opacity = np.clip(acc[:, 6], 0.05, 0.99)
+    fmap[0][valid] = np.log(opacity / (1.0 - opacity))
+    fmap[gm.RGB][:, valid] = acc[:, 0:3].T
+    fmap[gm.OFFSET][:, valid] = acc[:, 3:6].T
+    fmap[7][valid] = 1.0  # identity rotation (w = 1)
+    fmap[gm.LOG_SCALE][:, valid] = np.log([[0.6], [0.6], [0.2]])  # flat surfels about as wide as the sample spacing
+    return _fill_outside_charts(fmap, valid).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- c. refinement
+
+# Adam steps move F by about lr * scale per channel: opacity logit, rgb, offset (metres),
+# rotation (quaternion), log scale.
+_CHANNEL_STEP = torch.tensor([5.0, 1, 1, 1, 0.1, 0.1, 0.1, 1, 1, 1, 1, 1, 1, 1])
+
+
+def _resized_targets(views: ViewSet, max_size: int):
+    """Views at most max_size pixels on the long side: (rgb [V, h, w, 3] premultiplied on black,
+    mask [V, h, w], cameras)."""
+    import torch.nn.functional as nnf
+
+    h, w = views.masks.shape[1:]
+    f = min(1.0, max_size / max(h, w))
+    rh, rw = max(1, round(h * f)), max(1, round(w * f))
+    rgba = np.concatenate([views.images * views.masks[..., None], views.masks[..., None]], -1)
+    x = torch.from_numpy(rgba).float().permute(0, 3, 1, 2)
+    if (rh, rw) != (h, w):
+        x = nnf.interpolate(x, size=(rh, rw), mode="bilinear", antialias=True, align_corners=False)
+    x = x.permute(0, 2, 3, 1).clamp(0.0, 1.0)
+    ks = views.cameras.Ks.clone()
+    ks[:, 0, :] *= rw / w
+    ks[:, 1, :] *= rh / h
+    return x[..., :3].contiguous(), x[..., 3].contiguous(), Cameras(views.cameras.viewmats, ks, rw, rh)
+
+
+def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConfig, progress=None) -> np.ndarray:
+    """Optimise the Gaussian map F [14, R, R] so that its Gaussians, placed on the body in the
+    input pose (vertices [V, 3]), re-render the input views: L1 + w_mask * mask L1 +
+    w_ssim * (1 - SSIM), Adam for cfg.steps steps. `progress(step, loss)` is called per step."""
+    from dlacli.nn.losses import ssim
+    from dlacli.render.splat import render_gaussians
+
+    samples = gm.make_samples(cfg.gaussians, cfg.seed)
+    frames = gm.sample_frames(torch.from_numpy(np.asarray(vertices, dtype=np.float32))[None], samples)
+    target_rgb, target_mask, cams = _resized_targets(views, cfg.render_size)
+    base = torch.from_numpy(fmap).float()
+    delta = torch.zeros_like(base, requires_grad=True)
+    step_scale = _CHANNEL_STEP.to(base)[:, None, None]
+    opt = torch.optim.Adam([delta], lr=cfg.lr)
+    for step in range(cfg.steps):
+        opt.zero_grad(set_to_none=True)
+        (g,) = gm.gaussians_at_frames(base + delta * step_scale, samples, frames)
+        out = render_gaussians(g, cams)
+        loss = (out.rgb - target_rgb).abs().mean()
+        loss = loss + cfg.w_mask * (out.alpha - target_mask).abs().mean()
+        if cfg.w_ssim:
+            loss = loss + cfg.w_ssim * (1.0 - ssim(out.rgb, target_rgb))
+        loss.backward()
+        opt.step()
+        cfg.history.append(float(loss.detach()))
+        if progress is not None:
+            progress(step, float(loss))
+    return (base + delta.detach() * step_scale).numpy()
+
+
+# ------------------------------------------------------------------------------------ driver
+
+
+@dataclass
+class LiftResult:
+    avatar: Avatar
+    unstructured: Gaussians  # the pose-space Gaussians of step a (for the .ply)
+    contact_sheet: np.ndarray  # [H, W, 3] uint8: inputs (top) vs re-renders of the avatar (bottom)
+
+
+def render_views(fmap: np.ndarray, vertices: np.ndarray, cameras: Cameras, n: int, seed: int = 0):
+    """Render the avatar F placed on one posed body (vertices [V, 3]) from cameras -> RenderOutput."""
+    from dlacli.render.splat import render_gaussians
+
+    samples = gm.make_samples(n, seed)
+    frames = gm.sample_frames(torch.from_numpy(np.asarray(vertices, dtype=np.float32))[None], samples)
+    with torch.no_grad():
+        (g,) = gm.gaussians_at_frames(torch.from_numpy(fmap).float(), samples, frames)
+        return render_gaussians(g, cameras)
+
+
+def contact_sheet(inputs: np.ndarray, renders: np.ndarray, tile: int = 256) -> np.ndarray:
+    """Inputs [V, H, W, 3] above renders [V, H, W, 3] (floats in [0, 1]) -> uint8 image."""
+    from PIL import Image
+
+    def row(images):
+        tiles = []
+        for im in images:
+            pil = Image.fromarray((np.clip(im, 0, 1) * 255 + 0.5).astype(np.uint8))
+            pil.thumbnail((tile, tile))
+            canvas = Image.new("RGB", (tile, tile))
+            canvas.paste(pil, ((tile - pil.width) // 2, (tile - pil.height) // 2))
+            tiles.append(np.asarray(canvas))
+        return np.concatenate(tiles, axis=1)
+
+    return np.concatenate([row(inputs), row(renders)], axis=0)
+
+
+def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None) -> LiftResult:
+    """A view folder (with body.json) -> avatar (Z = the Gaussian map F), the unstructured
+    Gaussians and a contact sheet."""
+    from dlacli.body.model import get_body_model
+    from dlacli.body.uv import UV_LAYOUT
+
+    cfg = cfg or LiftConfig()
+    if views.body is None:
+        raise DlaInputError("views", "lift needs body.json beside transforms.json")
+    vertices = get_body_model().forward_body(views.body).vertices[0].numpy()
+    unstructured, _, eyes = unstructured_gaussians(views, vertices, cfg.grid)
+    fmap = unproject_to_uv(unstructured, eyes, vertices, cfg.resolution)
+    if cfg.steps > 0:
+        fmap = refine(fmap, views, vertices, cfg, progress)
+    rgb, mask, cams = _resized_targets(views, 512)
+    out = render_views(fmap, vertices, cams, cfg.gaussians, cfg.seed)
+    sheet = contact_sheet(rgb.numpy(), out.rgb.numpy())
+    extra = {"lift": {"steps": cfg.steps, "grid": cfg.grid, "gaussians": cfg.gaussians,
+                      "final_loss": cfg.history[-1] if cfg.history else None}}  # fmt: skip
+    avatar = Avatar(z=fmap, encoder=ENCODER, decoder=DECODER, body=views.body, uv_layout=UV_LAYOUT, extra=extra)
+    return LiftResult(avatar, unstructured, sheet)
