@@ -15,6 +15,7 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode="markdown",
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
@@ -35,9 +36,11 @@ def _root(
 
 
 def _register() -> None:
-    from dlacli.cli import info
+    """Commands in the order a user meets them: the stages, then tools."""
+    from dlacli.cli import animate, bench, body, dream, edit, info, interp, lift, motion, render, synth
 
-    info.register(app)
+    for module in (dream, lift, animate, render, edit, interp, synth, motion, body, info, bench):
+        module.register(app)
 
 
 _register()
@@ -53,3 +56,7 @@ def main() -> None:
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         sys.exit(130)
+
+
+if __name__ == "__main__":
+    main()

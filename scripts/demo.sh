@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# The main job on built-in defaults: photo -> views -> avatar -> USD animation + preview video.
+# Run from the repository root after installing (README's first command does both).
+set -euo pipefail
+PY="${PY:-.venv/bin/python}"
+DLA="${DLA:-.venv/bin/dla}"
+OUT="${1:-out/demo}"
+mkdir -p "$OUT"
+read -r PHOTO KEYPOINTS < <("$PY" -c "from dlacli.stages.dream import sample_photo, sample_keypoints; print(sample_photo(), sample_keypoints())")
+step() { local s=$SECONDS; echo "$1" >&2; shift; "$@"; echo "  ($((SECONDS - s)) s)" >&2; }
+
+step "1/3 dream: the sample photo -> view folder (fitted body, 4 views)" \
+  "$DLA" dream "$PHOTO" --keypoints "$KEYPOINTS" -o "$OUT/views"
+step "2/3 lift: views -> avatar.npz (+ Gaussians .ply, contact sheet)" \
+  "$DLA" lift "$OUT/views" -o "$OUT/avatar.npz" --ply "$OUT/gaussians.ply"
+step "3/3 animate: avatar + built-in walk -> USD + preview video" \
+  "$DLA" animate "$OUT/avatar.npz" walk -o "$OUT/walk.usdc" --preview "$OUT/walk.mp4"
+"$DLA" info "$OUT/walk.usdc"
+cat >&2 <<MSG
+done. Look at:
+  $OUT/views/fit_overlay.png      the fitted body over the photo
+  $OUT/avatar_contact.png         input views (top) vs the avatar re-rendered (bottom)
+  $OUT/walk.mp4                   the avatar walking
+  $OUT/walk.usdc                  the animation for USD tools (usdview, Blender)
+  $OUT/gaussians.ply              the unstructured Gaussians for splat viewers
+MSG
