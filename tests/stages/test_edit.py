@@ -128,3 +128,22 @@ def test_cli_bad_input_one_line_exit_2(tmp_path, args, needle):
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0], r.stderr
     assert not paths["o"].exists()
+
+
+def test_cli_interp_video(subject, tmp_path):
+    import imageio.v2 as imageio
+
+    from dlacli.io.views import read_views
+    from dlacli.stages.lift import LiftConfig, lift
+
+    a = lift(read_views(subject), LiftConfig(steps=0, gaussians=2048)).avatar
+    b = Avatar(z=a.z.copy(), encoder=a.encoder, decoder=a.decoder, body=a.body, uv_layout=a.uv_layout)
+    b.z[1:4] = 1.0 - b.z[1:4]  # inverted colours
+    write_avatar(a, tmp_path / "a.npz")
+    write_avatar(b, tmp_path / "b.npz")
+    r = _run("interp", str(tmp_path / "a.npz"), str(tmp_path / "b.npz"), "--steps", "3", "-o", str(tmp_path / "m"),
+             "--video", str(tmp_path / "m.mp4"), "--size", "48")
+    assert r.returncode == 0, r.stderr
+    frames = [f.astype(float) for f in imageio.get_reader(tmp_path / "m.mp4")]
+    assert len(frames) == 3 and frames[0].shape[:2] == (48, 48)
+    assert np.abs(frames[0] - frames[2]).mean() > 5  # the colours changed across the blend

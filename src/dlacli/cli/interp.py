@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Optional
 
 import typer
 
@@ -13,8 +14,12 @@ def interp(
     output: Path = typer.Option(..., "--output", "-o", help="avatar.npz to write, or a folder with --steps."),
     t: float = typer.Option(0.5, "--t", help="Blend fraction: 0 gives A exactly, 1 gives B exactly."),
     steps: int = typer.Option(0, "--steps", min=0, help="Write this many avatars from t=0 to t=1 (inclusive) into the folder OUTPUT instead."),
+    video: Optional[Path] = typer.Option(None, "--video", help="With --steps: also render the blend from the front as an .mp4."),
+    size: int = typer.Option(512, "--size", min=16, help="Video size in pixels (square)."),
+    fps: float = typer.Option(12.0, "--fps", help="Frame rate of --video."),
 ) -> None:
     """Blend avatars A and B: z = (1 - t) z_A + t z_B; the body blends too."""
+    from dlacli.cli.progress import progress_bar
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_dir
     from dlacli.io.avatar import read_avatar, write_avatar
@@ -27,10 +32,23 @@ def interp(
         return
     if steps < 2:
         raise DlaInputError("--steps", f"needs at least 2 avatars (t = 0 and t = 1), got {steps}")
+    if video is not None and video.suffix.lower() != ".mp4":
+        raise DlaInputError(video, "the video is an .mp4 file")
+    blends = [interpolate(avatar_a, avatar_b, k / (steps - 1), str(a), str(b)) for k in range(steps)]
     with atomic_dir(output) as tmp:
-        for k in range(steps):
-            tk = k / (steps - 1)
-            write_avatar(interpolate(avatar_a, avatar_b, tk, str(a), str(b)), tmp / f"interp_{k:03d}.npz")
+        for k, avatar in enumerate(blends):
+            write_avatar(avatar, tmp / f"interp_{k:03d}.npz")
+        if video is not None:
+            from dlacli.io.video import write_video
+            from dlacli.stages.render import render_avatar, turntable_cameras
+
+            camera = turntable_cameras(avatar_a, 1, size)  # one fixed front camera for every blend
+            with progress_bar("rendering", steps) as update:
+                frames = []
+                for k, avatar in enumerate(blends):
+                    frames.append(next(render_avatar(avatar, camera, [None])).rgba)
+                    update(k + 1)
+            write_video(frames, video, fps)
     typer.echo(str(output))
 
 
