@@ -287,7 +287,7 @@ def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConf
         opt.step()
         cfg.history.append(float(loss.detach()))
         if progress is not None:
-            progress(step, float(loss))
+            progress(step, cfg.history[-1])
     return (base + delta.detach() * step_scale).numpy()
 
 
