@@ -32,6 +32,8 @@ DECODER = "identity"
 CLOTH_MARGIN = 0.01  # metres in front of the body surface where the body is seen
 HULL_STEPS = 128  # ray-marching samples through the body's bounding sphere
 HULL_BISECT = 6
+MAX_OFFSET = 0.08  # metres: farther Gaussians are not attached to a texel (loose clothing stays)
+VIEW_SHARPNESS = 4.0  # texel colour weight ~ cos(view angle) ** VIEW_SHARPNESS
 
 
 @dataclass
@@ -209,7 +211,9 @@ def unproject_to_uv(
     tex = idx[np.arange(len(x)), pick]  # [N]
     cosine = np.einsum("nc,nc->n", eyes - pos[tex], normals[tex])
     cosine /= np.linalg.norm(eyes - pos[tex], axis=1) + 1e-12
-    weight = alpha * np.clip(cosine, 0.05, 1.0)
+    near = np.linalg.norm(x - pos[tex], axis=1) < MAX_OFFSET
+    # the most frontal view dominates a texel: averaging views that disagree by a few pixels blurs
+    weight = alpha * np.clip(cosine, 0.05, 1.0) ** VIEW_SHARPNESS * near
 
     m = pos.shape[0]
     wsum = np.bincount(tex, weight, minlength=m)
@@ -221,9 +225,11 @@ def unproject_to_uv(
     if not seen.any():
         raise DlaInputError("views", "no Gaussian lands on the body: check body.json against the views")
     acc[seen] /= wsum[seen, None]
-    if not seen.all():  # texels no view saw: nearest seen texel in 3D
-        _, near = cKDTree(pos[seen]).query(pos[~seen])
-        acc[~seen] = acc[seen][near]
+    if not seen.all():  # texels no view saw: colour and opacity of the nearest seen texel in 3D;
+        # no offset (an offset is only meaningful in the frame of the texel that measured it)
+        _, nearest = cKDTree(pos[seen]).query(pos[~seen])
+        acc[~seen] = acc[seen][nearest]
+        acc[~seen, 3:6] = 0.0
 
     fmap = np.zeros((gm.CHANNELS, resolution, resolution), dtype=np.float64)
     opacity = np.clip(acc[:, 6], 0.05, 0.99)
