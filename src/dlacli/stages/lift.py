@@ -40,7 +40,7 @@ VIEW_SHARPNESS = 4.0  # texel colour weight ~ cos(view angle) ** VIEW_SHARPNESS
 class LiftConfig:
     resolution: int = 256  # the Gaussian map F is resolution x resolution
     grid: int = 128  # unstructured Gaussians: one per pixel of a grid x grid downsampled view
-    steps: int = 100  # refinement steps (0: unprojection only)
+    steps: int = 50  # refinement steps (0: unprojection only); see `dla bench pipeline`
     gaussians: int = gm.DEFAULT_GAUSSIANS  # sampled during refinement
     render_size: int = 256  # refinement renders views at most this many pixels on the long side
     lr: float = 0.01
