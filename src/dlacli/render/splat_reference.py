@@ -74,6 +74,18 @@ def reference_project(means, quats, scales, viewmat, K, width, height, eps2d=EPS
     return means2d, conic, z, radius
 
 
+def _setup(g: Gaussians, cameras: Cameras, background, sh_degree):
+    """Camera count, image size, SH degree, viewmats, Ks and background [C, 3] in g's dtype."""
+    dtype, device = g.means.dtype, g.means.device
+    ncam = len(cameras)
+    degree = g.sh_degree if sh_degree is None else int(sh_degree)
+    viewmats = cameras.viewmats.to(dtype=dtype, device=device)
+    Ks = cameras.Ks.to(dtype=dtype, device=device)
+    bg = torch.zeros(3, dtype=dtype, device=device) if background is None else background
+    bg = torch.as_tensor(bg, dtype=dtype, device=device).expand(ncam, 3)
+    return ncam, int(cameras.width), int(cameras.height), degree, viewmats, Ks, bg
+
+
 def reference_render(
     gaussians: Gaussians,
     cameras: Cameras,
@@ -85,12 +97,7 @@ def reference_render(
     """Dense per-pixel rendering; dtype and device follow gaussians.means."""
     g = gaussians
     dtype, device = g.means.dtype, g.means.device
-    ncam, w, h = len(cameras), int(cameras.width), int(cameras.height)
-    degree = g.sh_degree if sh_degree is None else int(sh_degree)
-    viewmats = cameras.viewmats.to(dtype=dtype, device=device)
-    Ks = cameras.Ks.to(dtype=dtype, device=device)
-    bg = torch.zeros(3, dtype=dtype, device=device) if background is None else background
-    bg = torch.as_tensor(bg, dtype=dtype, device=device).expand(ncam, 3)
+    ncam, w, h, degree, viewmats, Ks, bg = _setup(g, cameras, background, sh_degree)
     colors = eval_sh_colors(g.sh, g.means, viewmats, degree)  # [C, N, 3]
     ys, xs = torch.meshgrid(torch.arange(h, device=device), torch.arange(w, device=device),
                             indexing="ij")
@@ -152,12 +159,7 @@ def pairs_render(
 
     g = gaussians
     dtype, device = g.means.dtype, g.means.device
-    ncam, w, h = len(cameras), int(cameras.width), int(cameras.height)
-    degree = g.sh_degree if sh_degree is None else int(sh_degree)
-    viewmats = cameras.viewmats.to(dtype=dtype, device=device)
-    Ks = cameras.Ks.to(dtype=dtype, device=device)
-    bg = torch.zeros(3, dtype=dtype, device=device) if background is None else background
-    bg = torch.as_tensor(bg, dtype=dtype, device=device).expand(ncam, 3)
+    ncam, w, h, degree, viewmats, Ks, bg = _setup(g, cameras, background, sh_degree)
     proj = project_gaussians(g.means, g.quats, g.scales, viewmats, Ks, w, h)
     colors = eval_sh_colors(g.sh, g.means, viewmats, degree)  # [C, N, 3]
     outs = []
