@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import functools
 import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,7 +34,6 @@ import numpy as np
 import torch
 
 from dlacli.errors import DlaInputError
-from dlacli.paths import cache_dir
 
 HM08_VERTICES = 19158
 # MakeHuman (Y up, faces +Z, decimetres) -> anny (Z up, faces -Y, metres): x_anny = MH_TO_ANNY @ x_mh
@@ -378,35 +376,13 @@ def bind_garment(garment: Garment, rest_vertices, fitted=None) -> BoundGarment:
 # ---------------------------------------------------------------------------------- the body
 
 
-def _build_full_anny():
-    """anny with topology "anny-full" (all hm08 vertices), same rig and pose parameters as
-    dlacli.body.model's (so the same rotations pose both)."""
-    from dlacli.body import model as body_model
-
-    os.environ.setdefault("ANNY_CACHE_DIR", str(cache_dir("anny")))
-    if body_model._anny_cache_is_cold() or "warp" in sys.modules:
-        body_model._quiet_warp()
-    import anny
-
-    def build():
-        return anny.Anny(
-            rig=body_model.RIG,
-            topology="anny-full",
-            pose_parameterization=body_model.POSE_PARAMETERIZATION,
-            skinning_method="lbs",
-        )
-
-    model = body_model.build_with_status(build, "loading the anny-full body model (first run: ~1 min)")
-    return model.to(dtype=torch.float32).eval()
-
-
 class FullBody:
     """anny "anny-full": hm08 vertex indices, posed like dlacli.body.model.BodyModel."""
 
     def __init__(self) -> None:
-        from dlacli.body.model import get_body_model
+        from dlacli.body.model import build_anny, get_body_model
 
-        self._anny = _build_full_anny()
+        self._anny = build_anny("anny-full", "loading the anny-full body model (first run: ~1 min)")
         self._body = get_body_model()
         self.faces = self._anny.faces.detach().cpu().numpy().astype(np.int64)  # [F, 3]
         assert int(self._anny.template_vertices.shape[0]) == HM08_VERTICES

@@ -23,7 +23,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from dlacli.body.model import BodyModel, axis_angle_to_pose_params, get_body_model
+from dlacli.body.model import BodyModel, anny_data_dir, axis_angle_to_pose_params, get_body_model
 from dlacli.types import PHENOTYPE_KEYS
 
 COCO_NAMES = (
@@ -45,11 +45,7 @@ def coco_regressor() -> np.ndarray:
     """[17, V] float32 regression weights over the "anny" topology's vertices (rows sum to 1)."""
     model = get_body_model()
     a = model._anny  # noqa: SLF001 - body/ is the only package that touches anny
-    from anny.paths import get_anny_root_dir  # anny is imported only inside dlacli.body
-
-    data = torch.load(
-        get_anny_root_dir() / "data" / "keypoints" / "coco.pth", weights_only=True, map_location="cpu"
-    )
+    data = torch.load(anny_data_dir() / "keypoints" / "coco.pth", weights_only=True, map_location="cpu")
     idx = a.base_mesh_vertex_indices.detach().cpu().numpy().astype(np.int64)  # [V] hm08 ids
     out = np.stack([data[name].numpy()[idx] for name in COCO_NAMES]).astype(np.float64)
     sums = out.sum(axis=1)

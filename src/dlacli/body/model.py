@@ -132,7 +132,10 @@ def _quiet_warp() -> None:
         warp.config.log_level = warp.LOG_WARNING
 
 
-def _build_anny():
+def build_anny(topology: str = TOPOLOGY, label: str = "building the anny body model (first run, ~1 min)"):
+    """anny with our rig and pose parameterisation and the given topology ("anny", or "anny-full"
+    for the garments), float32, cached in cache_dir("anny"); a spinner shows while a cold build runs.
+    This is the only place that imports anny's model (`anny_data_dir` the only other use)."""
     os.environ.setdefault("ANNY_CACHE_DIR", str(cache_dir("anny")))
     cold = _anny_cache_is_cold()
     if cold or "warp" in sys.modules:
@@ -142,13 +145,20 @@ def _build_anny():
     def build():
         return anny.Anny(
             rig=RIG,
-            topology=TOPOLOGY,
+            topology=topology,
             pose_parameterization=POSE_PARAMETERIZATION,
             skinning_method="lbs",
         )
 
-    model = build_with_status(build, "building the anny body model (first run, ~1 min)", cold)
+    model = build_with_status(build, label, cold)
     return model.to(dtype=torch.float32).eval()
+
+
+def anny_data_dir() -> Path:
+    """anny's shipped data folder (segmentation, keypoint regressors, ...)."""
+    from anny.paths import get_anny_root_dir
+
+    return Path(get_anny_root_dir()) / "data"
 
 
 def build_with_status(build, label: str, show: bool = True):
@@ -169,7 +179,7 @@ class BodyModel:
     """anny with rig "anny", topology "anny", "local-ref" poses; see the module docstring."""
 
     def __init__(self) -> None:
-        self._anny = _build_anny()
+        self._anny = build_anny()
         self._copies: dict[tuple[torch.device, torch.dtype], object] = {}
         self._bind_cache: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
         a = self._anny

