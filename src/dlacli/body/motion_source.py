@@ -15,7 +15,6 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import numpy as np
 
 from dlacli.body.builtin_motions import BUILTINS, builtin_motion
 from dlacli.errors import DlaInputError
@@ -32,19 +31,6 @@ def split_spec(spec: str) -> tuple[Path, Path | None]:
         if left.lower().endswith(".amc") and right.lower().endswith(".asf"):
             return Path(left), Path(right)
     return path, None
-
-
-def _npz_kind(path: Path) -> str:
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            keys = set(data.files)
-    except Exception as err:  # zip errors, truncated files
-        raise DlaInputError(path, f"not a readable .npz file ({type(err).__name__}: {err})") from None
-    if "format" in keys:
-        return "native"
-    if "poses" in keys:
-        return "amass"
-    raise DlaInputError(path, "npz is neither a dla motion (no 'format') nor an AMASS motion (no 'poses')")
 
 
 def load_motion(
@@ -74,8 +60,9 @@ def load_motion(
         raise DlaInputError(path, "is a folder; expected a motion file (.npz, .bvh, .amc)")
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        kind = _npz_kind(path)
-        if kind == "native":
+        from dlacli.io.validate import npz_format
+
+        if npz_format(path) != "amass":  # a dla motion (read_motion checks the version)
             from dlacli.io.motion import read_motion
 
             motion = read_motion(path)

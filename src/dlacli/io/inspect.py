@@ -6,22 +6,9 @@ import os
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
 
 from dlacli.errors import DlaInputError
-
-
-def _npz_format(path: Path) -> str:
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            if "format" in data.files:
-                return str(data["format"])
-            keys = set(data.files)
-    except Exception as err:  # zip errors, truncated files
-        raise DlaInputError(path, f"not a readable .npz file ({type(err).__name__}: {err})") from None
-    if "poses" in keys:
-        return "amass"
-    raise DlaInputError(path, "npz without a 'format' key (expected dla.motion/1 or dla.avatar/1)")
+from dlacli.io.validate import npz_format
 
 
 def _summarizer(path: Path) -> Callable[[Path], dict[str, Any]]:
@@ -43,7 +30,7 @@ def _summarizer(path: Path) -> Callable[[Path], dict[str, Any]]:
 
         return summarize_usd
     if suffix == ".npz":
-        fmt = _npz_format(path)
+        fmt = npz_format(path)
         if fmt.startswith("dla.motion/"):
             from dlacli.io.motion import summarize_motion
 

@@ -169,3 +169,20 @@ def save_npz(arrays: dict[str, Any], path: str | os.PathLike) -> None:
             info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
             info.compress_type = zipfile.ZIP_DEFLATED
             zf.writestr(info, buf.getvalue())
+
+
+def npz_format(path: str | os.PathLike) -> str:
+    """What an .npz holds: its `format` string (e.g. "dla.motion/1"), or "amass" for an AMASS
+    motion (a `poses` array and no `format`); DlaInputError for anything else or a broken file."""
+    import numpy as np
+
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if "format" in data.files:
+                return str(data["format"])
+            keys = set(data.files)
+    except Exception as err:  # zip errors, truncated files
+        raise DlaInputError(path, f"not a readable .npz file ({type(err).__name__}: {err})") from None
+    if "poses" in keys:
+        return "amass"
+    raise DlaInputError(path, "npz with neither a 'format' key (dla.motion/1, dla.avatar/1) nor AMASS 'poses'")
