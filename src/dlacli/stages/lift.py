@@ -16,7 +16,7 @@ c. `refine`: optimise F through sampling + skinning + splatting against the inpu
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -47,7 +47,6 @@ class LiftConfig:
     w_mask: float = 1.0
     w_ssim: float = 0.2
     seed: int = 0
-    history: list[float] = field(default_factory=list)  # loss per step, filled by refine
 
 
 # ------------------------------------------------------------------------------ a. unstructured
@@ -267,20 +266,23 @@ def _resized_targets(views: ViewSet, max_size: int):
     return x[..., :3].contiguous(), x[..., 3].contiguous(), Cameras(views.cameras.viewmats, ks, rw, rh)
 
 
-def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConfig, progress=None) -> np.ndarray:
+def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConfig, progress=None,
+           samples: gm.Samples | None = None) -> tuple[np.ndarray, list[float]]:  # fmt: skip
     """Optimise the Gaussian map F [14, R, R] so that its Gaussians, placed on the body in the
     input pose (vertices [V, 3]), re-render the input views: L1 + w_mask * mask L1 +
-    w_ssim * (1 - SSIM), Adam for cfg.steps steps. `progress(step, loss)` is called per step."""
+    w_ssim * (1 - SSIM), Adam for cfg.steps steps. `progress(step, loss)` is called per step.
+    Returns the refined map and the loss of every step."""
     from dlacli.nn.losses import ssim
     from dlacli.render.splat import render_gaussians
 
-    samples = gm.make_samples(cfg.gaussians, cfg.seed)
+    samples = samples or gm.make_samples(cfg.gaussians, cfg.seed)
     frames = gm.sample_frames(torch.from_numpy(np.asarray(vertices, dtype=np.float32))[None], samples)
     target_rgb, target_mask, cams = _resized_targets(views, cfg.render_size)
     base = torch.from_numpy(fmap).float()
     delta = torch.zeros_like(base, requires_grad=True)
     step_scale = _CHANNEL_STEP.to(base)[:, None, None]
     opt = torch.optim.Adam([delta], lr=cfg.lr)
+    history: list[float] = []
     for step in range(cfg.steps):
         opt.zero_grad(set_to_none=True)
         (g,) = gm.gaussians_at_frames(base + delta * step_scale, samples, frames)
@@ -291,10 +293,10 @@ def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConf
             loss = loss + cfg.w_ssim * (1.0 - ssim(out.rgb, target_rgb))
         loss.backward()
         opt.step()
-        cfg.history.append(float(loss.detach()))
+        history.append(float(loss.detach()))
         if progress is not None:
-            progress(step, cfg.history[-1])
-    return (base + delta.detach() * step_scale).numpy()
+            progress(step, history[-1])
+    return (base + delta.detach() * step_scale).numpy(), history
 
 
 # ------------------------------------------------------------------------------------ driver
@@ -307,11 +309,10 @@ class LiftResult:
     contact_sheet: np.ndarray  # [H, W, 3] uint8: inputs (top) vs re-renders of the avatar (bottom)
 
 
-def render_views(fmap: np.ndarray, vertices: np.ndarray, cameras: Cameras, n: int, seed: int = 0):
+def render_views(fmap: np.ndarray, vertices: np.ndarray, cameras: Cameras, samples: gm.Samples):
     """Render the avatar F placed on one posed body (vertices [V, 3]) from cameras -> RenderOutput."""
     from dlacli.render.splat import render_gaussians
 
-    samples = gm.make_samples(n, seed)
     frames = gm.sample_frames(torch.from_numpy(np.asarray(vertices, dtype=np.float32))[None], samples)
     with torch.no_grad():
         (g,) = gm.gaussians_at_frames(torch.from_numpy(fmap).float(), samples, frames)
@@ -347,12 +348,14 @@ def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None) -> LiftRe
     vertices = get_body_model().forward_body(views.body).vertices[0].numpy()
     unstructured, _, eyes = unstructured_gaussians(views, vertices, cfg.grid)
     fmap = unproject_to_uv(unstructured, eyes, vertices, cfg.resolution)
+    samples = gm.make_samples(cfg.gaussians, cfg.seed)  # the Gaussians refined and shown
+    history: list[float] = []
     if cfg.steps > 0:
-        fmap = refine(fmap, views, vertices, cfg, progress)
+        fmap, history = refine(fmap, views, vertices, cfg, progress, samples)
     rgb, mask, cams = _resized_targets(views, 512)
-    out = render_views(fmap, vertices, cams, cfg.gaussians, cfg.seed)
+    out = render_views(fmap, vertices, cams, samples)
     sheet = contact_sheet(rgb.numpy(), out.rgb.numpy())
     extra = {"lift": {"steps": cfg.steps, "grid": cfg.grid, "gaussians": cfg.gaussians,
-                      "final_loss": cfg.history[-1] if cfg.history else None}}  # fmt: skip
+                      "final_loss": history[-1] if history else None}}  # fmt: skip
     avatar = Avatar(z=fmap, encoder=ENCODER, decoder=DECODER, body=views.body, uv_layout=UV_LAYOUT, extra=extra)
     return LiftResult(avatar, unstructured, sheet)
