@@ -3,7 +3,9 @@ against the garments' own rest meshes, and posing (garments follow the posed bod
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
+import re
 from pathlib import Path
 
 import numpy as np
@@ -32,11 +34,19 @@ def full():
 # ------------------------------------------------------------------------------------ parser
 
 
+def _upstream_sha256() -> dict[str, str]:
+    """file name -> sha256 of the upstream makehuman-assets file, from the provenance table in
+    assets/garments/LICENSE.md (hashed from the upstream files when they were copied)."""
+    text = (gm.ASSET_DIR / "LICENSE.md").read_text()
+    return dict(re.findall(r"^\| `([\w.]+)` \| `([0-9a-f]{64})` \|$", text, flags=re.MULTILINE))
+
+
 @pytest.mark.parametrize("name", gm.SHIPPED)
-def test_shipped_copies_are_the_upstream_files(name, shared_data):
+def test_shipped_copies_are_the_upstream_files(name):
+    upstream = _upstream_sha256()
     for ext in (".mhclo", ".obj"):
-        ours = (gm.ASSET_DIR / f"{name}{ext}").read_bytes()
-        assert ours == (shared_data / "makehuman" / f"{name}{ext}").read_bytes()
+        ours = hashlib.sha256((gm.ASSET_DIR / f"{name}{ext}").read_bytes()).hexdigest()
+        assert ours == upstream[f"{name}{ext}"], f"{name}{ext} differs from the upstream file"
 
 
 @pytest.mark.parametrize("name", gm.SHIPPED)
@@ -182,7 +192,7 @@ def test_fit_on_anny_rest_reproduces_the_garment_mesh(full, name):
 # ------------------------------------------------------------------------------------ posing
 
 
-def test_full_body_matches_the_anny_topology_model(full):
+def test_full_body_matches_the_anny_topology_model(full, tol):
     from dlacli.body.model import get_body_model
 
     body = get_body_model()
@@ -194,7 +204,10 @@ def test_full_body_matches_the_anny_topology_model(full):
     kept = np.unique(full.faces)  # the "anny" topology keeps the vertices its faces use, in order
     assert kept.size == body.num_vertices
     verts = body.forward(pheno, rot, rr, rt).vertices
-    assert torch.allclose(verts_full[:, torch.from_numpy(kept)], verts, atol=1e-4)
+    # two float32 forwards over different vertex sets (so other BLAS blockings), each ~250
+    # roundings deep (see tests/body/test_model.py); was atol 1e-4 + rtol 1e-5, ~4x that
+    atol = tol(torch.float32, verts.abs().max(), 250)
+    torch.testing.assert_close(verts_full[:, torch.from_numpy(kept)], verts, rtol=0, atol=atol)
 
 
 @pytest.fixture(scope="module")

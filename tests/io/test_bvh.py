@@ -13,10 +13,10 @@ from dlacli.io.inspect import summarize
 CMU_UNIT = 0.0254 / 0.45  # metres per CMU length unit
 
 
-def test_cmu_files_parse(shared_data):
-    for name, frames, first in (("131_01.bvh", 994, "LeftHip"), ("cmu_01_01.bvh", 2752, "LeftUpLeg")):
-        skel = read_bvh(shared_data / "motion" / name)
-        assert skel.num_frames == frames and skel.num_joints == 31
+def test_cmu_files_parse(third_party_data, frames_in):
+    for name, first in (("131_01.bvh", "LeftHip"), ("cmu_01_01.bvh", "LeftUpLeg")):
+        skel = read_bvh(third_party_data / "motion" / name)
+        assert skel.num_frames == frames_in(third_party_data / "motion" / name) and skel.num_joints == 31
         assert skel.fps == 120.0
         assert skel.names[0] == "Hips" and first in skel.names
         assert skel.parents[0] == -1 and all(skel.parents[k] < k for k in range(1, 31))
@@ -24,22 +24,30 @@ def test_cmu_files_parse(shared_data):
         rot = skel.rotations
         np.testing.assert_allclose(rot @ np.swapaxes(rot, -1, -2), np.broadcast_to(np.eye(3), rot.shape), atol=1e-12)
     # the first data line of 131_01: root position and its Z Y X rotation channels
-    skel = read_bvh(shared_data / "motion" / "131_01.bvh")
+    skel = read_bvh(third_party_data / "motion" / "131_01.bvh")
     np.testing.assert_allclose(skel.root_positions[0], [5.2300, 16.9002, -33.8986])
     expected = Rotation.from_euler("ZYX", [-5.4029, 9.8098, 10.4956], degrees=True).as_matrix()
     np.testing.assert_allclose(skel.rotations[0, 0], expected, atol=1e-12)
 
 
-def test_metric_copy_by_a_third_party_matches_after_unit_conversion(shared_data):
+def test_metric_copy_by_a_third_party_matches_after_unit_conversion(third_party_data):
     """scaled_131_01.bvh (made by bvh11's authors) is 131_01.bvh in metres: FK positions agree."""
-    cmu = read_bvh(shared_data / "motion" / "131_01.bvh")
-    metric = read_bvh(shared_data / "motion" / "scaled_131_01.bvh")
+    cmu = read_bvh(third_party_data / "motion" / "131_01.bvh")
+    metric = read_bvh(third_party_data / "motion" / "scaled_131_01.bvh")
     assert metric.units == "m" and metric.metres_per_unit == 1.0
+    # The files' own precision bounds the match, float64 adds nothing: the metric file's offsets
+    # are the CMU ones times ~0.056444 (its offset ratios agree with 0.0254 / 0.45 to ~8e-6
+    # relative), written to 6 decimals; 131_01 has 5-decimal offsets, 4-decimal angles and root.
+    # Rest positions (<= 1 m from the root, <= 10 offsets): 8e-6 * 1 m + 10 * (2.8e-7 + 5e-7) m.
     np.testing.assert_allclose(rest_positions(cmu) * CMU_UNIT, rest_positions(metric), atol=2e-5)
     frames = np.arange(0, cmu.num_frames, 37)
     _, p_cmu = forward_kinematics(cmu, frames)
     _, p_metric = forward_kinematics(metric, frames)
-    np.testing.assert_allclose(p_cmu * CMU_UNIT, p_metric, atol=1e-4)  # 6-decimal file
+    # posed (<= 2 m from the origin): the scale mismatch 8e-6 * 2 m, the root's rounding
+    # 5e-5 units = 2.8e-6 m, <= 30 angles on a chain (10 joints x 3) each rounded by
+    # 5e-5 deg = 8.7e-7 rad at <= 1 m lever, the offsets as above: 1.6e-5 + 2.8e-6 + 2.6e-5
+    # + 7.8e-6 ~ 5.3e-5, about half of atol
+    np.testing.assert_allclose(p_cmu * CMU_UNIT, p_metric, atol=1e-4)
 
 
 BVH_ONE_BONE = """HIERARCHY
@@ -105,8 +113,8 @@ def test_bad_files_name_the_file_and_problem(tmp_path, order, frames, data, prob
     assert str(err.value).startswith(str(path)) and "\n" not in str(err.value)
 
 
-def test_cut_files(tmp_path, shared_data):
-    text = (shared_data / "motion" / "131_01.bvh").read_text()
+def test_cut_files(tmp_path, third_party_data):
+    text = (third_party_data / "motion" / "131_01.bvh").read_text()
     for cut, problem in ((len(text) // 2, "truncated"), (text.index("MOTION"), "no MOTION"), (text.index("JOINT LeftKnee"), "unexpected end")):
         path = _write(tmp_path, text[:cut], "cut.bvh")
         with pytest.raises(DlaInputError, match=problem):
@@ -117,10 +125,10 @@ def test_cut_files(tmp_path, shared_data):
         read_bvh(tmp_path / "missing.bvh")
 
 
-def test_summary_and_info(shared_data):
-    path = shared_data / "motion" / "cmu_01_01.bvh"
-    s = summarize_bvh(path)
-    assert s["kind"] == "bvh" and s["frames"] == 2752 and s["fps"] == 120.0 and s["joints"] == 31
-    assert s["duration_s"] == pytest.approx(2751 / 120)
+def test_summary_and_info(third_party_data, frames_in):
+    path = third_party_data / "motion" / "cmu_01_01.bvh"
+    s, n = summarize_bvh(path), frames_in(path)
+    assert s["kind"] == "bvh" and s["frames"] == n and s["fps"] == 120.0 and s["joints"] == 31
+    assert s["duration_s"] == pytest.approx((n - 1) / 120)
     assert 1.2 < s["height_m"] < 2.0  # a grown-up's joints, toes to head top
     assert summarize(path)["kind"] == "bvh"

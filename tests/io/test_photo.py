@@ -233,8 +233,8 @@ def test_keypoints_far_outside_the_photo(tmp_path):
         read_photo(tmp_path / "p.png", keypoints_path=tmp_path / "k.json")
 
 
-def test_real_photos_and_shipped_keypoints(shared_data):
-    for path in sorted((shared_data / "images").glob("*.png")):
+def test_real_photos_and_shipped_keypoints(third_party_data):
+    for path in sorted((third_party_data / "images").glob("*.png")):
         img, mask, kp = read_photo(path, keypoints_path=KP_DIR / f"{path.stem}.json")
         assert img.shape[:2] == mask.shape and kp.shape == (17, 3)
         assert 0.1 < (mask > 0.5).mean() < 0.5

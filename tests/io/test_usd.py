@@ -16,6 +16,11 @@ from dlacli.errors import DlaInputError
 from dlacli.io.usd import read_usd, summarize_usd, validate_usd, write_usd
 
 SH_C0 = 0.28209479177387814
+# Rotation tolerances (radians) of stored quaternions. Rounding a unit quaternion's components to
+# a float type moves it by <= eps / 2 (relative, per component), so the rotation, twice the angle
+# between the 4-vectors, by <= eps; float32 normalisations on write and read add <= eps32 each.
+QUATH_RAD = 2 * float(np.finfo(np.float16).eps)  # quath: 2e-3 rad (0.11 deg)
+QUATF_RAD = 4 * float(np.finfo(np.float32).eps)  # quatf: 5e-7 rad
 
 
 def make_anim(t=4, n=6, seed=0, varying_scales=False):
@@ -35,11 +40,19 @@ def open_stage(path):
     return stage
 
 
-def same_rotation(q_wxyz_a: np.ndarray, q_wxyz_b: np.ndarray, atol: float) -> bool:
-    """q and -q are the same rotation: compare |<a, b>| to 1."""
+def rotation_angle(q_wxyz_a: np.ndarray, q_wxyz_b: np.ndarray) -> np.ndarray:
+    """Angle (radians) of the rotation taking b to a, for quaternions [..., 4]; q and -q are the
+    same rotation. 4 atan2(|a - b|, |a + b|) after aligning signs: well conditioned near 0, unlike
+    acos(|<a, b>|), whose deviation from 1 is only second order in the angle."""
     a = q_wxyz_a / np.linalg.norm(q_wxyz_a, axis=-1, keepdims=True)
     b = q_wxyz_b / np.linalg.norm(q_wxyz_b, axis=-1, keepdims=True)
-    return bool(np.all(np.abs(np.abs(np.sum(a * b, axis=-1)) - 1) < atol))
+    b = b * np.where(np.sum(a * b, axis=-1, keepdims=True) < 0, -1.0, 1.0)
+    return 4 * np.arctan2(np.linalg.norm(a - b, axis=-1), np.linalg.norm(a + b, axis=-1))
+
+
+def same_rotation(q_wxyz_a: np.ndarray, q_wxyz_b: np.ndarray, atol: float) -> bool:
+    """Every rotation of a within atol radians of b's."""
+    return bool(np.all(rotation_angle(q_wxyz_a, q_wxyz_b) <= atol))
 
 
 # --- the instancer, reopened with pxr ---------------------------------------------------------
@@ -80,7 +93,7 @@ def test_instancer_reopened_with_pxr(tmp_path, suffix):
     for t in range(4):
         np.testing.assert_array_equal(np.asarray(pos_attr.Get(t)), positions[t])
         got = [(q.GetReal(), *q.GetImaginary()) for q in rot_attr.Get(t)]  # Gf.Quath: w, then x y z
-        assert same_rotation(np.asarray(got, dtype=np.float64), quats[t].astype(np.float64), atol=2e-3)
+        assert same_rotation(np.asarray(got, dtype=np.float64), quats[t].astype(np.float64), atol=QUATH_RAD)
 
     color = UsdGeom.Primvar(inst.GetPrim().GetAttribute("primvars:displayColor"))
     alpha = UsdGeom.Primvar(inst.GetPrim().GetAttribute("primvars:displayOpacity"))
@@ -102,11 +115,11 @@ def test_quaternion_order_with_a_non_symmetric_rotation(tmp_path):
     stage = open_stage(path)
     q = UsdGeom.PointInstancer(stage.GetPrimAtPath("/Avatar/Gaussians")).GetOrientationsAttr().Get(0)[0]
     gf_rot = Gf.Rotation(Gf.Quatd(q.GetReal(), Gf.Vec3d(q.GetImaginary())))
-    for v in np.eye(3):
-        np.testing.assert_allclose(np.asarray(gf_rot.TransformDir(Gf.Vec3d(*v))), rot.apply(v), atol=2e-3)
+    for v in np.eye(3):  # quath: a unit vector turned by <= QUATH_RAD moves by <= QUATH_RAD
+        np.testing.assert_allclose(np.asarray(gf_rot.TransformDir(Gf.Vec3d(*v))), rot.apply(v), atol=QUATH_RAD)
     # and UsdGeom's own instance transforms agree (row-vector convention: p' = p M)
     xform = UsdGeom.PointInstancer(stage.GetPrimAtPath("/Avatar/Gaussians")).ComputeInstanceTransformsAtTime(0, 0)[0]
-    np.testing.assert_allclose(np.asarray(xform)[:3, :3].T, rot.as_matrix(), atol=2e-3)
+    np.testing.assert_allclose(np.asarray(xform)[:3, :3].T, rot.as_matrix(), atol=QUATH_RAD)
 
 
 @pytest.mark.parametrize("schema", ["instancer", "both"])
@@ -172,7 +185,7 @@ def test_particle_field_values(tmp_path):
     for t in range(2):
         np.testing.assert_array_equal(np.asarray(splats.GetPositionsAttr().Get(t)), positions[t])
         got = np.asarray([(q.GetReal(), *q.GetImaginary()) for q in splats.GetOrientationsAttr().Get(t)])
-        assert same_rotation(got, quats[t].astype(np.float64), atol=1e-6)
+        assert same_rotation(got, quats[t].astype(np.float64), atol=QUATF_RAD)
     np.testing.assert_array_equal(np.asarray(splats.GetScalesAttr().Get()), scales)
     np.testing.assert_array_equal(np.asarray(splats.GetOpacitiesAttr().Get()), opacities)
     assert splats.GetRadianceSphericalHarmonicsDegreeAttr().Get() == 3
@@ -230,7 +243,7 @@ def test_read_round_trip(tmp_path, schema):
     np.testing.assert_array_equal(anim.positions, positions)
     np.testing.assert_array_equal(anim.scales, scales)
     np.testing.assert_array_equal(anim.opacities, opacities)
-    atol = 2e-3 if schema == "instancer" else 1e-6  # quath vs quatf
+    atol = QUATH_RAD if schema == "instancer" else QUATF_RAD
     assert same_rotation(anim.quats.astype(np.float64), quats.astype(np.float64), atol=atol)
     if schema == "particlefield":  # colour comes back from the DC coefficient
         np.testing.assert_allclose(anim.rgb, rgb, atol=1e-6)
@@ -295,7 +308,7 @@ def test_golden_animation(formats_dir):
         np.testing.assert_allclose(anim.positions[t], [[0.1 * i, 0, 0.05 * t] for i in range(3)], atol=1e-7)
         half = math.radians(45.0 * t) / 2
         expected = np.tile([math.cos(half), 0, 0, math.sin(half)], (3, 1))
-        assert same_rotation(anim.quats[t].astype(np.float64), expected, atol=1e-6)
+        assert same_rotation(anim.quats[t].astype(np.float64), expected, atol=QUATF_RAD)
     np.testing.assert_allclose(anim.scales, np.tile([0.01, 0.02, 0.03], (3, 3, 1)))
     np.testing.assert_array_equal(anim.rgb, np.eye(3))
     np.testing.assert_array_equal(anim.opacities, [0.25, 0.5, 1.0])

@@ -176,7 +176,7 @@ def test_dream_diffusion_end_to_end(tiny, subject, tmp_path):
     np.testing.assert_allclose(vs.masks[0], np.round(crop_alpha * 255) / 255, atol=1e-6)
 
 
-def test_dla_dream_diffusion_cli(tiny, shared_data, tmp_path):
+def test_dla_dream_diffusion_cli(tiny, third_party_data, tmp_path):
     """`dla dream --backend diffusion --model <tiny folder>` on a real photo (a 3-step fit, 5
     video frames, 2 sampling steps, 64 x 64) writes a view folder that reads back."""
     from pathlib import Path
@@ -187,7 +187,7 @@ def test_dla_dream_diffusion_cli(tiny, shared_data, tmp_path):
     from dlacli.io.views import read_views
 
     stem = "pexels-photo-6311555-removebg"
-    photo = shared_data / "images" / f"{stem}.png"
+    photo = third_party_data / "images" / f"{stem}.png"
     kp = Path(__file__).resolve().parent.parent / "data" / "keypoints" / f"{stem}.json"
     if not kp.is_file():
         pytest.skip(f"missing keypoints {kp}")
