@@ -30,25 +30,26 @@ def _main(monkeypatch, capsys, *args: str) -> tuple[int, str]:
     return exit_info.value.code, capsys.readouterr().err
 
 
-def test_convert_bvh_with_resampling(tmp_path, shared_data):
-    out = tmp_path / "m.npz"
-    result = CliRunner().invoke(app, ["motion", "convert", str(shared_data / "motion" / "131_01.bvh"), "-o", str(out), "--fps", "30"])
+def test_convert_bvh_with_resampling(tmp_path, third_party_data, frames_in):
+    out, src = tmp_path / "m.npz", third_party_data / "motion" / "131_01.bvh"
+    result = CliRunner().invoke(app, ["motion", "convert", str(src), "-o", str(out), "--fps", "30"])
     assert result.exit_code == 0, result.output
     motion = read_motion(out)
-    assert motion.fps == 30.0 and motion.num_frames == (994 - 1) // 4 + 1 and len(motion.bone_labels) == 104
+    kept = (frames_in(src) - 1) // 4 + 1  # 120 -> 30 fps: every 4th frame, the first included
+    assert motion.fps == 30.0 and motion.num_frames == kept and len(motion.bone_labels) == 104
     with np.load(out) as raw:  # the file itself, as numpy sees it
-        assert str(raw["format"]) == "dla.motion/1" and raw["rotations"].shape == (249, 104, 3)
+        assert str(raw["format"]) == "dla.motion/1" and raw["rotations"].shape == (kept, 104, 3)
 
 
-def test_convert_amc_with_explicit_and_found_asf(tmp_path, shared_data):
-    d = shared_data / "motion"
+def test_convert_amc_with_explicit_and_found_asf(tmp_path, third_party_data, frames_in):
+    d = third_party_data / "motion"
     runner = CliRunner()
     found, spec, option = tmp_path / "a.npz", tmp_path / "b.npz", tmp_path / "c.npz"
     assert runner.invoke(app, ["motion", "convert", str(d / "cmu_01_01.amc"), "-o", str(found), "--fps", "10"]).exit_code == 0
     assert runner.invoke(app, ["motion", "convert", f"{d / 'cmu_01_01.amc'}:{d / 'cmu_01.asf'}", "-o", str(spec), "--fps", "10"]).exit_code == 0
     assert runner.invoke(app, ["motion", "convert", str(d / "cmu_01_01.amc"), "--asf", str(d / "cmu_01.asf"), "-o", str(option), "--fps", "10"]).exit_code == 0
     a, b, c = read_motion(found), read_motion(spec), read_motion(option)
-    assert a.num_frames == 2750 // 12 + 1
+    assert a.num_frames == (frames_in(d / "cmu_01_01.amc") - 1) // 12 + 1  # 120 -> 10 fps: every 12th
     np.testing.assert_array_equal(a.rotations, b.rotations)
     np.testing.assert_array_equal(a.rotations, c.rotations)
 

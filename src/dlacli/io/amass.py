@@ -4,7 +4,10 @@ Keys: `poses` [T, 156] (SMPL-H: root + 21 body + 2 x 15 hand joints), [T, 165] (
 21 body + jaw + 2 eyes + 2 x 15 hand joints) or [T, 72] (SMPL: root + 23 joints), axis-angles in
 radians; `trans` [T, 3] metres; `mocap_framerate` or `mocap_frame_rate`; optional `betas`,
 `gender`. Only the 22 body joints are read (hands, jaw and eyes have no counterpart that this
-toolkit animates). AMASS worlds are Z-up and ground-registered.
+toolkit animates). A `poses` of 3 x J values with J <= 22 is read as the first J body joints
+(the retargeting then refuses the bones it lacks unless missing joints are allowed). Frame rates
+above 1000 fps, poses beyond 1e4 rad and trans beyond 1e5 m are refused. AMASS worlds are Z-up
+and ground-registered.
 
 No SMPL model files are needed: the skeleton's rest pose is `SMPL_REST_JOINTS`, rounded joint
 locations of an average SMPL body in its canonical frame (metres, +Y up, facing +Z, the body's
@@ -21,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.io.bvh import SkeletonMotion, clean_fps
+from dlacli.io.bvh import MAX_FPS, SkeletonMotion, check_motion_size, clean_fps
 
 SMPL_JOINTS = (
     "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
@@ -65,13 +68,20 @@ def axis_angle_matrices(aa: np.ndarray) -> np.ndarray:
 
 
 def _load(path: Path) -> dict[str, np.ndarray]:
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            return {k: data[k] for k in data.files}
-    except ValueError as err:  # object arrays need pickles: refuse them
-        raise DlaInputError(path, f"unreadable npz ({err})") from None
-    except Exception as err:  # zip errors, truncated files
-        raise DlaInputError(path, f"not a readable .npz file ({type(err).__name__}: {err})") from None
+    """All arrays, through the shared npz loader: regular files only, no pickles, zip members and
+    .npy headers checked against a cap before numpy allocates anything (`dlacli.io.npz_bounds`)."""
+    from dlacli.io.validate import load_npz
+
+    return load_npz(path)
+
+
+def _layout(width: int) -> tuple[str, int]:
+    """(layout name, number of SMPL body joints read) for `poses` of `width` values per frame."""
+    if width in LAYOUTS:
+        return LAYOUTS[width], len(SMPL_JOINTS)
+    if 0 < width <= 3 * len(SMPL_JOINTS) and width % 3 == 0:
+        return f"smpl body, first {width // 3} joints", width // 3
+    raise ValueError(width)
 
 
 def read_amass(path: str | os.PathLike) -> SkeletonMotion:
@@ -83,21 +93,27 @@ def read_amass(path: str | os.PathLike) -> SkeletonMotion:
     poses = np.asarray(data["poses"])
     if poses.dtype.kind not in "fiu" or poses.ndim != 2:
         raise DlaInputError(path, f"poses must be a numeric [T, 156|165|72] array, got {poses.dtype} {poses.shape}")
-    if poses.shape[1] not in LAYOUTS:
+    try:
+        _, joints = _layout(poses.shape[1])
+    except ValueError:
         raise DlaInputError(
-            path, f"poses has {poses.shape[1]} values per frame; supported: 156 (SMPL-H), 165 (SMPL-X), 72 (SMPL)"
-        )
+            path, f"poses has {poses.shape[1]} values per frame; supported: 156 (SMPL-H), 165 (SMPL-X), 72 (SMPL), "
+            "or 3 x J for the first J <= 22 SMPL body joints"
+        ) from None
     t = poses.shape[0]
     if t == 0:
         raise DlaInputError(path, "poses has no frames (T = 0)")
+    check_motion_size(path, t, joints)
     if "trans" not in data:
         raise DlaInputError(path, "no 'trans' array (root translation [T, 3])")
     trans = np.asarray(data["trans"])
     if trans.dtype.kind not in "fiu" or trans.shape != (t, 3):
         raise DlaInputError(path, f"trans has shape {trans.shape}, expected ({t}, 3)")
-    for name, arr in (("poses", poses), ("trans", trans)):
+    for name, arr, most in (("poses", poses, 1e4), ("trans", trans, 1e5)):  # radians, metres
         if not np.all(np.isfinite(arr)):
             raise DlaInputError(path, f"{name} holds non-finite values (first at frame {np.argwhere(~np.isfinite(arr))[0][0]})")
+        if arr.size and np.abs(arr).max() > most:
+            raise DlaInputError(path, f"{name} holds values beyond +-{most:g} (largest {np.abs(arr).max():g}): not a motion")
     key = next((k for k in FRAMERATE_KEYS if k in data), None)
     if key is None:
         raise DlaInputError(path, f"no frame rate ({' or '.join(FRAMERATE_KEYS)})")
@@ -107,13 +123,18 @@ def read_amass(path: str | os.PathLike) -> SkeletonMotion:
         raise DlaInputError(path, f"{key} must be one number, got shape {np.shape(data[key])}") from None
     if not np.isfinite(fps) or fps <= 0:
         raise DlaInputError(path, f"{key} = {fps} must be > 0")
+    if fps > MAX_FPS:
+        raise DlaInputError(path, f"{key} = {fps:g} is above {MAX_FPS:g} fps (not supported)")
 
-    body = poses[:, : 3 * len(SMPL_JOINTS)].astype(np.float64).reshape(t, len(SMPL_JOINTS), 3)
-    parents = np.array(SMPL_PARENTS, dtype=np.int64)
-    offsets = SMPL_REST_JOINTS.copy()
-    offsets[1:] -= SMPL_REST_JOINTS[parents[1:]]
+    # fewer joints than the 22 body joints (a cut layout): the first ones, in SMPL order; the
+    # retargeting then refuses the bones they lack unless told to leave them at rest
+    body = poses[:, : 3 * joints].astype(np.float64).reshape(t, joints, 3)
+    parents = np.array(SMPL_PARENTS[:joints], dtype=np.int64)
+    rest = SMPL_REST_JOINTS[:joints]
+    offsets = rest.copy()
+    offsets[1:] -= rest[parents[1:]]
     return SkeletonMotion(
-        names=list(SMPL_JOINTS),
+        names=list(SMPL_JOINTS[:joints]),
         parents=parents,
         offsets=offsets,
         rotations=axis_angle_matrices(body),
@@ -123,7 +144,7 @@ def read_amass(path: str | os.PathLike) -> SkeletonMotion:
         metres_per_unit=1.0,
         units="m",
         source=str(path),
-        end_sites={k: v.copy() for k, v in SMPL_END_SITES.items()},
+        end_sites={k: v.copy() for k, v in SMPL_END_SITES.items() if k < joints},
         dialect="smpl",
     )
 
@@ -135,7 +156,7 @@ def summarize_amass(path: str | os.PathLike) -> dict[str, Any]:
     width = int(np.asarray(data["poses"]).shape[1])
     out = {
         "kind": "amass",
-        "format": f"amass ({LAYOUTS[width]}, {width} pose values)",
+        "format": f"amass ({_layout(width)[0]}, {width} pose values)",
         "frames": skel.num_frames,
         "fps": skel.fps,
         "duration_s": (skel.num_frames - 1) / skel.fps,

@@ -20,8 +20,10 @@ trailing `_<part>`s removed (cmu_01_01.amc -> cmu_01.asf), then for a lone .asf 
 
 from __future__ import annotations
 
+import math
 import os
 import re
+from array import array
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,10 +31,20 @@ from typing import Any
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.io.bvh import SkeletonMotion, euler_matrices, rest_height
+from dlacli.io.bvh import (
+    MAX_DEPTH,
+    MAX_JOINTS,
+    SkeletonMotion,
+    _next_line,
+    _read_text,
+    check_motion_size,
+    euler_matrices,
+    rest_height,
+)
 
 INCH = 0.0254
 CMU_FPS = 120.0
+MAX_ASF_BYTES = 16 * 2**20  # a skeleton; CMU's are 7 KB
 
 
 @dataclass
@@ -100,11 +112,7 @@ def _axis_order(word: str, where: Path, what: str) -> str:
 def read_asf(path: str | os.PathLike) -> Asf:
     """Parse an ASF skeleton; bad content raises DlaInputError naming the file and the problem."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError as err:
-        raise DlaInputError(path, f"cannot read ({err.strerror or err})") from None
-    sec = _sections(text)
+    sec = _sections(_read_text(path, MAX_ASF_BYTES))
     for need in ("root", "bonedata", "hierarchy"):
         if need not in sec:
             raise DlaInputError(path, f"not an ASF skeleton: no :{need} section (truncated file?)")
@@ -140,6 +148,8 @@ def read_asf(path: str | os.PathLike) -> Asf:
             bone = _make_bone(block, path)
             if bone.name in bones or bone.name == "root":
                 raise DlaInputError(path, f"bone {bone.name!r} defined twice")
+            if len(bones) >= MAX_JOINTS - 1:
+                raise DlaInputError(path, f"more than {MAX_JOINTS - 1} bones in :bonedata")
             bones[bone.name] = bone
             block = None
         elif block is not None and not key.startswith("("):
@@ -149,19 +159,35 @@ def read_asf(path: str | os.PathLike) -> Asf:
     if not bones:
         raise DlaInputError(path, "no bones in :bonedata")
 
+    # every bone has one parent and hangs below root: no cycles, no shared bones; depth capped
     children: dict[str, list[str]] = {}
+    parent_of: dict[str, str] = {}
     for words in sec["hierarchy"]:
         if words[0].lower() in ("begin", "end"):
             continue
         parent, kids = words[0], words[1:]
         for name in [parent, *kids]:
             if name != "root" and name not in bones:
-                raise DlaInputError(path, f":hierarchy names unknown bone {name!r}")
+                raise DlaInputError(path, f":hierarchy names unknown bone {name[:40]!r}")
+        for kid in kids:
+            if kid == "root":
+                raise DlaInputError(path, f":hierarchy makes root a child of {parent!r}")
+            if kid in parent_of:
+                raise DlaInputError(
+                    path, f":hierarchy gives bone {kid!r} two parents ({parent_of[kid]!r} and {parent!r}): a cycle or a repeated line"
+                )
+            parent_of[kid] = parent
         children.setdefault(parent, []).extend(kids)
     reached = _order_bones(children)
     missing = sorted(set(bones) - set(reached))
     if missing:
-        raise DlaInputError(path, f"bone(s) not reachable from root in :hierarchy: {', '.join(missing)}")
+        shown = ", ".join(missing[:8]) + (" ..." if len(missing) > 8 else "")
+        raise DlaInputError(path, f"bone(s) not reachable from root in :hierarchy (a cycle?): {shown}")
+    depth = {"root": 0}
+    for name in reached:  # parents come first
+        depth[name] = depth[parent_of[name]] + 1
+        if depth[name] > MAX_DEPTH:
+            raise DlaInputError(path, f":hierarchy nests bones more than {MAX_DEPTH} deep (at {name!r})")
     return Asf(path, length_unit, angle_unit, root_order, root_axis, position, orientation, bones, children)
 
 
@@ -189,12 +215,15 @@ def _make_bone(block: dict[str, list[str]], path: Path) -> AsfBone:
 
 
 def _order_bones(children: dict[str, list[str]]) -> list[str]:
+    """Bones below root, depth first, parents before children (iterative: no recursion limit)."""
     out: list[str] = []
+    seen: set[str] = set()
     stack = list(reversed(children.get("root", [])))
     while stack:
         name = stack.pop()
-        if name in out:
+        if name in seen:
             continue
+        seen.add(name)
         out.append(name)
         stack.extend(reversed(children.get(name, [])))
     return out
@@ -211,58 +240,62 @@ def read_amc(amc_path: str | os.PathLike, asf: Asf | str | os.PathLike, fps: flo
     amc_path = Path(amc_path)
     if not isinstance(asf, Asf):
         asf = read_asf(asf)
-    try:
-        text = amc_path.read_text(encoding="utf-8", errors="replace")
-    except OSError as err:
-        raise DlaInputError(amc_path, f"cannot read ({err.strerror or err})") from None
+    text = _read_text(amc_path)
 
+    names = _order_bones(asf.children)
+    moving = ["root"] + [b for b in names if asf.bones[b].dofs]
+    counts = {"root": 6, **{b: len(asf.bones[b].dofs) for b in names}}
+    store = {b: array("d") for b in moving}  # values in reading order, 8 bytes each
     radians = asf.angle_unit == "rad"
-    frames: list[dict[str, list[str]]] = []
-    for n, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        if not line or line.startswith("#"):
+    frames, seen = 0, set()
+    pos = last = 0
+    n = 1  # line number
+    while (span := _next_line(text, pos)) is not None:
+        start, end, pos = span
+        n += text.count("\n", last, start)
+        last = start
+        line = text[start:end].strip()
+        if line.startswith("#"):
             continue
         if line.startswith(":"):
             radians = {"radians": True, "degrees": False}.get(line[1:].strip().lower(), radians)
             continue
         words = line.split()
         if len(words) == 1 and re.fullmatch(r"\d+", words[0]):
-            frames.append({})
+            if frames:
+                _check_frame(amc_path, frames, moving, seen)
+            frames += 1
+            check_motion_size(amc_path, frames, len(names) + 1)
+            seen = set()
             continue
         if not frames:
             raise DlaInputError(amc_path, f"line {n}: data before the first frame number")
         name = words[0]
         if name != "root" and name not in asf.bones:
-            raise DlaInputError(amc_path, f"line {n}: bone {name!r} is not in the skeleton {asf.path.name}")
-        if name in frames[-1]:
-            raise DlaInputError(amc_path, f"line {n}: bone {name!r} appears twice in frame {len(frames)}")
-        frames[-1][name] = words[1:] + [str(n)]
+            raise DlaInputError(amc_path, f"line {n}: bone {name[:40]!r} is not in the skeleton {asf.path.name}")
+        if name in seen:
+            raise DlaInputError(amc_path, f"line {n}: bone {name!r} appears twice in frame {frames}")
+        seen.add(name)
+        if name not in store:
+            continue
+        if len(words) - 1 != counts[name]:
+            raise DlaInputError(amc_path, f"line {n}: bone {name!r} has {len(words) - 1} values, its dofs need {counts[name]}")
+        try:
+            row = [float(w) for w in words[1:]]
+        except ValueError:
+            raise DlaInputError(amc_path, f"line {n}: non-numeric value for bone {name!r}") from None
+        if not all(math.isfinite(v) for v in row):
+            raise DlaInputError(amc_path, f"line {n}: non-finite value for bone {name!r} (frame {frames})")
+        store[name].extend(row)
     if not frames:
         raise DlaInputError(amc_path, "no frames (an AMC motion needs at least one)")
-
-    names = _order_bones(asf.children)
-    moving = ["root"] + [b for b in names if asf.bones[b].dofs]
-    counts = {"root": 6, **{b: len(asf.bones[b].dofs) for b in names}}
-    values = {b: np.empty((len(frames), counts[b])) for b in moving}
-    for f, frame in enumerate(frames):
-        for b in moving:
-            if b not in frame:
-                raise DlaInputError(amc_path, f"frame {f + 1} lacks bone {b!r} (truncated file?)")
-            words, line = frame[b][:-1], frame[b][-1]
-            if len(words) != counts[b]:
-                raise DlaInputError(amc_path, f"line {line}: bone {b!r} has {len(words)} values, its dofs need {counts[b]}")
-            try:
-                row = np.array([float(w) for w in words])
-            except ValueError:
-                raise DlaInputError(amc_path, f"line {line}: non-numeric value for bone {b!r}") from None
-            if not np.all(np.isfinite(row)):
-                raise DlaInputError(amc_path, f"line {line}: non-finite value for bone {b!r} (frame {f + 1})")
-            values[b][f] = row
+    _check_frame(amc_path, frames, moving, seen)
+    values = {b: np.frombuffer(store[b], dtype=np.float64).reshape(frames, counts[b]) for b in moving}
 
     to_rad = (lambda a: a) if radians else np.radians
     asf_rad = (lambda a: a) if asf.angle_unit == "rad" else np.radians
     scale = asf.metres_per_unit
-    t = len(frames)
+    t = frames
     joint_names = ["root"] + names
     index = {n: i for i, n in enumerate(joint_names)}
     parents = np.full(len(joint_names), -1, dtype=np.int64)
@@ -311,6 +344,12 @@ def read_amc(amc_path: str | os.PathLike, asf: Asf | str | os.PathLike, fps: flo
         source=str(amc_path),
         end_sites=end_sites,
     )
+
+
+def _check_frame(where: Path, frame: int, moving: list[str], seen: set[str]) -> None:
+    missing = next((b for b in moving if b not in seen), None)
+    if missing is not None:
+        raise DlaInputError(where, f"frame {frame} lacks bone {missing!r} (truncated file?)")
 
 
 def find_asf(amc_path: str | os.PathLike) -> Path:

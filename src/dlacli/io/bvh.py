@@ -15,11 +15,17 @@ BVH specifics: a rotation channel list such as "Zrotation Yrotation Xrotation" m
 R = Rz @ Ry @ Rx (the first listed rotation is the outermost); angles are degrees. Any order of
 one to three distinct rotation axes is accepted. Position channels on a joint replace its offset
 for that frame. BVH has no unit: `guess_bvh_units` infers it from the skeleton's height.
+
+Hostile files: the readers of this module, `asf_amc` and `amass` share the limits below
+(`MAX_*`, `check_motion_size`) and read text through `_read_text` (regular files only, size
+capped); `Frames:` is checked against the data present before anything is allocated for it, and
+hierarchies are parsed without recursion (docs/motion.md, "Limits").
 """
 
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -156,50 +162,138 @@ def guess_bvh_units(height: float) -> tuple[str, float]:
 
 
 # ---------------------------------------------------------------------------------------------
+# limits and safe reading (the same for BVH, ASF and AMC; docs/motion.md states them)
+
+MAX_FPS = 1000.0  # frame rates above this are refused (by every motion reader, native ones too)
+MAX_FRAMES = 200_000  # 27 minutes at 120 fps; longer motions are refused before they are built
+MAX_DEPTH = 256  # joints nested deeper than this are refused (real skeletons: < 30)
+MAX_JOINTS = 1024
+MAX_JOINT_FRAMES = 20_000_000  # frames x joints (the local rotations alone: 72 bytes each)
+
+
+def _read_text(path: str | os.PathLike, max_bytes: int | None = None) -> str:
+    """The text of a BVH, ASF or AMC file (UTF-8, bad bytes replaced) through the shared input
+    checks (`dlacli.io.files`: regular files only, at most `max_bytes` (default MAX_TEXT_BYTES),
+    never blocking on a FIFO); old Mac line ends ("\r") become "\n"."""
+    from dlacli.io.files import MAX_TEXT_BYTES, open_input
+
+    path = Path(path)
+    cap = MAX_TEXT_BYTES if max_bytes is None else max_bytes
+    try:
+        with open_input(path, cap) as f:
+            # read what fstat says is there (f.read(cap) would allocate `cap` bytes up front)
+            data = f.read(os.fstat(f.fileno()).st_size + 1)
+            while len(data) <= cap and (more := f.read(1 << 20)):  # it grew meanwhile
+                data += more
+    except DlaInputError as err:
+        if err.problem == "no such file":
+            raise DlaInputError(path, "cannot read (no such file)") from None
+        raise
+    except OSError as err:
+        raise DlaInputError(path, f"cannot read ({err.strerror or err})") from None
+    if len(data) > cap:
+        raise DlaInputError(path, f"is larger than {cap / 2**20:g} MiB; larger files are refused")
+    text = data.decode("utf-8", errors="replace")
+    if "\n" not in text and "\r" in text:
+        text = text.replace("\r", "\n")
+    return text
+
+
+def check_motion_size(where: Any, frames: int, joints: int) -> None:
+    """Refuse motions too large to hold (before anything of that size is allocated)."""
+    if joints > MAX_JOINTS:
+        raise DlaInputError(where, f"{joints} joints; at most {MAX_JOINTS} are supported")
+    if frames > MAX_FRAMES:
+        raise DlaInputError(where, f"{frames:,} frames; at most {MAX_FRAMES:,} are supported")
+    if frames * joints > MAX_JOINT_FRAMES:
+        raise DlaInputError(
+            where, f"{frames:,} frames x {joints} joints is too large (at most {MAX_JOINT_FRAMES:,} joint-frames)"
+        )
+
+
+# ---------------------------------------------------------------------------------------------
 # parsing
+
+_TOKEN = re.compile(r"\S+")
+_NON_SPACE = re.compile(r"\S")
+_NON_SPACE_LINE = re.compile(r"^.*\S.*$", re.M)
 
 
 class _Tokens:
+    """Lazy whitespace tokens of the HIERARCHY; stops at a line that is only "MOTION"."""
+
     def __init__(self, text: str, where: Path):
+        self.text = text
         self.where = where
-        self.lines = text.splitlines()
-        self.items: list[tuple[str, int]] = []
-        self.pos = 0
-        self.motion_line = None
-        for n, line in enumerate(self.lines):
-            if line.strip().upper() == "MOTION":
-                self.motion_line = n
-                break
-            self.items.extend((tok, n + 1) for tok in line.split())
+        self._it = _TOKEN.finditer(text)
+        self.end = 0  # offset just past the last token read
+        self.motion_end: int | None = None  # offset just past the MOTION line, once seen
+
+    def _is_motion_line(self, m: re.Match) -> bool:
+        if m.group().upper() != "MOTION":
+            return False
+        start = self.text.rfind("\n", 0, m.start()) + 1
+        stop = self.text.find("\n", m.end())
+        return self.text[start : stop if stop >= 0 else len(self.text)].strip().upper() == "MOTION"
+
+    def next_or_none(self) -> str | None:
+        """The next token, or None at the end of the HIERARCHY (a MOTION line or the file end)."""
+        if self.motion_end is not None:
+            return None
+        m = next(self._it, None)
+        if m is None:
+            return None
+        if self._is_motion_line(m):
+            stop = self.text.find("\n", m.end())
+            self.motion_end = len(self.text) if stop < 0 else stop + 1
+            return None
+        self.end = m.end()
+        return m.group()
 
     def next(self, what: str) -> str:
-        if self.pos >= len(self.items):
+        tok = self.next_or_none()
+        if tok is None:
             raise DlaInputError(self.where, f"unexpected end of HIERARCHY (expected {what})")
-        tok = self.items[self.pos][0]
-        self.pos += 1
         return tok
 
     def line(self) -> int:
-        return self.items[min(self.pos, len(self.items)) - 1][1] if self.items else 0
+        return self.text.count("\n", 0, self.end) + 1
 
     def number(self, what: str) -> float:
         tok = self.next(what)
         try:
             value = float(tok)
         except ValueError:
-            raise DlaInputError(self.where, f"line {self.line()}: expected a number for {what}, got {tok!r}") from None
+            raise DlaInputError(self.where, f"line {self.line()}: expected a number for {what}, got {tok[:40]!r}") from None
         if not np.isfinite(value):
             raise DlaInputError(self.where, f"line {self.line()}: {what} is {tok}")
         return value
 
 
-def _parse_joint(tok: _Tokens, name: str, parent: int, joints: list[dict], end_sites: dict) -> None:
-    index = len(joints)
-    joint = {"name": name, "parent": parent, "offset": None, "channels": []}
-    joints.append(joint)
-    if tok.next("'{'") != "{":
-        raise DlaInputError(tok.where, f"line {tok.line()}: expected '{{' after joint {name!r}")
-    while True:
+def _parse_hierarchy(tok: _Tokens, root: str) -> tuple[list[dict], dict[int, np.ndarray]]:
+    """Joints (parents first) and End Sites, read iteratively: nesting depth is capped, never
+    a RecursionError."""
+    joints: list[dict] = []
+    end_sites: dict[int, np.ndarray] = {}
+    open_joints: list[int] = []
+
+    def begin(name: str, parent: int) -> None:
+        if len(name) > 200:
+            raise DlaInputError(tok.where, f"line {tok.line()}: a joint name of {len(name)} characters (at most 200)")
+        if len(open_joints) >= MAX_DEPTH:
+            raise DlaInputError(tok.where, f"line {tok.line()}: joints nested more than {MAX_DEPTH} deep")
+        if len(joints) >= MAX_JOINTS:
+            raise DlaInputError(tok.where, f"line {tok.line()}: more than {MAX_JOINTS} joints")
+        joints.append({"name": name, "parent": parent, "offset": None, "channels": []})
+        if tok.next("'{'") != "{":
+            raise DlaInputError(tok.where, f"line {tok.line()}: expected '{{' after joint {name[:40]!r}")
+        open_joints.append(len(joints) - 1)
+
+    begin(root, -1)
+    while open_joints:
+        index = open_joints[-1]
+        joint = joints[index]
+        name = joint["name"]
         word = tok.next("'}'")
         key = word.upper()
         if key == "OFFSET":
@@ -211,7 +305,7 @@ def _parse_joint(tok: _Tokens, name: str, parent: int, joints: list[dict], end_s
             joint["channels"] = [tok.next(f"channel of {name!r}") for _ in range(int(count))]
             _check_channels(joint["channels"], name, tok)
         elif key == "JOINT":
-            _parse_joint(tok, tok.next("joint name"), index, joints, end_sites)
+            begin(tok.next("joint name"), index)
         elif key == "END":
             tok.next("'Site'")
             if tok.next("'{'") != "{" or tok.next("OFFSET").upper() != "OFFSET":
@@ -220,11 +314,12 @@ def _parse_joint(tok: _Tokens, name: str, parent: int, joints: list[dict], end_s
             if tok.next("'}'") != "}":
                 raise DlaInputError(tok.where, f"line {tok.line()}: expected '}}' closing an End Site")
         elif key == "}":
-            break
+            if joint["offset"] is None:
+                raise DlaInputError(tok.where, f"joint {name!r} has no OFFSET")
+            open_joints.pop()
         else:
-            raise DlaInputError(tok.where, f"line {tok.line()}: unexpected {word!r} in joint {name!r}")
-    if joint["offset"] is None:
-        raise DlaInputError(tok.where, f"joint {name!r} has no OFFSET")
+            raise DlaInputError(tok.where, f"line {tok.line()}: unexpected {word[:40]!r} in joint {name!r}")
+    return joints, end_sites
 
 
 def _check_channels(channels: list[str], name: str, tok: _Tokens) -> None:
@@ -249,45 +344,31 @@ def _check_channels(channels: list[str], name: str, tok: _Tokens) -> None:
 def read_bvh(path: str | os.PathLike, metres_per_unit: float | None = None) -> SkeletonMotion:
     """Parse a BVH file. Bad content raises DlaInputError naming the file and the problem.
 
-    `metres_per_unit` overrides the unit guess (`guess_bvh_units`).
+    `metres_per_unit` overrides the unit guess (`guess_bvh_units`). Limits: `MAX_TEXT_BYTES`,
+    `MAX_DEPTH`, `MAX_JOINTS`, `check_motion_size`; the frame count is checked against the data
+    present before anything is allocated for it.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError as err:
-        raise DlaInputError(path, f"cannot read ({err.strerror or err})") from None
+    text = _read_text(path)
     tok = _Tokens(text, path)
-    if not tok.items or tok.items[0][0].upper() != "HIERARCHY":
+    first = tok.next_or_none()
+    if first is None or first.upper() != "HIERARCHY":
         raise DlaInputError(path, "not a BVH file (it does not start with HIERARCHY)")
-    tok.pos = 1
     if tok.next("ROOT").upper() != "ROOT":
         raise DlaInputError(path, f"line {tok.line()}: expected ROOT")
-    joints: list[dict] = []
-    end_sites: dict[int, np.ndarray] = {}
-    _parse_joint(tok, tok.next("root name"), -1, joints, end_sites)
-    if tok.pos != len(tok.items):
-        raise DlaInputError(path, f"line {tok.line()}: unexpected {tok.items[tok.pos][0]!r} after the hierarchy (one ROOT supported)")
-    if tok.motion_line is None:
+    joints, end_sites = _parse_hierarchy(tok, tok.next("root name"))
+    extra = tok.next_or_none()
+    if extra is not None:
+        raise DlaInputError(path, f"line {tok.line()}: unexpected {extra[:40]!r} after the hierarchy (one ROOT supported)")
+    if tok.motion_end is None:
         raise DlaInputError(path, "no MOTION section (truncated file?)")
     names = [j["name"] for j in joints]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
         raise DlaInputError(path, f"joint name(s) repeated: {', '.join(dup)}")
 
-    frames, frame_time, values = _parse_motion(tok.lines, tok.motion_line, path)
     num_channels = sum(len(j["channels"]) for j in joints)
-    need = frames * num_channels
-    if values.size < need:
-        raise DlaInputError(
-            path, f"truncated: Frames: {frames} x {num_channels} channels needs {need} values, found {values.size}"
-        )
-    if values.size > need:
-        raise DlaInputError(path, f"{values.size - need} values more than Frames: {frames} x {num_channels} channels")
-    data = values.reshape(frames, num_channels)
-    bad = ~np.isfinite(data)
-    if bad.any():
-        f, c = np.argwhere(bad)[0]
-        raise DlaInputError(path, f"non-finite value ({data[f, c]}) at frame {f}, channel {c}")
+    frames, frame_time, data = _parse_motion(text, tok.motion_end, path, num_channels, len(joints))
 
     offsets = np.array([j["offset"] for j in joints], dtype=np.float64)
     rotations = np.broadcast_to(np.eye(3), (frames, len(joints), 3, 3)).copy()
@@ -327,17 +408,33 @@ def read_bvh(path: str | os.PathLike, metres_per_unit: float | None = None) -> S
     return skel
 
 
-def _parse_motion(lines: list[str], start: int, path: Path) -> tuple[int, float, np.ndarray]:
+def _next_line(text: str, pos: int) -> tuple[int, int, int] | None:
+    """(start, end, next pos) of the next non-blank line at or after `pos`, or None."""
+    m = _NON_SPACE.search(text, pos)
+    if m is None:
+        return None
+    start = text.rfind("\n", 0, m.start()) + 1
+    end = text.find("\n", m.start())
+    end = len(text) if end < 0 else end
+    return start, end, end + 1
+
+
+def _parse_motion(text: str, pos: int, path: Path, num_channels: int, num_joints: int) -> tuple[int, float, np.ndarray]:
+    """Frames, frame time and the [frames, channels] values of the MOTION section at `pos`."""
+
+    def line_no(offset: int) -> int:
+        return text.count("\n", 0, offset) + 1
+
     header: dict[str, str] = {}
-    n = start + 1
-    while n < len(lines) and len(header) < 2:
-        line = lines[n].strip()
-        n += 1
-        if not line:
-            continue
+    while len(header) < 2:
+        span = _next_line(text, pos)
+        if span is None:
+            break
+        start, end, pos = span
+        line = text[start:end].strip()
         key, sep, value = line.partition(":")
         if not sep:
-            raise DlaInputError(path, f"line {n}: expected 'Frames:' and 'Frame Time:', got {line[:40]!r}")
+            raise DlaInputError(path, f"line {line_no(start)}: expected 'Frames:' and 'Frame Time:', got {line[:40]!r}")
         header[key.strip().lower()] = value.strip()
     try:
         frames = int(header["frames"])
@@ -345,18 +442,59 @@ def _parse_motion(lines: list[str], start: int, path: Path) -> tuple[int, float,
     except KeyError as err:
         raise DlaInputError(path, f"MOTION section lacks {err.args[0].title()!r} (truncated file?)") from None
     except ValueError:
-        raise DlaInputError(path, f"bad MOTION header: {header}") from None
+        shown = "; ".join(f"{k[:20]}: {v[:20]}" for k, v in header.items())
+        raise DlaInputError(path, f"bad MOTION header ({shown}): Frames must be an integer, Frame Time a number") from None
     if frames <= 0:
         raise DlaInputError(path, f"motion has {frames} frames (at least one needed)")
     if not np.isfinite(frame_time) or frame_time <= 0:
         raise DlaInputError(path, f"Frame Time {frame_time} must be > 0")
-    body = " ".join(lines[n:])
-    try:
-        values = np.array(body.split(), dtype=np.float64)
-    except ValueError:
-        bad = next(t for t in body.split() if not _is_float(t))
-        raise DlaInputError(path, f"non-numeric value {bad[:20]!r} in the MOTION data") from None
-    return frames, frame_time, values
+    if 1.0 / frame_time > MAX_FPS:
+        raise DlaInputError(path, f"Frame Time {frame_time:g} s is {1.0 / frame_time:g} fps; at most {MAX_FPS:g} fps is supported")
+    if num_channels == 0:
+        raise DlaInputError(path, "the hierarchy has no CHANNELS: there is no motion to read")
+    # the frame count against what the rest of the file can hold, before allocating for it:
+    # one line per frame, each of `num_channels` values (at least 2 characters each)
+    remaining = len(text) - pos
+    lines_left = text.count("\n", pos) + 1
+    if frames > lines_left or frames * (2 * num_channels - 1) > remaining:
+        found = _count_lines(text, pos)
+        have = f"{found} frame lines follow" if found is not None else f"the {remaining:,} bytes left cannot hold them"
+        raise DlaInputError(path, f"truncated: Frames: {frames} x {num_channels} channels, but {have}")
+    check_motion_size(path, frames, num_joints)
+
+    data = np.empty((frames, num_channels))
+    for f in range(frames):
+        span = _next_line(text, pos)
+        if span is None:
+            raise DlaInputError(path, f"truncated: Frames: {frames}, but only {f} frame lines follow")
+        start, end, pos = span
+        words = text[start:end].split()
+        if len(words) != num_channels:
+            last = f == frames - 1 and _next_line(text, pos) is None
+            if last and len(words) < num_channels:
+                raise DlaInputError(
+                    path, f"truncated: the last frame (line {line_no(start)}) has {len(words)} of {num_channels} values"
+                )
+            raise DlaInputError(path, f"line {line_no(start)}: {len(words)} values, expected {num_channels} (one per channel)")
+        try:
+            data[f] = np.array(words, dtype=np.float64)
+        except ValueError:
+            bad = next(t for t in words if not _is_float(t))
+            raise DlaInputError(path, f"line {line_no(start)}: non-numeric value {bad[:20]!r} in the MOTION data") from None
+    span = _next_line(text, pos)
+    if span is not None:
+        more = _count_lines(text, span[0])
+        raise DlaInputError(path, f"{more or 'more'} frame line(s) more than Frames: {frames} (from line {line_no(span[0])})")
+    bad = ~np.isfinite(data)
+    if bad.any():
+        f, c = np.argwhere(bad)[0]
+        raise DlaInputError(path, f"non-finite value ({data[f, c]}) at frame {f}, channel {c}")
+    return frames, frame_time, data
+
+
+def _count_lines(text: str, pos: int) -> int | None:
+    """Non-blank lines from `pos` on (None when over 1 MiB are left: only for messages)."""
+    return len(_NON_SPACE_LINE.findall(text, pos)) if len(text) - pos < 2**20 else None
 
 
 def _is_float(token: str) -> bool:

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from dlacli.errors import DlaInputError
+from dlacli.io.bvh import MAX_FPS, MAX_FRAMES  # the limits every motion reader shares
 from dlacli.io.validate import as_float, as_str, check_finite, check_format, check_shape, load_npz, save_npz
 from dlacli.types import Motion
 
@@ -49,6 +50,8 @@ def motion_from_arrays(data: dict[str, Any], where: Any) -> Motion:
     t = rotations.shape[0]
     if t < 1:
         raise DlaInputError(where, "rotations has no frames (T = 0); a motion needs at least one")
+    if t > MAX_FRAMES:
+        raise DlaInputError(where, f"rotations has {t:,} frames; at most {MAX_FRAMES:,} are supported")
     root_rotation = _float_array(data["root_rotation"], where, "root_rotation")
     check_shape(root_rotation, (t, 3), where, "root_rotation")
     root_translation = _float_array(data["root_translation"], where, "root_translation")
@@ -62,6 +65,8 @@ def motion_from_arrays(data: dict[str, Any], where: Any) -> Motion:
     fps = as_float(fps_arr, where, "fps")
     if fps <= 0:
         raise DlaInputError(where, f"fps = {fps} must be > 0")
+    if fps > MAX_FPS:
+        raise DlaInputError(where, f"fps = {fps:g} is above {MAX_FPS:g} (not supported)")
     return Motion(bone_labels, rotations, root_rotation, root_translation, fps, model)
 
 
@@ -88,7 +93,7 @@ def write_motion(motion: Motion, path: str | os.PathLike) -> None:
         "root_translation": np.asarray(motion.root_translation, dtype=np.float32),
         "fps": np.array(motion.fps, dtype=np.float64),
     }
-    motion_from_arrays(arrays, "motion")  # the writer never produces a file its reader rejects
+    motion_from_arrays(arrays, path)  # the writer never produces a file its reader rejects
     save_npz(arrays, path)
 
 
