@@ -13,15 +13,19 @@ bench_app = typer.Typer(
 )
 
 
-def _ints(text: str, name: str) -> list[int]:
+def _ints(text: str, name: str, hi: int) -> list[int]:
     from dlacli.errors import DlaInputError
 
+    if len(text) > 10_000:
+        raise DlaInputError(name, "is too long")
     try:
         values = [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        raise DlaInputError(name, f"expected comma-separated integers, got {text!r}") from None
+        raise DlaInputError(name, f"expected comma-separated integers, got {text[:40]!r}") from None
     if not values:
         raise DlaInputError(name, "is empty")
+    if len(values) > 64 or not all(0 <= v <= hi for v in values):
+        raise DlaInputError(name, f"expected at most 64 integers in [0, {hi}]")
     return values
 
 
@@ -29,7 +33,7 @@ def _ints(text: str, name: str) -> list[int]:
 def pipeline(
     seeds: str = typer.Option("1001,1002", "--seeds", help="Synthetic subjects (use seeds no test uses)."),
     steps: str = typer.Option("0,50,150", "--steps", help="Refinement steps to compare."),
-    res: int = typer.Option(512, "--res", min=32, help="Image size of the subjects."),
+    res: int = typer.Option(512, "--res", min=32, max=4096, help="Image size of the subjects."),
     as_json: bool = typer.Option(False, "--json", help="Print the full result as one JSON object."),
 ) -> None:
     """synth -> lift -> render: PSNR (whole image and inside the mask), SSIM and alpha IoU on 12
@@ -38,7 +42,7 @@ def pipeline(
 
     from dlacli.bench.pipeline import markdown_table, run
 
-    result = run(_ints(seeds, "--seeds"), _ints(steps, "--steps"), res=res,
+    result = run(_ints(seeds, "--seeds", 2**32 - 1), _ints(steps, "--steps", 100_000), res=res,
                  log=lambda line: print(line, file=sys.stderr))  # fmt: skip
     if as_json:
         typer.echo(json.dumps(result))

@@ -76,10 +76,11 @@ def regions(
 ) -> None:
     """Draw the named UV regions (face, hair, hands, feet, arms, legs, torso, ...) with a legend."""
     from dlacli.errors import DlaInputError
-    from dlacli.io.atomic import atomic_path
+    from dlacli.io.atomic import atomic_path, check_outputs
 
     if output.suffix.lower() != ".png":
         raise DlaInputError(output, "the output must be a .png file")
+    check_outputs(files=[output])
     image = draw_regions(res)
     with atomic_path(output) as tmp:
         image.save(tmp, format="PNG")

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from dlacli.cli.options import finite
+
 edit_app = typer.Typer(
     help="Edit avatars in their UV-aligned latent space.",
     no_args_is_help=True,
@@ -19,16 +21,20 @@ def swap(
     b: Path = typer.Argument(..., metavar="B", help="The avatar that gives the region (avatar.npz)."),
     region: str = typer.Option(..., "--region", "-r", help="Region name, e.g. face, hair, hands, upper_body (see `dla body regions`)."),
     output: Path = typer.Option(..., "--output", "-o", help="Where to write the edited avatar.npz."),
-    feather: float = typer.Option(0.0, "--feather", min=0.0, help="Blend over this many UV texels (at Z's resolution) outside the region."),
+    feather: float = typer.Option(0.0, "--feather", min=0.0, max=1024.0, callback=finite, help="Blend over this many UV texels (at Z's resolution) outside the region."),
 ) -> None:
     """Replace REGION of avatar A with avatar B's; everything else stays A's (body included)."""
     from dlacli.body.regions import REGION_NAMES
     from dlacli.errors import DlaInputError
+    from dlacli.io.atomic import check_outputs
     from dlacli.io.avatar import read_avatar, write_avatar
     from dlacli.stages.edit import swap_region
 
     if region not in REGION_NAMES:
         raise DlaInputError("--region", f"unknown region {region!r} (known: {', '.join(REGION_NAMES)})")
+    if output.suffix.lower() != ".npz":
+        raise DlaInputError(output, "the avatar is an .npz file")
+    check_outputs(files=[output], inputs=[a, b])
     avatar = swap_region(read_avatar(a), read_avatar(b), region, feather, where_a=str(a), where_b=str(b))
     write_avatar(avatar, output)
     typer.echo(str(output))

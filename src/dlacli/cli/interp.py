@@ -7,26 +7,33 @@ from typing import Optional
 
 import typer
 
+from dlacli.cli.options import finite
+
 
 def interp(
     a: Path = typer.Argument(..., metavar="A", help="Avatar at t = 0 (avatar.npz)."),
     b: Path = typer.Argument(..., metavar="B", help="Avatar at t = 1 (avatar.npz)."),
     output: Path = typer.Option(..., "--output", "-o", help="avatar.npz to write, or a folder with --steps."),
-    t: float = typer.Option(0.5, "--t", help="Blend fraction: 0 gives A exactly, 1 gives B exactly."),
-    steps: int = typer.Option(0, "--steps", min=0, help="Write this many avatars from t=0 to t=1 (inclusive) into the folder OUTPUT instead."),
+    t: float = typer.Option(0.5, "--t", min=-10.0, max=10.0, callback=finite, help="Blend fraction: 0 gives A exactly, 1 gives B exactly."),
+    steps: int = typer.Option(0, "--steps", min=0, max=1000, help="Write this many avatars from t=0 to t=1 (inclusive) into the folder OUTPUT instead."),
     video: Optional[Path] = typer.Option(None, "--video", help="With --steps: also render the blend from the front as an .mp4."),
-    size: int = typer.Option(512, "--size", min=16, help="Video size in pixels (square)."),
-    fps: float = typer.Option(12.0, "--fps", help="Frame rate of --video."),
+    size: int = typer.Option(512, "--size", min=16, max=4096, help="Video size in pixels (square)."),
+    fps: float = typer.Option(12.0, "--fps", min=0.001, max=1000.0, callback=finite, help="Frame rate of --video."),
 ) -> None:
     """Blend avatars A and B: z = (1 - t) z_A + t z_B; the body blends too."""
     from dlacli.cli.progress import progress_bar
     from dlacli.errors import DlaInputError
-    from dlacli.io.atomic import atomic_dir
+    from dlacli.io.atomic import atomic_dir, check_outputs, output_group
     from dlacli.io.avatar import read_avatar, write_avatar
     from dlacli.stages.edit import interpolate
 
-    avatar_a, avatar_b = read_avatar(a), read_avatar(b)
     if steps == 0:
+        if video is not None:
+            raise DlaInputError("--video", "needs --steps (a video of one blend would be a still)")
+        if output.suffix.lower() != ".npz":
+            raise DlaInputError(output, "the avatar is an .npz file (or use --steps K for a folder)")
+        check_outputs(files=[output], inputs=[a, b])
+        avatar_a, avatar_b = read_avatar(a), read_avatar(b)
         write_avatar(interpolate(avatar_a, avatar_b, t, str(a), str(b)), output)
         typer.echo(str(output))
         return
@@ -34,8 +41,10 @@ def interp(
         raise DlaInputError("--steps", f"needs at least 2 avatars (t = 0 and t = 1), got {steps}")
     if video is not None and video.suffix.lower() != ".mp4":
         raise DlaInputError(video, "the video is an .mp4 file")
+    check_outputs(files=[video], folders=[(output, ("interp_*.npz",))], inputs=[a, b])
+    avatar_a, avatar_b = read_avatar(a), read_avatar(b)
     blends = [interpolate(avatar_a, avatar_b, k / (steps - 1), str(a), str(b)) for k in range(steps)]
-    with atomic_dir(output) as tmp:
+    with output_group(), atomic_dir(output) as tmp:
         for k, avatar in enumerate(blends):
             write_avatar(avatar, tmp / f"interp_{k:03d}.npz")
         if video is not None:
@@ -46,7 +55,7 @@ def interp(
             with progress_bar("rendering", steps) as update:
                 frames = []
                 for k, avatar in enumerate(blends):
-                    frames.append(next(render_avatar(avatar, camera, [None])).rgba)
+                    frames.append(next(render_avatar(avatar, camera, [None], where=str(a))).rgba)
                     update(k + 1)
             write_video(frames, video, fps)
     typer.echo(str(output))

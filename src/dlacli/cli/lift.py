@@ -16,11 +16,12 @@ def lift(
     views: Path = typer.Argument(..., metavar="VIEWS", help="View folder: transforms.json, images, body.json."),
     output: Path = typer.Option(..., "--output", "-o", help="avatar.npz to write; a contact sheet PNG is written beside it."),
     ply: Optional[Path] = typer.Option(None, "--ply", help="Also write the unstructured pose-space Gaussians as a 3DGS .ply."),
-    steps: int = typer.Option(_DEFAULTS.steps, "--steps", min=0, help="Refinement steps against the input views (0: mesh unprojection only); more is slower and closer."),
+    steps: int = typer.Option(_DEFAULTS.steps, "--steps", min=0, max=100_000, help="Refinement steps against the input views (0: mesh unprojection only); more is slower and closer."),
     method: str = typer.Option("unproject", "--method", help="Encoder: 'unproject' (mesh unprojection, no weights)."),
-    resolution: int = typer.Option(_DEFAULTS.resolution, "--resolution", min=16, help="UV resolution of the Gaussian map Z."),
-    gaussians: int = typer.Option(_DEFAULTS.gaussians, "--gaussians", min=2, help="Gaussians sampled from Z while refining."),
-    seed: int = typer.Option(0, "--seed", help="Seed of the Gaussian sample points."),
+    resolution: int = typer.Option(_DEFAULTS.resolution, "--resolution", min=16, max=2048, help="UV resolution of the Gaussian map Z."),
+    gaussians: int = typer.Option(_DEFAULTS.gaussians, "--gaussians", min=2, max=4_194_304, help="Gaussians sampled from Z while refining."),
+    seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1, help="Seed of the Gaussian sample points."),
+    allow_outside: bool = typer.Option(False, "--allow-outside", help="Read images that transforms.json names outside the view folder (absolute paths, '..', links out)."),
 ) -> None:
     """Lift a view folder into an animatable avatar (avatar.npz).
 
@@ -29,28 +30,34 @@ def lift(
     """
     from PIL import Image
 
+    from dlacli.cli.options import naming
     from dlacli.cli.progress import progress_bar
     from dlacli.errors import DlaInputError
-    from dlacli.io.atomic import atomic_path
+    from dlacli.io.atomic import atomic_path, check_outputs, output_group
     from dlacli.io.avatar import write_avatar
     from dlacli.io.ply import write_ply
-    from dlacli.io.views import read_views
+    from dlacli.io.views import read_views, view_files
     from dlacli.stages.lift import lift as run_lift
 
     if method != "unproject":
         raise DlaInputError("--method", f"unknown encoder {method!r} (available: unproject)")
     if output.suffix.lower() != ".npz":
         raise DlaInputError(output, "the avatar is an .npz file")
-    cfg = LiftConfig(steps=steps, resolution=resolution, gaussians=gaussians, seed=seed)
-    view_set = read_views(views)
-    with progress_bar("refining", steps) as update:
-        result = run_lift(view_set, cfg, progress=lambda i, loss: update(i + 1, note=f"loss {loss:.4f}"))
+    if ply is not None and ply.suffix.lower() != ".ply":
+        raise DlaInputError(ply, "the Gaussians are a .ply file")
     sheet = output.with_name(output.stem + "_contact.png")
-    if ply is not None:
-        write_ply(result.unstructured, ply)
-    with atomic_path(sheet) as tmp:
-        Image.fromarray(result.contact_sheet).save(tmp)
-    write_avatar(result.avatar, output)
+    check_outputs(files=[output, sheet, ply], inputs=[views, *view_files(views, allow_outside)])
+    cfg = LiftConfig(steps=steps, resolution=resolution, gaussians=gaussians, seed=seed)
+    view_set = read_views(views, allow_outside=allow_outside)
+    body = views / "body.json" if views.is_dir() else views.with_name("body.json")
+    with naming(views=views, pose=body, phenotype=body), progress_bar("refining", steps) as update:
+        result = run_lift(view_set, cfg, progress=lambda i, loss: update(i + 1, note=f"loss {loss:.4f}"))
+    with output_group():  # the avatar, its contact sheet and the .ply land together or not at all
+        if ply is not None:
+            write_ply(result.unstructured, ply)
+        with atomic_path(sheet) as tmp:
+            Image.fromarray(result.contact_sheet).save(tmp)
+        write_avatar(result.avatar, output)
     typer.echo(str(output))
 
 

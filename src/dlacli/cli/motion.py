@@ -7,6 +7,8 @@ from typing import Optional
 
 import typer
 
+from dlacli.cli.options import finite
+
 motion_app = typer.Typer(
     name="motion",
     help="Motions: convert CMU BVH / ASF-AMC / AMASS to motion.npz, preview any motion as mp4.",
@@ -22,18 +24,21 @@ _SPEC_HELP = (
 def convert(
     source: str = typer.Argument(..., help=_SPEC_HELP),
     output: Path = typer.Option(..., "-o", "--output", help="motion.npz to write."),
-    fps: Optional[float] = typer.Option(None, "--fps", help="Resample to this frame rate (default: keep the source's)."),
+    fps: Optional[float] = typer.Option(None, "--fps", callback=finite, help="Resample to this frame rate (default: keep the source's)."),
     asf: Optional[Path] = typer.Option(None, "--asf", help="ASF skeleton for an .amc source (default: found beside it)."),
+    allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
 ) -> None:
     """Retarget a motion onto anny's rig and write it as a native motion.npz."""
-    from dlacli.body.motion_source import load_motion
+    from dlacli.body.motion_source import load_motion, split_spec
     from dlacli.errors import DlaInputError
+    from dlacli.io.atomic import check_outputs
     from dlacli.io.motion import write_motion
 
     if output.suffix.lower() != ".npz":
         raise DlaInputError(output, "the output must be a .npz file")
     _check_fps(fps)
-    motion = load_motion(source, fps=fps, asf=asf)
+    check_outputs(files=[output], inputs=[*split_spec(source), asf])
+    motion = load_motion(source, fps=fps, asf=asf, allow_missing_joints=allow_missing_joints)
     write_motion(motion, output)
     typer.echo(f"{output}  {motion.num_frames} frames at {motion.fps:g} fps")
 
@@ -48,26 +53,29 @@ def _check_fps(fps: Optional[float]) -> None:
 def preview(
     motion_spec: str = typer.Argument(..., metavar="MOTION", help=_SPEC_HELP),
     output: Path = typer.Option(..., "-o", "--output", help="mp4 file to write."),
-    fps: Optional[float] = typer.Option(None, "--fps", help="Frame rate of the video (default: the motion's, at most 30)."),
+    fps: Optional[float] = typer.Option(None, "--fps", callback=finite, help="Frame rate of the video (default: the motion's, at most 30)."),
     res: int = typer.Option(384, "--res", min=64, max=2048, help="Video width and height in pixels (rounded up to a multiple of 16)."),
+    allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
 ) -> None:
     """Render the default body doing a motion into an mp4 (left side blue, right side red)."""
-    from dlacli.body.motion_source import load_motion
+    from dlacli.body.motion_source import load_motion, split_spec
     from dlacli.errors import DlaInputError
+    from dlacli.io.atomic import check_outputs
     from dlacli.io.video import write_video
-    from dlacli.stages.motion_preview import preview_frames
+    from dlacli.stages.motion_preview import motion_preview_frames
 
     if output.suffix.lower() != ".mp4":
         raise DlaInputError(output, "the output must be a .mp4 file")
     _check_fps(fps)
-    motion = load_motion(motion_spec)
+    check_outputs(files=[output], inputs=split_spec(motion_spec))
+    motion = load_motion(motion_spec, allow_missing_joints=allow_missing_joints)
     video_fps = fps if fps is not None else min(motion.fps, 30.0)
     if abs(video_fps - motion.fps) > 1e-9:
         from dlacli.body.retarget import resample_motion
 
         motion = resample_motion(motion, video_fps)
     res = -(-res // 16) * 16
-    write_video(preview_frames(motion, res), output, video_fps)
+    write_video(motion_preview_frames(motion, res), output, video_fps)
     typer.echo(f"{output}  {motion.num_frames} frames at {video_fps:g} fps, {res}x{res}")
 
 

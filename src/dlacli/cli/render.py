@@ -7,26 +7,31 @@ from typing import Optional
 
 import typer
 
+from dlacli.cli.options import finite, naming
+
+MAX_PIXELS = 1 << 30  # all images of one render together (--video keeps them in memory, 4 GiB as RGBA8)
+
 
 def render(
     avatar: Path = typer.Argument(..., metavar="AVATAR", help="avatar.npz"),
     output: Path = typer.Option(..., "--output", "-o", help="Folder for f{frame:04d}_c{camera:03d}.png images."),
     cameras: Optional[Path] = typer.Option(None, "--cameras", help="transforms.json (or its folder) whose frames give the cameras; a frame's `time` picks the motion frame."),
     motion: Optional[str] = typer.Option(None, "--motion", help="Motion file or built-in name (idle, walk, turnaround, wave); default: the avatar's own pose."),
-    turntable: int = typer.Option(0, "--turntable", min=0, help="Instead of --cameras: this many cameras evenly around the body."),
-    size: int = typer.Option(512, "--size", min=1, help="Image size for --turntable."),
+    turntable: int = typer.Option(0, "--turntable", min=0, max=3600, help="Instead of --cameras: this many cameras evenly around the body."),
+    size: int = typer.Option(512, "--size", min=16, max=4096, help="Image size for --turntable."),
     video: Optional[Path] = typer.Option(None, "--video", help="Also write the images in order as an .mp4."),
-    fps: float = typer.Option(24.0, "--fps", help="Frame rate of --video."),
-    gaussians: int = typer.Option(131_072, "--gaussians", min=2, help="Gaussians sampled from the avatar."),
+    fps: float = typer.Option(24.0, "--fps", min=0.001, max=1000.0, callback=finite, help="Frame rate of --video."),
+    gaussians: int = typer.Option(131_072, "--gaussians", min=2, max=4_194_304, help="Gaussians sampled from the avatar."),
+    allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
 ) -> None:
     """Render an avatar from the cameras of a transforms.json, or as a turntable."""
     import numpy as np
     from PIL import Image
 
-    from dlacli.body.motion_source import load_motion
+    from dlacli.body.motion_source import load_motion, split_spec
     from dlacli.cli.progress import progress_bar
     from dlacli.errors import DlaInputError
-    from dlacli.io.atomic import atomic_dir
+    from dlacli.io.atomic import atomic_dir, check_outputs, output_group
     from dlacli.io.avatar import read_avatar
     from dlacli.io.video import write_video
     from dlacli.io.views import read_transforms
@@ -35,30 +40,37 @@ def render(
 
     if (cameras is None) == (turntable == 0):
         raise DlaInputError("--cameras", "give either --cameras TRANSFORMS_JSON or --turntable N")
+    if video is not None and video.suffix.lower() != ".mp4":
+        raise DlaInputError(video, "the video is an .mp4 file")
+    motion_files = split_spec(motion) if motion else ()
+    check_outputs(files=[video], folders=[(output, ("f*_c*.png",))], inputs=[avatar, cameras, *motion_files])
     av = read_avatar(avatar)
-    mot = load_motion(motion, phenotype=av.body.phenotype) if motion else None
+    about_avatar = dict(avatar=avatar, pose=avatar, phenotype=avatar)  # stage errors name the file
+    mot = load_motion(motion, phenotype=av.body.phenotype, allow_missing_joints=allow_missing_joints) if motion else None
     if cameras is not None:
         meta = read_transforms(cameras)
         cams = Cameras.from_c2w_opengl(meta["c2w"], meta["fx"], meta["fy"], meta["cx"], meta["cy"], meta["width"], meta["height"])
         times = meta["times"]
     else:
-        cams = turntable_cameras(av, turntable, size)
+        with naming(**about_avatar):
+            cams = turntable_cameras(av, turntable, size)
         times = [None] * turntable
     if mot is None and any(t is not None for t in times):
         raise DlaInputError("--motion", "the cameras' frames have `time` keys: pass the motion they index")
+    if len(times) * cams.width * cams.height > MAX_PIXELS:
+        raise DlaInputError("--cameras" if cameras is not None else "--turntable",
+                            f"{len(times)} images of {cams.width}x{cams.height} are more than dla renders at once ({MAX_PIXELS / 1e9:.1f} gigapixels)")  # fmt: skip
     frames = []
-    with atomic_dir(output) as tmp, progress_bar("rendering", len(times)) as update:
+    with naming(**about_avatar), output_group(), atomic_dir(output) as tmp, progress_bar("rendering", len(times)) as update:
         for shot in render_avatar(av, cams, times, mot, gaussians, where=str(avatar), progress=update):
-            Image.fromarray((np.clip(shot.rgba, 0, 1) * 255 + 0.5).astype(np.uint8), "RGBA").save(tmp / shot.name)
+            rgba8 = (np.clip(shot.rgba, 0, 1) * 255 + 0.5).astype(np.uint8)
+            Image.fromarray(rgba8, "RGBA").save(tmp / shot.name)
             if video is not None:
-                frames.append(shot)
+                frames.append((shot.frame, shot.camera, rgba8))
         if video is not None:
-            frames.sort(key=lambda s: (s.frame, s.camera))
-            write_video((s.rgba for s in frames), video, fps)
+            frames.sort(key=lambda s: (s[0], s[1]))
+            write_video((s[2] for s in frames), video, fps)
     typer.echo(str(output))
-
-
-
 
 
 def register(app: typer.Typer) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 
 from dlacli.errors import DlaInputError
 from dlacli.io.body import body_from_dict, body_to_dict
-from dlacli.io.validate import as_str, check_finite, check_format, check_shape, load_npz, save_npz
+from dlacli.io.validate import as_str, check_finite, check_format, check_shape, load_npz, parse_json, save_npz
 from dlacli.types import Avatar
 
 FORMAT = "dla.avatar/1"
@@ -87,11 +87,7 @@ def _float_map(value: Any, where: Any, name: str) -> np.ndarray:
 
 
 def _json_object(value: Any, where: Any, name: str) -> dict[str, Any]:
-    text = as_str(value, where, name)
-    try:
-        obj = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise DlaInputError(where, f"{name} is not valid JSON: {err.msg} at column {err.colno}") from None
+    obj = parse_json(as_str(value, where, name), where, name)
     if not isinstance(obj, dict):
         raise DlaInputError(where, f"{name} must be a JSON object, found {type(obj).__name__}")
     return obj

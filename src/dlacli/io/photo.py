@@ -30,12 +30,13 @@ Every problem raises DlaInputError naming the file.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from dlacli.errors import DlaInputError
+from dlacli.io.files import decoding, open_image
+from dlacli.io.validate import load_json
 
 MIN_SIDE = 64
 MAX_SIDE = 8192
@@ -43,21 +44,12 @@ NUM_KEYPOINTS = 17
 
 
 def _open_image(path: Path):
-    from PIL import Image, ImageOps, UnidentifiedImageError
+    from PIL import ImageOps
 
-    if not path.exists():
-        raise DlaInputError(path, "no such file")
-    if path.is_dir():
-        raise DlaInputError(path, "is a directory, expected an image file")
-    try:
-        im = Image.open(path)
+    im = open_image(path)  # larger than MAX_SIDE is downscaled below; beyond ~67 MP refused here
+    with decoding(path):
         im.load()
-        im = ImageOps.exif_transpose(im)
-    except Image.DecompressionBombError as exc:
-        raise DlaInputError(path, f"image too large to read safely ({exc})") from None
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
-        raise DlaInputError(path, f"not a readable image ({exc.__class__.__name__}: {exc})") from None
-    return im
+        return ImageOps.exif_transpose(im)
 
 
 def _to_float(im, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
@@ -101,12 +93,7 @@ def _read_mask_file(path: Path) -> np.ndarray:
 def read_coco_keypoints(path: str | Path) -> np.ndarray:
     """COCO keypoints JSON (module docstring) -> [17, 3] float32 (x, y, confidence 0 or 1)."""
     path = Path(path)
-    if not path.exists():
-        raise DlaInputError(path, "no such file")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DlaInputError(path, f"not valid JSON ({exc})") from None
+    data = load_json(path)
     anns = data if isinstance(data, list) else [data]
     if not anns:
         raise DlaInputError(path, "empty list: no person annotation")

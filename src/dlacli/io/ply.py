@@ -103,16 +103,52 @@ def sh_to_ply_columns(sh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # reading
 
 
+MAX_HEADER_BYTES = 1 << 20
+
+
+def _check_counts(path: Path, f) -> None:
+    """The header's element counts must fit in the bytes the file holds (a 1 KB file claiming
+    10^9 vertices is refused before anything is allocated)."""
+    import io
+
+    import plyfile
+
+    head = f.read(MAX_HEADER_BYTES)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        raise DlaInputError(path, "not a valid PLY file (no 'ply' magic or no end_header in the first 1 MiB)")
+    end = head.index(b"\n", end) + 1 if b"\n" in head[end:] else len(head)
+    try:
+        header = plyfile.PlyData._parse_header(io.BytesIO(head[:end]))
+    except plyfile.PlyHeaderParseError as err:
+        raise DlaInputError(path, f"not a valid PLY file ({_one_line(err)})") from None
+    body = os.fstat(f.fileno()).st_size - end
+    need = 0
+    for el in header.elements:
+        row = 0
+        for prop in el.properties:
+            if isinstance(prop, plyfile.PlyListProperty):
+                len_dtype, _ = prop.list_dtype()
+                row += 2 if header.text else np.dtype(len_dtype).itemsize
+            else:
+                row += 2 if header.text else np.dtype(prop.dtype()).itemsize
+        need += el.count * max(row, 1)
+    if need > body:
+        counts = ", ".join(f"{el.count} {el.name}" for el in header.elements)
+        raise DlaInputError(path, f"header declares {counts}, which needs at least {need} bytes, but the file holds {max(body, 0)}")
+    f.seek(0)
+
+
 def _open(path: Path):
     """PlyData with its data read into memory, or a one-line DlaInputError."""
     import plyfile
 
-    if not path.exists():
-        raise DlaInputError(path, "no such file")
-    if not path.is_file():
-        raise DlaInputError(path, "not a file")
+    from dlacli.io.files import open_input
+
     try:
-        return plyfile.PlyData.read(str(path), mmap=False)
+        with open_input(path) as f:
+            _check_counts(path, f)
+            return plyfile.PlyData.read(f, mmap=False)
     except plyfile.PlyHeaderParseError as err:
         raise DlaInputError(path, f"not a valid PLY file ({_one_line(err)})") from None
     except plyfile.PlyParseError as err:

@@ -298,10 +298,9 @@ def _write_splats(stage, splat_cls, positions, quats, scales, opacities, rgb, sh
 def _open_stage(path: Path):
     from pxr import Usd
 
-    if not path.exists():
-        raise DlaInputError(path, "no such file")
-    if not path.is_file():
-        raise DlaInputError(path, "not a file")
+    from dlacli.io.files import check_input
+
+    check_input(path)
     if path.suffix.lower() not in SUFFIXES:
         raise DlaInputError(path, f"unknown USD suffix {path.suffix!r} (use .usd, .usda or .usdc)")
     try:

@@ -18,20 +18,27 @@ from dlacli.errors import DlaInputError
 
 
 def load_json(path: str | os.PathLike) -> Any:
-    """Parse a JSON file; a missing, unreadable or malformed (e.g. truncated) file is a DlaInputError."""
+    """Parse a JSON file; a missing, unreadable, oversized, malformed (e.g. truncated) or
+    absurdly nested file is a DlaInputError."""
+    from dlacli.io.files import MAX_JSON_BYTES, read_text
+
     path = Path(path)
-    if not path.is_file():
-        raise DlaInputError(path, "no such file")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise DlaInputError(path, f"cannot read the file ({type(err).__name__}: {err})") from None
+    return parse_json(read_text(path, MAX_JSON_BYTES), path)
+
+
+def parse_json(text: str, where: Any, name: str = "") -> Any:
+    """json.loads with every failure as one DlaInputError: syntax, nesting deeper than Python's
+    recursion limit (~1000 levels; no dla file nests more than 5), integers of more digits than
+    Python converts."""
+    what = f"{name} is " if name else ""
     try:
         return json.loads(text)
     except json.JSONDecodeError as err:
-        raise DlaInputError(
-            path, f"not valid JSON: {err.msg} at line {err.lineno} column {err.colno}"
-        ) from None
+        raise DlaInputError(where, f"{what}not valid JSON: {err.msg} at line {err.lineno} column {err.colno}") from None
+    except RecursionError:
+        raise DlaInputError(where, f"{what}JSON nested too deeply") from None
+    except ValueError as err:  # e.g. int digits limit
+        raise DlaInputError(where, f"{what}not usable JSON ({' '.join(str(err).split())[:120]})") from None
 
 
 def check_format(found: Any, supported: str, where: Any) -> None:
@@ -115,15 +122,16 @@ def as_str(value: Any, where: Any, name: str, allow_empty: bool = False) -> str:
 
 def load_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Every array of an .npz file, loaded eagerly without pickles (so truncation shows up here)."""
+    from dlacli.io.files import open_input
+
     path = Path(path)
-    if not path.is_file():
-        raise DlaInputError(path, "no such file")
-    with open(path, "rb") as f:
+    with open_input(path) as f:
         magic = f.read(4)
     if magic not in (b"PK\x03\x04", b"PK\x05\x06"):
         raise DlaInputError(path, "not a readable .npz file (no zip header)")
+    check_npz_bounds(path)
     try:
-        with np.load(path, allow_pickle=False) as data:
+        with open_input(path) as f, np.load(f, allow_pickle=False) as data:
             return {key: data[key] for key in data.files}
     except ValueError as err:
         if "pickle" in str(err).lower():
@@ -176,8 +184,11 @@ def npz_format(path: str | os.PathLike) -> str:
     motion (a `poses` array and no `format`); DlaInputError for anything else or a broken file."""
     import numpy as np
 
+    from dlacli.io.files import open_input
+
+    check_npz_bounds(path)
     try:
-        with np.load(path, allow_pickle=False) as data:
+        with open_input(path) as f, np.load(f, allow_pickle=False) as data:
             if "format" in data.files:
                 return str(data["format"])
             keys = set(data.files)
@@ -186,3 +197,13 @@ def npz_format(path: str | os.PathLike) -> str:
     if "poses" in keys:
         return "amass"
     raise DlaInputError(path, "npz with neither a 'format' key (dla.motion/1, dla.avatar/1) nor AMASS 'poses'")
+
+
+def check_npz_bounds(path: str | os.PathLike) -> None:
+    """Refuse an .npz whose members would decompress to more than dla reads (zip bombs, .npy
+    headers claiming more data than the member holds), before numpy allocates anything."""
+    from dlacli.io.npz_bounds import check_npz_bounds as check
+
+    from dlacli.io.files import MAX_BINARY_BYTES
+
+    check(path, MAX_BINARY_BYTES)

@@ -32,13 +32,18 @@ def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: floa
         raise DlaInputError(path, f"fps must be > 0, got {fps}")
     count = 0
     with atomic_path(path) as tmp:
-        writer = imageio.get_writer(tmp, format="FFMPEG", fps=float(fps), codec="libx264", quality=7, macro_block_size=16)
         try:
-            for frame in frames:
-                writer.append_data(_rgb8(np.asarray(frame), background))
-                count += 1
-        finally:
-            writer.close()
+            writer = imageio.get_writer(tmp, format="FFMPEG", fps=float(fps), codec="libx264", quality=7, macro_block_size=16)
+            try:
+                for frame in frames:
+                    writer.append_data(_rgb8(np.asarray(frame), background))
+                    count += 1
+            finally:
+                writer.close()
+        except (OSError, RuntimeError, BrokenPipeError) as err:  # ffmpeg missing, crashed or refused
+            raise DlaInputError(path, f"ffmpeg could not write the video ({' '.join(str(err).split())[:160]})") from None
         if count == 0:
             raise DlaInputError(path, "no frames to write")
+        if not tmp.exists() or tmp.stat().st_size == 0:
+            raise DlaInputError(path, "ffmpeg wrote an empty video")
     return count

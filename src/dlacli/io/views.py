@@ -18,6 +18,7 @@ import numpy as np
 from dlacli.errors import DlaInputError
 from dlacli.io.atomic import atomic_dir
 from dlacli.io.body import body_from_dict, body_to_dict
+from dlacli.io.files import MAX_IMAGE_PIXELS, inside, open_image
 from dlacli.io.validate import as_array, as_float, check_format, dump_json, load_json
 from dlacli.types import BodyParams, Cameras, ViewSet
 
@@ -27,6 +28,9 @@ BODY = "body.json"
 CAMERA_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE")  # all read as a pinhole without distortion
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 INTRINSIC_KEYS = ("w", "h", "fl_x", "fl_y", "cx", "cy")
+LAYOUT = (TRANSFORMS, BODY, "images")  # what write_views puts in a folder
+MAX_FRAMES = 4096
+MAX_TOTAL_PIXELS = 1 << 27  # all views together: 128 MP (2 GiB as float32 RGB + mask)
 RIGID_TOL = 1e-3  # max |R^T R - I| and |det R - 1| accepted for a camera-to-world rotation
 
 
@@ -88,6 +92,11 @@ def read_transforms(folder: str | os.PathLike) -> dict[str, Any]:
     if len(sizes) > 1:
         raise DlaInputError(where, f"frames have different image sizes {', '.join(f'{w}x{h}' for w, h in sizes)}; all must be the same")
     width, height = sizes[0]
+    if width * height > MAX_IMAGE_PIXELS:
+        raise DlaInputError(where, f"images of {width}x{height} pixels are larger than dla reads ({MAX_IMAGE_PIXELS / 1e6:.0f} megapixels)")
+    if len(frames) > MAX_FRAMES or len(frames) * width * height > MAX_TOTAL_PIXELS:
+        raise DlaInputError(where, f"{len(frames)} frames of {width}x{height} are more than dla reads at once "
+                                   f"(at most {MAX_FRAMES} frames and {MAX_TOTAL_PIXELS / 1e6:.0f} megapixels in all)")  # fmt: skip
     return {
         "c2w": np.stack(c2w),
         "fx": np.array(intr["fl_x"]),
@@ -142,21 +151,23 @@ def _time(value: Any, where: Path, name: str) -> int | None:
     return int(t)
 
 
-def _resolve(folder: Path, rel: str, where: Path, name: str) -> Path:
-    path = folder / rel
-    if not path.is_file() and not Path(rel).suffix and (folder / (rel + ".png")).is_file():
-        path = folder / (rel + ".png")  # instant-ngp style paths without extension
-    if not path.is_file():
+def _resolve(folder: Path, rel: str, where: Path, name: str, allow_outside: bool = False) -> Path:
+    """The image file `rel` names, inside `folder` (files.inside) unless `allow_outside`."""
+    path = inside(folder, rel, where, name, allow_outside)
+    if not os.path.lexists(path) and not Path(rel).suffix and os.path.lexists(folder / (rel + ".png")):
+        path = inside(folder, rel + ".png", where, name, allow_outside)  # instant-ngp style paths without extension
+    if not os.path.lexists(path):
         raise DlaInputError(path, f"image file not found ({name} in {where})")
     return path
 
 
-def _decode(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """An image file -> ([H, W, C] float32 in [0, 1] colour or gray, [H, W] alpha or None)."""
-    from PIL import Image
-
+def _decode(path: Path, width: int, height: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """An image file of `width` x `height` (checked before decoding) -> ([H, W, C] float32 in
+    [0, 1] colour or gray, [H, W] alpha or None)."""
     try:
-        with Image.open(path) as im:
+        with open_image(path) as im:
+            if im.size != (width, height):
+                raise DlaInputError(path, f"image is {im.size[0]}x{im.size[1]} but transforms.json declares {width}x{height}")
             im.load()
             mode = im.mode
             if (mode == "P" and "transparency" in im.info) or mode == "PA":
@@ -179,23 +190,16 @@ def _decode(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     return arr, None
 
 
-def _check_size(arr: np.ndarray, path: Path, width: int, height: int) -> None:
-    if arr.shape[:2] != (height, width):
-        raise DlaInputError(path, f"image is {arr.shape[1]}x{arr.shape[0]} but transforms.json declares {width}x{height}")
-
-
-def _load_view(folder: Path, t: dict, i: int, where: Path) -> tuple[np.ndarray, np.ndarray]:
+def _load_view(folder: Path, t: dict, i: int, where: Path, allow_outside: bool) -> tuple[np.ndarray, np.ndarray]:
     """([H, W, 3] rgb, [H, W] mask) of frame i."""
     w, h = t["width"], t["height"]
-    image_path = _resolve(folder, t["file_paths"][i], where, f"frames[{i}].file_path")
-    colour, alpha = _decode(image_path)
-    _check_size(colour, image_path, w, h)
+    image_path = _resolve(folder, t["file_paths"][i], where, f"frames[{i}].file_path", allow_outside)
+    colour, alpha = _decode(image_path, w, h)
     rgb = np.repeat(colour, 3, axis=-1) if colour.shape[-1] == 1 else colour
     mask_file = image_path
     if t["mask_paths"][i] is not None:
-        mask_file = _resolve(folder, t["mask_paths"][i], where, f"frames[{i}].mask_path")
-        gray, mask_alpha = _decode(mask_file)
-        _check_size(gray, mask_file, w, h)
+        mask_file = _resolve(folder, t["mask_paths"][i], where, f"frames[{i}].mask_path", allow_outside)
+        gray, mask_alpha = _decode(mask_file, w, h)
         if mask_alpha is not None:
             alpha = mask_alpha
         elif gray.shape[-1] == 1:
@@ -209,21 +213,37 @@ def _load_view(folder: Path, t: dict, i: int, where: Path) -> tuple[np.ndarray, 
     return rgb, alpha
 
 
-def read_views(folder: str | os.PathLike, require_body: bool = True) -> ViewSet:
+def read_views(folder: str | os.PathLike, require_body: bool = True, allow_outside: bool = False) -> ViewSet:
     """Read a view folder (or its transforms.json path) into a ViewSet.
 
     With require_body=False a missing body.json is allowed and `ViewSet.body` is None; a body.json
-    that is present is always validated.
+    that is present is always validated. Image and mask paths must stay inside the folder
+    (no absolute paths, no `..`, no links out of it) unless `allow_outside`.
     """
-    return _read(folder, require_body)[1]
+    return _read(folder, require_body, allow_outside)[1]
 
 
-def _read(folder: str | os.PathLike, require_body: bool) -> tuple[dict[str, Any], ViewSet]:
+def view_files(folder: str | os.PathLike, allow_outside: bool = False) -> list[Path]:
+    """Every file a view folder's reader opens (transforms.json, body.json, images, masks): the
+    inputs that no output of the same command may replace."""
+    folder = _folder_of(folder)
+    t = read_transforms(folder)
+    where = folder / TRANSFORMS
+    files = [where, folder / BODY]
+    for i, rel in enumerate(t["file_paths"]):
+        files.append(_resolve(folder, rel, where, f"frames[{i}].file_path", allow_outside))
+    for i, rel in enumerate(t["mask_paths"]):
+        if rel is not None:
+            files.append(_resolve(folder, rel, where, f"frames[{i}].mask_path", allow_outside))
+    return files
+
+
+def _read(folder: str | os.PathLike, require_body: bool, allow_outside: bool = False) -> tuple[dict[str, Any], ViewSet]:
     folder = _folder_of(folder)
     where = folder / TRANSFORMS
     t = read_transforms(folder)
     body = _read_body(folder, require_body)
-    images, masks = zip(*(_load_view(folder, t, i, where) for i in range(len(t["file_paths"]))))
+    images, masks = zip(*(_load_view(folder, t, i, where, allow_outside) for i in range(len(t["file_paths"]))))
     cameras = Cameras.from_c2w_opengl(t["c2w"], t["fx"], t["fy"], t["cx"], t["cy"], t["width"], t["height"])
     views = ViewSet(
         images=np.stack(images).astype(np.float32),  # [V, H, W, 3]

@@ -49,12 +49,12 @@ def _blend_maps(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
     return out
 
 
-def _region_weight(region: str, shape: tuple[int, int], feather: float) -> np.ndarray:
+def _region_weight(region: str, shape: tuple[int, int], feather: float, where: str = "avatar") -> np.ndarray:
     from dlacli.body.regions import region_mask
 
     h, w = shape
     if h != w:
-        raise DlaInputError("avatar", f"z is {h}x{w}; region masks need a square UV map")
+        raise DlaInputError(where, f"z is {h}x{w}; region masks need a square UV map")
     return feathered_weight(region_mask(region, h), feather)
 
 
@@ -69,11 +69,11 @@ def swap_region(
     else dropped (it is recomputed from z when needed).
     """
     check_compatible(a, b, where_a, where_b)
-    z = _blend_maps(a.z, b.z, _region_weight(region, a.z.shape[1:], feather))
+    z = _blend_maps(a.z, b.z, _region_weight(region, a.z.shape[1:], feather, where_a))
     canonical = None
     if a.canonical is not None and b.canonical is not None and a.canonical.shape == b.canonical.shape:
         scale = a.canonical.shape[1] / a.z.shape[1]
-        w = _region_weight(region, a.canonical.shape[1:], feather * scale)
+        w = _region_weight(region, a.canonical.shape[1:], feather * scale, where_a)
         canonical = _blend_maps(a.canonical, b.canonical, w)
     edits = list(a.extra.get("edits", [])) + [{"op": "swap", "region": region, "feather": feather}]
     return Avatar(
@@ -94,7 +94,7 @@ def _slerp_axis_angle(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
         return np.array(b, dtype=np.float64)
     import torch
 
-    from dlacli.body.rotations import (
+    from dlacli.geometry import (
         axis_angle_to_quat,
         quat_conjugate,
         quat_multiply,

@@ -372,12 +372,12 @@ def _render(body: DressedBody, verts: np.ndarray, cameras: Cameras, seed: int) -
 # ------------------------------------------------------------------------------- cameras
 
 
-def orbit_cameras(azimuths, elevations, res: int) -> Cameras:
-    """Cameras DISTANCE from TARGET at azimuths / elevations (degrees, [C] each), looking at it;
-    res x res images with a FOV_DEG field of view (docs/conventions.md for the angles)."""
-    from dlacli.render.cameras import orbit_cameras as orbit
+def synth_orbit_cameras(azimuths, elevations, res: int) -> Cameras:
+    """The synth rig: cameras DISTANCE from TARGET at azimuths / elevations (degrees, [C] each),
+    looking at it; res x res images with a FOV_DEG field of view (docs/conventions.md for the angles)."""
+    from dlacli.geometry import look_at_orbit_cameras
 
-    return orbit(TARGET, DISTANCE, azimuths, elevations, FOV_DEG, res)
+    return look_at_orbit_cameras(TARGET, DISTANCE, azimuths, elevations, FOV_DEG, res)
 
 
 def novel_view_angles(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -403,6 +403,9 @@ def _body_params(spec: SubjectSpec, rotations: np.ndarray | None) -> BodyParams:
 def _view_set(rgba: np.ndarray, cams: Cameras, body: BodyParams, times, extra: dict) -> ViewSet:
     return ViewSet(images=rgba[..., :3], masks=rgba[..., 3], cameras=cams, body=body,
                    file_paths=[], times=list(times), extra=extra)  # fmt: skip
+
+
+SUBJECT_LAYOUT = ("transforms.json", "body.json", "images", "novel_views", "novel_poses")  # what synth writes
 
 
 def synth(seed: int, out: str | os.PathLike, *, res: int = 512, novel_views: int = 12,
@@ -433,14 +436,14 @@ def synth(seed: int, out: str | os.PathLike, *, res: int = 512, novel_views: int
     truth = _body_params(spec, spec.rotations)
     with atomic_dir(out) as tmp:
         say("rendering the 4 input views")
-        cams = orbit_cameras(INPUT_AZIMUTHS, INPUT_ELEVATION, res)
+        cams = synth_orbit_cameras(INPUT_AZIMUTHS, INPUT_ELEVATION, res)
         rgba = render(body, verts, cams, seed)
         extra = {"synth": {**info, "azimuths": list(INPUT_AZIMUTHS), "elevation": INPUT_ELEVATION}}
         write_views(_view_set(rgba, cams, truth, [None] * 4, extra), tmp)
         if novel_views:
             say(f"rendering {novel_views} novel views")
             az, el = novel_view_angles(novel_views)
-            cams = orbit_cameras(az, el, res)
+            cams = synth_orbit_cameras(az, el, res)
             rgba = render(body, verts, cams, seed)
             extra = {"synth": {**info, "azimuths": az.tolist(), "elevations": el.tolist()}}
             write_views(_view_set(rgba, cams, truth, [None] * novel_views, extra), tmp / "novel_views")
@@ -449,7 +452,7 @@ def synth(seed: int, out: str | os.PathLike, *, res: int = 512, novel_views: int
             say(f"rendering {novel_poses} novel poses x {len(POSE_AZIMUTHS)} cameras")
             posed = body.vertices(motion.rotations, torch.from_numpy(motion.root_rotation),
                                   torch.from_numpy(motion.root_translation))  # [T, V, 3]
-            cams1 = orbit_cameras(POSE_AZIMUTHS, INPUT_ELEVATION, res)
+            cams1 = synth_orbit_cameras(POSE_AZIMUTHS, INPUT_ELEVATION, res)
             k = len(POSE_AZIMUTHS)
             cams = Cameras(cams1.viewmats.repeat(novel_poses, 1, 1),
                            cams1.Ks.repeat(novel_poses, 1, 1), res, res)  # fmt: skip
