@@ -27,8 +27,8 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from dlacli.body.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from dlacli.errors import DlaInputError
+from dlacli.geometry import axis_angle_to_matrix, matrix_to_axis_angle
 from dlacli.paths import cache_dir
 from dlacli.types import PHENOTYPE_KEYS, BodyParams, Motion
 

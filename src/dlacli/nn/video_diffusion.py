@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from dlacli.errors import DlaInputError
+from dlacli.geometry import DEPTH_EPS, project_to_cameras
 from dlacli.types import Cameras
 
 DEFAULT_MODEL = "Wan-AI/Wan2.1-VACE-1.3B-diffusers"
@@ -39,16 +40,10 @@ NEGATIVE_PROMPT = (
 
 
 def project_points(points: np.ndarray, cameras: Cameras) -> tuple[np.ndarray, np.ndarray]:
-    """points [K, 3] world -> (pixels [C, K, 2] (x, y), in_front [C, K] bool) for C cameras."""
-    p = np.asarray(points, np.float64)
-    vm = cameras.viewmats.double().cpu().numpy()  # [C, 4, 4]
-    ks = cameras.Ks.double().cpu().numpy()  # [C, 3, 3]
-    pc = np.einsum("cij,kj->cki", vm[:, :3, :3], p) + vm[:, None, :3, 3]  # [C, K, 3]
-    z = pc[..., 2]
-    zs = np.where(z > 1e-6, z, 1.0)
-    x = ks[:, None, 0, 0] * pc[..., 0] / zs + ks[:, None, 0, 2]
-    y = ks[:, None, 1, 1] * pc[..., 1] / zs + ks[:, None, 1, 2]
-    return np.stack([x, y], -1), z > 1e-6
+    """points [K, 3] world -> (pixels [C, K, 2] (x, y), in_front [C, K] bool) for C cameras
+    (float64; pixels of points not in front mean nothing)."""
+    px, depth = project_to_cameras(np.asarray(points, np.float64), cameras)
+    return px, depth > DEPTH_EPS
 
 
 def bone_colours(n: int) -> list[tuple[int, int, int]]:

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from dlacli import geometry
 from dlacli.errors import DlaInputError
 from dlacli.render import raster_kernels as rk
 from dlacli.types import Cameras
@@ -207,14 +208,9 @@ def rasterize_camera_space(
 
 
 def world_to_camera(vertices, viewmats) -> np.ndarray:
-    """vertices [V, 3] or [C, V, 3] world, viewmats [C, 4, 4] -> [C, V, 3] float64 camera space."""
-    v = np.asarray(vertices, np.float64)
-    vm = np.asarray(viewmats, np.float64)
-    rot = vm[:, :3, :3]  # [C, 3, 3]
-    trans = vm[:, :3, 3]  # [C, 3]
-    if v.ndim == 2:
-        return np.einsum("cij,vj->cvi", rot, v) + trans[:, None, :]
-    return np.einsum("cij,cvj->cvi", rot, v) + trans[:, None, :]
+    """vertices [V, 3] or [C, V, 3] world, viewmats [C, 4, 4] -> [C, V, 3] float64 camera space
+    (`dlacli.geometry.world_to_camera` in float64)."""
+    return geometry.world_to_camera(np.asarray(vertices, np.float64), np.asarray(viewmats, np.float64))
 
 
 def _camera_vertices(vertices, cameras: Cameras) -> tuple[np.ndarray, np.ndarray]:
@@ -415,9 +411,9 @@ def visible_vertices(
         if depth.shape != (len(cameras), cameras.height, cameras.width):
             raise DlaInputError("raster", f"depth shape {list(depth.shape)} does not match cameras")
     z = verts_cam[..., 2]  # [C, V]
-    zs = np.where(z > 0, z, 1.0)
-    x = np.floor(intr[:, None, 0] * verts_cam[..., 0] / zs + intr[:, None, 2])  # [C, V]
-    y = np.floor(intr[:, None, 1] * verts_cam[..., 1] / zs + intr[:, None, 3])
+    ks = _np(cameras.Ks, "cameras.Ks", np.float64)
+    px = np.floor(geometry.camera_to_pixels(verts_cam, ks, max(float(near), geometry.DEPTH_EPS)))
+    x, y = px[..., 0], px[..., 1]  # [C, V]; meaningless where z < near (masked below)
     inside = (z >= near) & (x >= 0) & (x < cameras.width) & (y >= 0) & (y < cameras.height)
     xi = np.where(inside, x, 0).astype(np.int64)
     yi = np.where(inside, y, 0).astype(np.int64)

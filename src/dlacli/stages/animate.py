@@ -83,17 +83,17 @@ def pose_avatar(
 def follow_cameras(pelvis: np.ndarray, fps: float, size: int) -> Cameras:
     """One camera per frame ([T] cameras) at a fixed three-quarter angle, following the pelvis
     [T, 3] smoothed over FOLLOW_SECONDS, so turning and walking read clearly."""
-    from dlacli.render.cameras import framing_distance, look_at_c2w, orbit_eyes, pinhole, smooth_path
+    from dlacli.geometry import framing_distance, look_at_c2w, orbit_eyes, pinhole_cameras, smooth_path
 
     target = smooth_path(pelvis, fps, FOLLOW_SECONDS)
     target[:, 2] = pelvis[:, 2].mean() - 0.05  # steady height: the body may crouch or jump in frame
     dist = framing_distance(PREVIEW_EXTENT, PREVIEW_FOV, margin=1.0)
     eyes = np.concatenate([orbit_eyes(t, dist, PREVIEW_AZIMUTH, PREVIEW_ELEVATION) for t in target])
-    return pinhole(look_at_c2w(eyes, target), PREVIEW_FOV, size)
+    return pinhole_cameras(look_at_c2w(eyes, target), PREVIEW_FOV, size)
 
 
-def preview_frames(anim: Animation, size: int = 512) -> Iterator[np.ndarray]:
-    """RGBA float frames [H, W, 4] of the animation seen by `follow_cameras`."""
+def animation_preview_frames(anim: Animation, size: int = 512) -> Iterator[np.ndarray]:
+    """RGBA float frames [H, W, 4] of the animation's Gaussians splatted from `follow_cameras`."""
     from dlacli.render.splat import render_gaussians
 
     cams = follow_cameras(anim.pelvis, anim.fps, size)

@@ -33,6 +33,7 @@ from dlacli.body.keypoints import COCO_SKELETON, NUM_KEYPOINTS, PointRig, coco_k
 from dlacli.body.model import get_body_model, rotations_to_pose
 from dlacli.body.uv import sample_surface
 from dlacli.errors import DlaInputError
+from dlacli.geometry import project_points, project_to_cameras
 from dlacli.types import BodyParams, Cameras
 
 FOV_Y_DEG = 50.0
@@ -68,6 +69,11 @@ SIL_FROM_B = 0.5  # the silhouette term starts this fraction of the way into sta
 _MIN_CONF = 0.3  # keypoints with confidence >= this count as "confident"
 # world -> camera rotation of the photo camera (OpenCV axes): x_cam = X, y_cam = -Z, z_cam = Y
 _R_W2C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+# [4, 4] world-to-camera of the fitting world (camera at the origin); its entries are 0 and +-1,
+# so projecting through it is exact (the same numbers as reading x, -z, y off the points)
+_FIT_VIEWMAT = torch.eye(4)
+_FIT_VIEWMAT[:3, :3] = torch.from_numpy(_R_W2C).float()
+_FIT_NEAR = 1e-3  # metres: depth guard of the fitting projection (points closer are clamped to it)
 
 
 @dataclass
@@ -97,12 +103,9 @@ def photo_camera(width: int, height: int, center=(0.0, 0.0, 0.0)) -> Cameras:
     )
 
 
-def project(points: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
-    """Points [..., 3] in the fitting world (camera at the origin) -> pixels [..., 2]."""
-    depth = points[..., 1].clamp(min=1e-3)
-    u = K[0, 0] * points[..., 0] / depth + K[0, 2]
-    v = -K[1, 1] * points[..., 2] / depth + K[1, 2]
-    return torch.stack([u, v], dim=-1)
+def _project_fit(points: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """points [..., N, 3] in the fitting world (camera at the origin), K [3, 3] -> pixels [..., N, 2]."""
+    return project_points(points, _FIT_VIEWMAT.to(points), K, _FIT_NEAR)[0]
 
 
 def geman_mcclure(r2: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -306,7 +309,7 @@ def _fit(image, mask, keypoints, steps, progress, surface_samples, silhouette_sa
         rot = rotations.index_put((bone_ids,), pose)  # [J, 3]
         phen = torch.sigmoid(phen_logit)  # [K]
         pts, _ = rig(phen if stage == "C" else None, rot, root_r, root_t, keypoints_only=stage == "A")
-        uv = project(pts[:NUM_KEYPOINTS], Kt)  # [17, 2]
+        uv = _project_fit(pts[:NUM_KEYPOINTS], Kt)  # [17, 2]
         r2 = ((uv - target) ** 2).sum(-1) / scale_px**2  # [17]
         if stage == "A":
             wk = conf * (torso_w + 0.1)
@@ -318,7 +321,7 @@ def _fit(image, mask, keypoints, steps, progress, surface_samples, silhouette_sa
             over = torch.relu(lim[..., 0] - pose) + torch.relu(pose - lim[..., 1])  # [B, 3]
             loss = loss + (over**2).sum()
             if stage == "C" or step >= n_a + int(SIL_FROM_B * n_b):
-                loss = loss + sil_weight * sil(project(pts[NUM_KEYPOINTS:], Kt))
+                loss = loss + sil_weight * sil(_project_fit(pts[NUM_KEYPOINTS:], Kt))
         if stage == "C":
             loss = loss + 0.01 * ((phen - 0.5) ** 2).sum()
         loss.backward()
@@ -385,11 +388,8 @@ def _finish(img, msk, kp, phenotype, rot, root_r, root_t) -> FitResult:
 
 
 def _project_world(points: np.ndarray, camera: Cameras) -> np.ndarray:
-    """World points [N, 3] -> pixels [N, 2] with camera 0."""
-    vm = camera.viewmats[0].double().numpy()
-    k = camera.Ks[0].double().numpy()
-    pc = points @ vm[:3, :3].T + vm[:3, 3]
-    return (pc[:, :2] / pc[:, 2:3]) * np.array([k[0, 0], k[1, 1]]) + np.array([k[0, 2], k[1, 2]])
+    """World points [N, 3] -> pixels [N, 2] with camera 0 (float64)."""
+    return project_to_cameras(points, camera)[0][0]
 
 
 def silhouette(vertices: np.ndarray, camera: Cameras) -> np.ndarray:

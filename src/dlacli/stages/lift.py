@@ -24,6 +24,7 @@ from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
 from dlacli.errors import DlaInputError
+from dlacli.geometry import project_points as _project  # points [..., 3] -> (pixels [..., 2], z [...])
 from dlacli.stages import gaussian_map as gm
 from dlacli.types import Avatar, Cameras, Gaussians, ViewSet
 
@@ -63,15 +64,6 @@ def _block_mean(x: np.ndarray, s: int) -> np.ndarray:
     h, w = x.shape[0] // s * s, x.shape[1] // s * s
     x = x[:h, :w]
     return x.reshape(h // s, s, w // s, s, *x.shape[2:]).mean(axis=(1, 3))
-
-
-def _project(points: np.ndarray, w2c: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """points [..., 3] -> pixel coordinates [..., 2] and camera z [...]."""
-    pc = points @ w2c[:3, :3].T + w2c[:3, 3]
-    z = pc[..., 2]
-    zs = np.where(np.abs(z) < 1e-9, 1e-9, z)
-    px = np.stack([k[0, 0] * pc[..., 0] / zs + k[0, 2], k[1, 1] * pc[..., 1] / zs + k[1, 2]], -1)
-    return px, z
 
 
 def _inside_masks(points: np.ndarray, views: ViewSet, skip: int) -> np.ndarray:

@@ -19,10 +19,10 @@ CAMERA_OFFSET = (1.3, -3.6, 0.6)  # from the followed hip point: front-left, a l
 FOLLOW_SECONDS = 1.0
 
 
-def preview_frames(motion: Motion, res: int, batch: int = 16) -> Iterator[np.ndarray]:
-    """Yield [res, res, 3] uint8 frames of the default body doing `motion`."""
+def motion_preview_frames(motion: Motion, res: int, batch: int = 16) -> Iterator[np.ndarray]:
+    """Yield [res, res, 3] uint8 frames of the default body mesh doing `motion`."""
     from dlacli.body.model import get_body_model
-    from dlacli.render.cameras import look_at_c2w, pinhole, smooth_path
+    from dlacli.geometry import look_at_c2w, pinhole_cameras, smooth_path
     from dlacli.render.raster import render_mesh
 
     model = get_body_model()
@@ -43,7 +43,7 @@ def preview_frames(motion: Motion, res: int, batch: int = 16) -> Iterator[np.nda
         verts = model.forward_motion({}, motion, frames=sel).vertices.numpy()  # [B, V, 3]
         verts = np.concatenate([verts, np.broadcast_to(plane, (len(sel), 4, 3))], axis=1)
         targets = np.stack([follow[sel, 0], follow[sel, 1], np.full(len(sel), ground + 0.85)], axis=1)
-        cams = pinhole(look_at_c2w(targets + np.asarray(CAMERA_OFFSET), targets), FOV_DEG, res)
+        cams = pinhole_cameras(look_at_c2w(targets + np.asarray(CAMERA_OFFSET), targets), FOV_DEG, res)
         rgba = render_mesh(verts, faces, colors, cams, antialias=2, background=BACKGROUND, as_uint8=True)
         for frame in rgba:
             yield np.ascontiguousarray(frame[..., :3])

@@ -82,7 +82,7 @@ def render_avatar(
 def turntable_cameras(avatar: Avatar, n: int, size: int) -> Cameras:
     """n cameras evenly around the avatar's own body, azimuth 0 in front."""
     from dlacli.body.model import get_body_model
-    from dlacli.render.cameras import framing_distance, orbit_cameras
+    from dlacli.geometry import framing_distance, look_at_orbit_cameras
 
     if n < 1:
         raise DlaInputError("--turntable", f"needs at least 1 camera, got {n}")
@@ -91,4 +91,4 @@ def turntable_cameras(avatar: Avatar, n: int, size: int) -> Cameras:
     target = 0.5 * (lo + hi)
     dist = framing_distance(max(TURNTABLE_EXTENT, float(hi[2] - lo[2]) + 0.2), TURNTABLE_FOV, margin=1.0)
     azimuths = 360.0 * np.arange(n) / n
-    return orbit_cameras(target, dist, azimuths, TURNTABLE_ELEVATION, TURNTABLE_FOV, size)
+    return look_at_orbit_cameras(target, dist, azimuths, TURNTABLE_ELEVATION, TURNTABLE_FOV, size)
