@@ -15,3 +15,8 @@ def cache_dir(sub: str = "") -> Path:
     path = root / sub if sub else root
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def checkpoints_dir() -> Path:
+    """Where installed network checkpoints live, one folder per content hash (formats/checkpoint.md)."""
+    return cache_dir("checkpoints")

@@ -1,0 +1,542 @@
+"""Network checkpoints: safetensors weights + a JSON config that rebuilds the module alone.
+
+A network is a `@dataclass` Config and an `nn.Module` built as `Net(config)` (nanoGPT's
+GPTConfig/GPT); its checkpoint is a folder (formats/checkpoint.md):
+
+    config.json           {"format": "dla.checkpoint/1", "class", "config_class", "config", "step", "hash", ...}
+    model.safetensors     the state_dict (tied tensors stored once)
+    optimizer.safetensors optional: the optimizer state's tensors (its other state is in config.json)
+
+`hash` is the sha256 of the network (class, config class, config, weights file), not of the
+training state, so the same weights always get the same hash; `load_checkpoint` recomputes it
+from what it read. The loader imports classes only from inside `dlacli.` (a checkpoint must not
+be able to run arbitrary code) and never unpickles anything.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import importlib
+import json
+import math
+import os
+import re
+import shutil
+import struct
+import types
+import typing
+from pathlib import Path
+from typing import Any, Iterable
+
+import torch
+from torch import nn
+
+from dlacli.errors import DlaInputError
+from dlacli.io.atomic import atomic_dir, check_outputs
+from dlacli.io.files import MAX_BINARY_BYTES, MAX_JSON_BYTES, read_bytes
+from dlacli.paths import checkpoints_dir
+
+FORMAT = "dla.checkpoint/1"
+CONFIG, WEIGHTS, OPTIMIZER = "config.json", "model.safetensors", "optimizer.safetensors"
+FILES = (CONFIG, WEIGHTS, OPTIMIZER)
+ALLOWED_PREFIXES = ("dlacli.",)
+ID_CHARS = 16  # short id shown to people: the first 16 hex digits of the hash
+MIN_PREFIX = 6  # shortest hash prefix the resolver accepts
+_KEYS = {"format", "class", "config_class", "config", "step", "hash", "optimizer", "extra"}
+_HEX = re.compile(r"[0-9a-f]{64}")
+_DOTTED = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)+")
+
+
+@dataclasses.dataclass
+class Loaded:
+    module: nn.Module  # in eval mode, on map_location
+    config: Any  # the Config dataclass instance
+    step: int
+    hash: str  # 64 lower-case hex digits
+    optimizer_state: dict | None  # ready for `optimizer.load_state_dict`, or None
+    extra: dict
+    path: Path
+
+
+@dataclasses.dataclass
+class Info:  # what config.json says, read without importing anything
+    path: Path
+    class_path: str
+    config_class_path: str
+    config: dict
+    step: int
+    hash: str
+    optimizer: dict | None
+    extra: dict
+
+
+def short_id(digest: str) -> str:
+    return digest[:ID_CHARS]
+
+
+# --------------------------------------------------------------------------------------------
+# hash and config (de)serialisation
+
+
+def _canonical(obj) -> bytes:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False).encode("ascii")
+
+
+def content_hash(class_path: str, config_class_path: str, config: dict, weights: bytes) -> str:
+    """sha256 of canonical JSON {"class", "config_class", "config"}, one newline, the weights file bytes."""
+    h = hashlib.sha256(_canonical({"class": class_path, "config_class": config_class_path, "config": config}))
+    h.update(b"\n")
+    h.update(weights)
+    return h.hexdigest()
+
+
+def _config_dict(obj) -> dict:
+    def enc(v):
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            return _config_dict(v)
+        if isinstance(v, (tuple, list)):
+            return [enc(x) for x in v]
+        return v
+
+    return {f.name: enc(getattr(obj, f.name)) for f in dataclasses.fields(obj) if f.init}
+
+
+class _Unsupported(Exception):
+    pass
+
+
+def _type_name(hint) -> str:
+    return getattr(hint, "__name__", None) or str(hint).replace("typing.", "")
+
+
+def _coerce(v, hint, where, name: str):
+    bad = DlaInputError(where, f"config field {name} is {json.dumps(v)[:40]}, expected {_type_name(hint)}")
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if v is None and type(None) in args:
+            return None
+        for arg in (a for a in args if a is not type(None)):
+            try:
+                return _coerce(v, arg, where, name)
+            except DlaInputError:
+                pass
+        raise bad
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+        if not isinstance(v, dict):
+            raise bad
+        return config_from_dict(hint, v, where, name + ".")
+    if hint in (bool, str, int, float):
+        ok = (int, float) if hint is float else hint
+        if not isinstance(v, ok) or (isinstance(v, bool) and hint is not bool):
+            raise bad
+        return hint(v)
+    if origin in (tuple, list) and args:
+        if not isinstance(v, list):
+            raise bad
+        if origin is list or (len(args) == 2 and args[1] is Ellipsis):
+            items = [_coerce(x, args[0], where, f"{name}[{i}]") for i, x in enumerate(v)]
+        elif len(v) != len(args):
+            raise DlaInputError(where, f"config field {name} has {len(v)} items, expected {len(args)}")
+        else:
+            items = [_coerce(x, a, where, f"{name}[{i}]") for i, (x, a) in enumerate(zip(v, args))]
+        return tuple(items) if origin is tuple else items
+    raise _Unsupported(f"config field {name} has type {_type_name(hint)}; checkpoints hold bool, int, float, str, "
+                       "None, tuple[...]/list[...] of those and nested dataclasses")  # fmt: skip
+
+
+def config_from_dict(cls: type, data: dict, where=None, prefix: str = ""):
+    """Build the Config dataclass `cls` from its JSON object, checking every field's type;
+    unknown or missing fields are a DlaInputError naming `where`."""
+    fields = [f for f in dataclasses.fields(cls) if f.init]
+    names = {f.name for f in fields}
+    unknown, missing = sorted(set(data) - names), sorted(names - set(data))
+    if unknown:
+        raise DlaInputError(where, f"config has unknown field(s) {', '.join(prefix + n for n in unknown)} for {cls.__name__}")
+    if missing:
+        raise DlaInputError(where, f"config lacks field(s) {', '.join(prefix + n for n in missing)} of {cls.__name__}")
+    hints = typing.get_type_hints(cls)
+    values = {f.name: _coerce(data[f.name], hints[f.name], where, prefix + f.name) for f in fields}
+    try:
+        return cls(**values)
+    except (ValueError, TypeError) as err:
+        raise DlaInputError(where, f"config is not a valid {cls.__name__} ({' '.join(str(err).split())})") from None
+
+
+def _normal_config(config) -> dict:
+    """The JSON object of a config, checked to rebuild an equal config (a programmer error if not)."""
+    if not dataclasses.is_dataclass(config) or isinstance(config, type):
+        raise TypeError(f"save_checkpoint: config must be a dataclass instance, not {type(config).__name__}")
+    try:
+        raw = json.loads(json.dumps(_config_dict(config), allow_nan=False))
+        rebuilt = config_from_dict(type(config), raw, "config")
+    except (TypeError, ValueError, _Unsupported, DlaInputError) as err:
+        raise ValueError(f"save_checkpoint: {type(config).__name__} cannot be stored as JSON: {err}") from None
+    if type(config).__eq__ is not object.__eq__ and rebuilt != config:
+        raise ValueError(f"save_checkpoint: {type(config).__name__} does not survive a JSON round trip: {config} -> {rebuilt}")
+    return json.loads(json.dumps(_config_dict(rebuilt)))  # ints in float fields become floats
+
+
+def _dotted(cls: type) -> str:
+    path = f"{cls.__module__}.{cls.__qualname__}"
+    mod = importlib.import_module(cls.__module__) if cls.__module__ != "__main__" else None
+    if "." in cls.__qualname__ or getattr(mod, cls.__qualname__, None) is not cls:
+        raise ValueError(f"save_checkpoint: {path} is not importable by that path; define it at the top of a module")
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# optimizer state: tensors to safetensors, the rest to JSON (tuples, int keys, inf kept exactly)
+
+
+def _encode_state(obj, tensors: dict, path: str):
+    if isinstance(obj, torch.Tensor):
+        name = path if path not in tensors else f"{path}#{len(tensors)}"
+        tensors[name] = obj.detach().to("cpu").contiguous()
+        return {"$tensor": name}
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return {"$float": repr(obj)}
+    if obj is None or isinstance(obj, (bool, int, float, str)):
+        return obj
+    if isinstance(obj, tuple):
+        return {"$tuple": [_encode_state(v, tensors, f"{path}.{i}") for i, v in enumerate(obj)]}
+    if isinstance(obj, list):
+        return [_encode_state(v, tensors, f"{path}.{i}") for i, v in enumerate(obj)]
+    if isinstance(obj, dict):
+        if all(isinstance(k, str) and not k.startswith("$") for k in obj):
+            return {k: _encode_state(v, tensors, f"{path}.{k}") for k, v in obj.items()}
+        return {"$items": [[_encode_state(k, tensors, path), _encode_state(v, tensors, f"{path}.{k}")] for k, v in obj.items()]}
+    raise TypeError(f"save_checkpoint: optimizer state holds a {type(obj).__name__} at {path}; cannot store it without pickle")
+
+
+def _decode_state(obj, tensors: dict, where):
+    if isinstance(obj, list):
+        return [_decode_state(v, tensors, where) for v in obj]
+    if not isinstance(obj, dict):
+        return obj
+    if len(obj) == 1 and next(iter(obj)).startswith("$"):
+        (tag, v), = obj.items()  # fmt: skip
+        if tag == "$tensor" and isinstance(v, str) and v in tensors:
+            return tensors[v]
+        if tag == "$float" and v in ("inf", "-inf", "nan"):
+            return float(v)
+        if tag == "$tuple" and isinstance(v, list):
+            return tuple(_decode_state(x, tensors, where) for x in v)
+        if tag == "$items" and isinstance(v, list) and all(isinstance(kv, list) and len(kv) == 2 for kv in v):
+            try:
+                return {_decode_state(k, tensors, where): _decode_state(x, tensors, where) for k, x in v}
+            except TypeError:  # an unhashable key
+                pass
+        raise DlaInputError(where, f"optimizer state has a malformed {tag} entry")
+    return {k: _decode_state(v, tensors, where) for k, v in obj.items()}
+
+
+# --------------------------------------------------------------------------------------------
+# weights
+
+
+def _aliases(state: dict[str, torch.Tensor]) -> dict[str, str]:
+    """{alias: kept name} for state_dict entries that are the same tensor (tied weights)."""
+    seen, out = {}, {}
+    for name, t in state.items():
+        if t.numel() == 0:
+            continue
+        key = (t.untyped_storage().data_ptr(), t.storage_offset(), tuple(t.shape), t.stride(), t.dtype, t.device)
+        if key in seen:
+            out[name] = seen[key]
+        else:
+            seen[key] = name
+    return out
+
+
+def _weights_bytes(module: nn.Module) -> bytes:
+    from safetensors.torch import save
+
+    state = module.state_dict()
+    aliases = _aliases(state)
+    tensors, storages = {}, set()
+    for name, t in ((k, v.detach().to("cpu").contiguous()) for k, v in state.items() if k not in aliases):
+        if t.numel() and t.untyped_storage().data_ptr() in storages:
+            t = t.clone()  # a partial view of another entry: store a copy (safetensors refuses shared storage)
+        storages.add(t.untyped_storage().data_ptr())
+        tensors[name] = t
+    return save(tensors)
+
+
+def _check_sizes(data: bytes, where) -> None:
+    """A safetensors file shorter than its header says is truncated (named before any hash check)."""
+    if len(data) < 8:
+        raise DlaInputError(where, f"truncated: {len(data)} bytes, not a safetensors file")
+    (n,) = struct.unpack("<Q", data[:8])
+    if 8 + n > len(data):
+        raise DlaInputError(where, f"truncated: {len(data)} bytes, its header alone needs {8 + n}")
+    try:
+        header = json.loads(data[8 : 8 + n])
+        assert isinstance(header, dict)
+    except (UnicodeDecodeError, json.JSONDecodeError, AssertionError):
+        raise DlaInputError(where, "not a safetensors file (bad header)") from None
+    ends = [e["data_offsets"][-1] for k, e in header.items() if k != "__metadata__" and isinstance(e, dict)
+            and isinstance(e.get("data_offsets"), list) and e["data_offsets"] and isinstance(e["data_offsets"][-1], int)]  # fmt: skip
+    need = 8 + n + max(ends, default=0)
+    if len(data) < need:
+        raise DlaInputError(where, f"truncated: {len(data)} bytes, its header describes {need}")
+
+
+def _safetensors(data: bytes, where) -> dict[str, torch.Tensor]:
+    """Tensors of a safetensors file's bytes; a truncated or malformed file is a DlaInputError."""
+    from safetensors.torch import load
+
+    _check_sizes(data, where)
+    try:
+        return load(data)
+    except Exception as err:  # SafetensorError has no stable public base class
+        raise DlaInputError(where, f"not a readable safetensors file ({' '.join(str(err).split())})") from None
+
+
+# --------------------------------------------------------------------------------------------
+# save
+
+
+def save_checkpoint(path, module: nn.Module, config, *, step: int = 0, optimizer=None, extra: dict | None = None) -> str:
+    """Write the checkpoint folder `path` atomically; return its content hash (64 hex digits).
+
+    module is rebuilt at load time as `type(module)(config)`; optimizer (any torch optimizer) is
+    saved for resuming training; extra is any JSON object (provenance, losses), not hashed."""
+    if isinstance(step, bool) or not isinstance(step, int) or step < 0:
+        raise ValueError(f"save_checkpoint: step must be an int >= 0, not {step!r}")
+    class_path, config_class_path = _dotted(type(module)), _dotted(type(config))
+    config_json = _normal_config(config)
+    weights = _weights_bytes(module)
+    digest = content_hash(class_path, config_class_path, config_json, weights)
+    record = {"format": FORMAT, "class": class_path, "config_class": config_class_path, "config": config_json,
+              "step": step, "hash": digest, "optimizer": None, "extra": dict(extra or {})}  # fmt: skip
+    opt_bytes = None
+    if optimizer is not None:
+        from safetensors.torch import save
+
+        tensors: dict[str, torch.Tensor] = {}
+        state = _encode_state(optimizer.state_dict(), tensors, "opt")
+        opt_bytes = save(tensors)
+        record["optimizer"] = {"class": f"{type(optimizer).__module__}.{type(optimizer).__qualname__}",
+                               "sha256": hashlib.sha256(opt_bytes).hexdigest(), "state": state}  # fmt: skip
+    try:
+        text = json.dumps(record, indent=2, allow_nan=False) + "\n"
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"save_checkpoint: extra is not plain JSON ({err})") from None
+    check_outputs(folders=[(path, FILES)])
+    with atomic_dir(path) as tmp:
+        (tmp / WEIGHTS).write_bytes(weights)
+        if opt_bytes is not None:
+            (tmp / OPTIMIZER).write_bytes(opt_bytes)
+        (tmp / CONFIG).write_text(text, encoding="utf-8")
+    return digest
+
+
+# --------------------------------------------------------------------------------------------
+# read and load
+
+
+def _folder(path) -> Path:
+    path = Path(path)
+    return path.parent if path.name in FILES and path.is_file() else path
+
+
+def _read_record(folder: Path) -> dict:
+    where = folder / CONFIG
+    if not folder.exists():
+        raise DlaInputError(folder, "no such checkpoint folder")
+    if not folder.is_dir():
+        raise DlaInputError(folder, f"not a checkpoint folder (expected a folder holding {CONFIG} and {WEIGHTS})")
+    data = read_bytes(where, MAX_JSON_BYTES)
+
+    def no_constants(name):
+        raise ValueError(f"{name} is not a JSON number")
+
+    try:
+        rec = json.loads(data.decode("utf-8"), parse_constant=no_constants)
+    except (UnicodeDecodeError, ValueError) as err:
+        raise DlaInputError(where, f"not valid JSON ({' '.join(str(err).split())})") from None
+    if not isinstance(rec, dict):
+        raise DlaInputError(where, "must be a JSON object")
+    fmt = rec.get("format")
+    if fmt != FORMAT:
+        what = f"format {fmt!r}" if fmt is not None else "no 'format' key"
+        raise DlaInputError(where, f"{what}; dla reads {FORMAT!r} checkpoints")
+    if unknown := sorted(set(rec) - _KEYS):
+        raise DlaInputError(where, f"unknown key(s) {', '.join(unknown)} (put project data under 'extra')")
+    for key, kind in (("class", str), ("config_class", str), ("config", dict), ("step", int), ("hash", str)):
+        if key not in rec:
+            raise DlaInputError(where, f"lacks the key {key!r}")
+        if not isinstance(rec[key], kind) or isinstance(rec[key], bool) or (key == "step" and rec[key] < 0):
+            raise DlaInputError(where, f"{key!r} must be a JSON {'object' if kind is dict else kind.__name__}"
+                                       f"{' >= 0' if key == 'step' else ''}")  # fmt: skip
+    if not _HEX.fullmatch(rec["hash"]):
+        raise DlaInputError(where, f"hash {rec['hash'][:70]!r} is not 64 lower-case hex digits")
+    opt = rec.get("optimizer")
+    if opt is not None and not (isinstance(opt, dict) and isinstance(opt.get("sha256"), str) and "state" in opt):
+        raise DlaInputError(where, "'optimizer' must be null or an object with 'sha256' and 'state'")
+    if not isinstance(rec.get("extra", {}), dict):
+        raise DlaInputError(where, "'extra' must be a JSON object")
+    return rec
+
+
+def _verified_weights(folder: Path, rec: dict) -> bytes:
+    weights_path = folder / WEIGHTS
+    weights = read_bytes(weights_path, MAX_BINARY_BYTES)
+    _check_sizes(weights, weights_path)
+    got = content_hash(rec["class"], rec["config_class"], rec["config"], weights)
+    if got != rec["hash"]:
+        raise DlaInputError(folder, f"content hash {short_id(got)}... differs from the recorded {short_id(rec['hash'])}...: "
+                                    f"{WEIGHTS} or the config was changed or damaged")  # fmt: skip
+    return weights
+
+
+def checkpoint_info(path, *, verify: bool = True) -> Info:
+    """Read config.json (and, with verify, check the weights' and optimizer's hashes); imports nothing."""
+    folder = _folder(path)
+    rec = _read_record(folder)
+    if verify:
+        _verified_weights(folder, rec)
+        if rec.get("optimizer") is not None:
+            _optimizer_tensors(folder, rec["optimizer"])
+    return Info(folder, rec["class"], rec["config_class"], rec["config"], rec["step"], rec["hash"],
+                rec.get("optimizer"), rec.get("extra", {}))  # fmt: skip
+
+
+def _optimizer_tensors(folder: Path, opt: dict) -> dict[str, torch.Tensor]:
+    data = read_bytes(folder / OPTIMIZER, MAX_BINARY_BYTES)
+    if hashlib.sha256(data).hexdigest() != opt["sha256"]:
+        raise DlaInputError(folder / OPTIMIZER, f"sha256 differs from the one {CONFIG} records: the file was changed or damaged")
+    return _safetensors(data, folder / OPTIMIZER)
+
+
+def _inside(module_name: str, allowed: tuple[str, ...]) -> bool:
+    return any((module_name + ".").startswith(p if p.endswith(".") else p + ".") for p in allowed)
+
+
+def _check_path(dotted: str, what: str, where, allowed: tuple[str, ...]) -> None:
+    if not _DOTTED.fullmatch(dotted):
+        raise DlaInputError(where, f"{what} {dotted[:80]!r} is not a dotted Python path")
+    if not _inside(dotted.rsplit(".", 1)[0], allowed):
+        raise DlaInputError(where, f"{what} {dotted!r} is outside {', '.join(allowed)}; dla imports checkpoint classes only from there")
+
+
+def _import(dotted: str, what: str, where, allowed: tuple[str, ...]):
+    mod_name, attr = dotted.rsplit(".", 1)
+    try:
+        mod = importlib.import_module(mod_name)
+    except ImportError as err:
+        raise DlaInputError(where, f"{what} {dotted!r} cannot be imported ({err}); is this dla version too old?") from None
+    obj = getattr(mod, attr, None)
+    if not isinstance(obj, type):
+        raise DlaInputError(where, f"{what} {dotted!r} does not exist in this dla version")
+    if not _inside(obj.__module__, allowed):  # a name a dlacli module imported from elsewhere
+        raise DlaInputError(where, f"{what} {dotted!r} is defined in {obj.__module__}, outside {', '.join(allowed)}")
+    return obj
+
+
+def load_checkpoint(path, *, map_location="cpu", allowed_prefixes: Iterable[str] = ALLOWED_PREFIXES) -> Loaded:
+    """Rebuild the network of a checkpoint folder from its config alone, load its weights
+    (strictly) and check its hash. Every problem is a one-line DlaInputError naming the file."""
+    folder = _folder(path)
+    rec = _read_record(folder)
+    where = folder / CONFIG
+    allowed = tuple(allowed_prefixes)
+    _check_path(rec["class"], "class", where, allowed)  # both before importing either
+    _check_path(rec["config_class"], "config_class", where, allowed)
+    cls, config_cls = _import(rec["class"], "class", where, allowed), _import(rec["config_class"], "config_class", where, allowed)
+    if not issubclass(cls, nn.Module):
+        raise DlaInputError(where, f"class {rec['class']!r} is not a torch nn.Module")
+    if not dataclasses.is_dataclass(config_cls):
+        raise DlaInputError(where, f"config_class {rec['config_class']!r} is not a dataclass")
+    try:
+        config = config_from_dict(config_cls, rec["config"], where)
+    except _Unsupported as err:
+        raise DlaInputError(where, str(err)) from None
+    weights = _verified_weights(folder, rec)
+    tensors = _safetensors(weights, folder / WEIGHTS)
+    try:
+        module = cls(config)
+    except (ValueError, TypeError, RuntimeError) as err:
+        raise DlaInputError(where, f"config does not build {cls.__name__} ({' '.join(str(err).split())})") from None
+    expected = module.state_dict()
+    aliases = _aliases(expected)
+    want = {k: tuple(t.shape) for k, t in expected.items() if k not in aliases}
+    missing, unexpected = sorted(set(want) - set(tensors)), sorted(set(tensors) - set(want))
+    wrong = [f"{k} {tuple(tensors[k].shape)} vs {want[k]}" for k in want if k in tensors and tuple(tensors[k].shape) != want[k]]
+    for label, items in (("lacks", missing), ("has unexpected", unexpected), ("has wrong shapes (file vs network)", wrong)):
+        if items:
+            more = f", ... ({len(items)} in all)" if len(items) > 3 else ""
+            raise DlaInputError(folder / WEIGHTS, f"{label} tensors for {cls.__name__}: {', '.join(items[:3])}{more}")
+    state = dict(tensors)
+    state.update({alias: tensors[kept] for alias, kept in aliases.items()})
+    try:
+        module.load_state_dict(state, strict=True)
+    except RuntimeError as err:
+        raise DlaInputError(folder / WEIGHTS, " ".join(str(err).split())[:300]) from None
+    module.to(map_location).eval()
+    optimizer_state = None
+    if rec.get("optimizer") is not None:
+        opt_tensors = {k: v.to(map_location) for k, v in _optimizer_tensors(folder, rec["optimizer"]).items()}
+        optimizer_state = _decode_state(rec["optimizer"]["state"], opt_tensors, where)
+    return Loaded(module, config, rec["step"], rec["hash"], optimizer_state, rec.get("extra", {}), folder)
+
+
+# --------------------------------------------------------------------------------------------
+# resolve and install
+
+
+def _candidates(root: Path) -> list[Path]:
+    if (root / CONFIG).is_file():
+        return [root]
+    try:
+        return sorted(p for p in root.iterdir() if (p / CONFIG).is_file())
+    except OSError:
+        return []
+
+
+def resolve_checkpoint(hash_or_path, *, search: Iterable[str | os.PathLike] | None = None) -> Path:
+    """A path that exists, as is; otherwise the checkpoint whose recorded hash is `hash_or_path`
+    (full, or a prefix of >= 6 hex digits that only one hash has), looked up in the `search`
+    folders (each a checkpoint or a folder of checkpoints) and then in the cache folder."""
+    text = os.fspath(hash_or_path)
+    if os.path.lexists(text):
+        return Path(text)
+    prefix = text.strip().lower()
+    if not re.fullmatch(f"[0-9a-f]{{{MIN_PREFIX},64}}", prefix):
+        raise DlaInputError(text, f"no such file or folder, and not a checkpoint hash ({MIN_PREFIX} to 64 hex digits)")
+    roots = [Path(s) for s in (search or ())] + [checkpoints_dir()]
+    found: dict[str, Path] = {}
+    for root in roots:
+        for cand in _candidates(root):
+            try:
+                digest = _read_record(cand)["hash"]
+            except DlaInputError:
+                continue  # a damaged checkpoint elsewhere does not hide the others
+            if digest.startswith(prefix):
+                found.setdefault(digest, cand)
+    if len(found) > 1:
+        listed = "; ".join(f"{short_id(d)} ({p})" for d, p in sorted(found.items())[:5])
+        raise DlaInputError(f"checkpoint {prefix}", f"prefix is ambiguous, it matches {len(found)}: {listed}; give more digits")
+    if not found:
+        where = ", ".join(str(r) for r in roots)
+        raise DlaInputError(f"checkpoint {prefix}", f"not found in {where}; pass --checkpoint PATH, "
+                                                    f"or copy the checkpoint folder into {roots[-1]}")  # fmt: skip
+    return next(iter(found.values()))
+
+
+def install_checkpoint(path) -> Path:
+    """Verify a checkpoint and copy it into the cache folder as `<cache>/checkpoints/<hash>/`."""
+    info = checkpoint_info(path, verify=True)
+    dest = checkpoints_dir() / info.hash
+    present = [name for name in FILES if (info.path / name).is_file()]
+    if dest.is_dir() and all((dest / name).is_file() for name in present):
+        try:
+            if checkpoint_info(dest, verify=True).hash == info.hash:
+                return dest  # already installed
+        except DlaInputError:
+            pass  # a damaged copy: replace it
+    with atomic_dir(dest) as tmp:
+        for name in present:
+            shutil.copyfile(info.path / name, tmp / name)
+    return dest
