@@ -1,5 +1,8 @@
 """Plain data passed between layers (io, body, render, nn, stages).
 
+Bottom layer: imports numpy only (torch is imported where a tensor is built, so that readers that
+summarise files, e.g. `dla info`, never load it).
+
 Conventions are written once in docs/conventions.md; in short:
 - world frame: anny's (metres, +Z up, the body at rest faces -Y);
 - quaternions are (w, x, y, z), unit length;
@@ -13,10 +16,12 @@ Conventions are written once in docs/conventions.md; in short:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
+
+if TYPE_CHECKING:
+    import torch
 
 SH_C0 = 0.28209479177387814  # Y_0^0 = 1 / (2 sqrt(pi))
 
@@ -126,6 +131,8 @@ class Cameras:
         ks[:, 0, 2] = np.broadcast_to(np.asarray(cx, dtype=np.float64), (c,))
         ks[:, 1, 2] = np.broadcast_to(np.asarray(cy, dtype=np.float64), (c,))
         ks[:, 2, 2] = 1.0
+        import torch
+
         return cls(
             torch.from_numpy(w2c).float(), torch.from_numpy(ks).float(), int(width), int(height)
         )
@@ -178,6 +185,58 @@ class Motion:
     @property
     def num_frames(self) -> int:
         return self.rotations.shape[0]
+
+
+# Limits every motion reader and resampler shares (docs/motion.md, "Limits").
+MAX_FPS = 1000.0  # frame rates above this are refused (by every motion reader, native ones too)
+MAX_FRAMES = 200_000  # 27 minutes at 120 fps; longer motions are refused before they are built
+
+
+@dataclass
+class SkeletonMotion:
+    """A third-party skeleton and its motion as read from a file (BVH, ASF/AMC, AMASS).
+
+    The common in-memory form of every imported motion (`dlacli.io.bvh`, `dlacli.io.asf_amc`,
+    `dlacli.io.amass` read it; `dlacli.body.retarget` turns it into a native `Motion` on anny's
+    rig; `dlacli.kinematics` holds its forward kinematics). Convention (docs/motion.md):
+
+    - joint j sits at its parent's position plus `offsets[j]` rotated by the parent's world rotation;
+    - `rotations[t, j]` is joint j's *local* rotation matrix: its world rotation is
+      G_j = G_parent @ rotations[t, j], and G_j rotates everything below j about j's position;
+    - in the rest pose (all rotations identity) the skeleton stands as its offsets say, in the
+      file's own world axes (`up` tells which world axis is up);
+    - lengths are in the file's units; `metres_per_unit` converts them.
+    """
+
+    names: list[str]  # [J] joint names as in the file
+    parents: np.ndarray  # [J] int64 parent index, -1 for the root (parents come before children)
+    offsets: np.ndarray  # [J, 3] float64 rest offset from the parent joint, file units
+    rotations: np.ndarray  # [T, J, 3, 3] float64 local rotation matrices
+    root_positions: np.ndarray  # [T, 3] float64 world position of joint 0, file units
+    fps: float
+    up: str = "y"  # world up axis of the file: "y" (CMU BVH / ASF) or "z" (AMASS)
+    metres_per_unit: float = 1.0
+    units: str = "m"
+    source: str = ""  # the file it came from (for messages)
+    end_sites: dict[int, np.ndarray] = field(default_factory=dict)  # joint -> [3] end offset
+    dialect: str = ""  # naming convention hint, e.g. "smpl" for AMASS
+
+    def __post_init__(self) -> None:
+        j = len(self.names)
+        t = self.rotations.shape[0]
+        assert self.parents.shape == (j,), self.parents.shape
+        assert self.offsets.shape == (j, 3), self.offsets.shape
+        assert self.rotations.shape == (t, j, 3, 3), self.rotations.shape
+        assert self.root_positions.shape == (t, 3), self.root_positions.shape
+        assert all(self.parents[k] < k for k in range(j)), "parents must precede children"
+
+    @property
+    def num_frames(self) -> int:
+        return self.rotations.shape[0]
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.names)
 
 
 @dataclass

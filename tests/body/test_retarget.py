@@ -26,7 +26,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from dlacli.body.builtin_motions import BUILTINS, builtin_motion
 from dlacli.body.model import get_body_model
-from dlacli.body.motion_source import load_motion
+from dlacli.stages.motion_source import load_motion
 from dlacli.body.retarget import Y_UP_TO_ANNY, anny_rig, match_joints, resample_motion, retarget
 from dlacli.errors import DlaInputError
 from dlacli.io.amass import SMPL_REST_JOINTS
@@ -45,7 +45,7 @@ SEGMENTS = [  # (anny bone, anny bone at the segment's end)
 
 def fk_positions(skel, frames):
     """Joint world positions [T, J, 3] by a recursive walk with scipy rotations (an FK written
-    independently of dlacli.io.bvh.forward_kinematics, which the retargeting uses)."""
+    independently of dlacli.kinematics.forward_kinematics, which the retargeting uses)."""
     children = {k: [c for c in range(skel.num_joints) if skel.parents[c] == k] for k in range(skel.num_joints)}
     out = np.zeros((len(frames), skel.num_joints, 3))
     for n, f in enumerate(frames):

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from dlacli.body.motion_source import load_motion
+from dlacli.stages.motion_source import load_motion
 from dlacli.body.retarget import DIALECTS, NEEDED, anny_rig, match_joints, retarget
 from dlacli.cli.app import main
 from dlacli.errors import DlaInputError

@@ -8,8 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from dlacli.errors import DlaInputError
 from dlacli.io.amass import SMPL_JOINTS, SMPL_REST_JOINTS, axis_angle_matrices, read_amass, summarize_amass
-from dlacli.io.bvh import forward_kinematics
 from dlacli.io.inspect import summarize
+from dlacli.kinematics import forward_kinematics
 
 
 def write_amass(path, width=156, frames=5, rate_key="mocap_framerate", fps=60.0, seed=0, **override):

@@ -9,8 +9,9 @@ import pytest
 
 from dlacli.errors import DlaInputError
 from dlacli.io.asf_amc import find_asf, read_amc, read_asf, summarize_amc, summarize_asf
-from dlacli.io.bvh import forward_kinematics, read_bvh
+from dlacli.io.bvh import read_bvh
 from dlacli.io.inspect import summarize
+from dlacli.kinematics import forward_kinematics
 
 # ASF bone -> joint name in the MotionBuilder-style BVH that CMU's converter made of the same clip
 ASF_TO_BVH = {

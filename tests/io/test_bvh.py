@@ -7,8 +7,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from dlacli.errors import DlaInputError
-from dlacli.io.bvh import forward_kinematics, read_bvh, rest_positions, summarize_bvh
+from dlacli.io.bvh import read_bvh, summarize_bvh
 from dlacli.io.inspect import summarize
+from dlacli.kinematics import forward_kinematics, rest_positions
 
 CMU_UNIT = 0.0254 / 0.45  # metres per CMU length unit
 

@@ -15,7 +15,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from dlacli.body.motion_source import load_motion
+from dlacli.stages.motion_source import load_motion
 from dlacli.body.retarget import resample_motion
 from dlacli.cli.app import main
 from dlacli.errors import DlaInputError

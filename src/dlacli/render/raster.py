@@ -3,7 +3,7 @@
 Conventions
 - Images are row-major, y down; pixel (row y, column x) has its centre at (x + 0.5, y + 0.5) and
   is covered when that centre is inside the projected triangle. Centres exactly on an edge go to
-  exactly one of the triangles sharing it (top-left rule, see `raster_kernels`).
+  exactly one of the triangles sharing it (top-left rule, see `dlacli.raster_core`).
 - Cameras are `dlacli.types.Cameras`: world-to-camera in OpenCV axes (+Z forward), pinhole
   intrinsics fx, fy > 0, cx, cy (skew K[0, 1] is ignored).
 - UV space: u to the right, v UP. Texel (row i, column j) of an R x R map has its centre at
@@ -32,19 +32,15 @@ import torch
 
 from dlacli import geometry
 from dlacli.errors import DlaInputError
+from dlacli.raster_core import UVRaster, rasterize_uv  # noqa: F401  (re-exported: the UV raster)
+from dlacli.raster_core import as_array as _np
+from dlacli.raster_core import check_faces as _check_faces
+from dlacli.raster_core import is_int as _is_int
+from dlacli.raster_core import raster_core as _raster_core
 from dlacli.render import raster_kernels as rk
 from dlacli.types import Cameras
 
 NEAR = 0.01  # metres
-
-
-@dataclass
-class UVRaster:
-    """Which face covers each texel of an R x R UV map (see module docstring for the axes)."""
-
-    face_id: np.ndarray  # [R, R] int32, -1 where no triangle covers the texel centre
-    bary: np.ndarray  # [R, R, 3] float32 barycentrics of the texel centre, 0 where empty
-    mask: np.ndarray  # [R, R] bool, face_id >= 0
 
 
 @dataclass
@@ -61,35 +57,6 @@ class Raster:
 
 
 # ----------------------------------------------------------------------------------- validation
-
-
-def _np(x, name: str, dtype=None) -> np.ndarray:
-    if isinstance(x, torch.Tensor):
-        x = x.detach().cpu().numpy()
-    try:
-        arr = np.asarray(x) if dtype is None else np.asarray(x, dtype=dtype)
-    except (TypeError, ValueError) as exc:
-        raise DlaInputError(name, f"not an array ({exc})") from None
-    return arr
-
-
-def _is_int(x) -> bool:
-    return isinstance(x, (int, np.integer)) and not isinstance(x, bool)
-
-
-def _check_faces(faces, n_vertices: int, name: str = "faces") -> np.ndarray:
-    arr = _np(faces, name)
-    if arr.size == 0:
-        return np.zeros((0, 3), np.int64)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise DlaInputError(name, f"expected shape [F, 3], got {list(arr.shape)}")
-    if not np.issubdtype(arr.dtype, np.integer):
-        raise DlaInputError(name, f"expected integer indices, got {arr.dtype}")
-    if arr.min() < 0 or arr.max() >= n_vertices:
-        raise DlaInputError(
-            name, f"indices must be in [0, {n_vertices}), got range [{arr.min()}, {arr.max()}]"
-        )
-    return np.ascontiguousarray(arr, dtype=np.int64)
 
 
 def _check_points(x, name: str, dims: int) -> np.ndarray:
@@ -121,55 +88,6 @@ def _check_cameras(cameras) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ----------------------------------------------------------------------------------- core
-
-
-def _raster_core(verts_cam, faces, intr, width, height, near, first_wins):
-    """verts_cam [C, V, 3] float64, faces [F, 3] int64, intr [C, 4] -> (face_id, bary, depth)."""
-    n_cam = intr.shape[0]
-    n_face = faces.shape[0]
-    face_id = np.full((n_cam, height, width), -1, np.int32)
-    bary = np.zeros((n_cam, height, width, 3), np.float32)
-    depth = np.full((n_cam, height, width), np.inf, np.float32)
-    if n_face == 0 or n_cam == 0:
-        return face_id, bary, depth
-    normals = np.empty((n_cam, n_face, 3, 3))
-    det_abs = np.empty((n_cam, n_face))
-    bbox = np.empty((n_cam, n_face, 4), np.int64)
-    verts_cam = np.ascontiguousarray(verts_cam, dtype=np.float64)
-    rk.setup_triangles(verts_cam, faces, intr, width, height, near, normals, det_abs, bbox)
-    n_bands = (height + rk.BAND - 1) // rk.BAND
-    offsets, items = rk.bin_triangles(det_abs, bbox, n_bands)
-    rk.raster_bands(
-        normals, det_abs, bbox, intr, offsets, items, near, first_wins, face_id, bary, depth
-    )
-    return face_id, bary, depth
-
-
-def rasterize_uv(uv, faces, resolution: int) -> UVRaster:
-    """Rasterise a UV layout into an R x R texel map.
-
-    uv    [Vt, 2] texture coordinates in [0, 1] (u right, v up; see module docstring)
-    faces [F, 3] int indices into uv
-    A texel is covered when its centre is inside a triangle (top-left rule on edges; where
-    triangles overlap, the lowest face id wins, so no texel is ever claimed twice).
-    """
-    if not _is_int(resolution) or resolution < 1:
-        raise DlaInputError("resolution", f"expected an integer >= 1, got {resolution!r}")
-    r = int(resolution)
-    uv = _np(uv, "uv", np.float64)
-    if uv.ndim != 2 or uv.shape[1] != 2:
-        raise DlaInputError("uv", f"expected shape [Vt, 2], got {list(uv.shape)}")
-    if not np.all(np.isfinite(uv)):
-        raise DlaInputError("uv", "contains NaN or infinite values")
-    faces = _check_faces(faces, uv.shape[0])
-    # Corners (x, y, 1) in texel units with y down; identity intrinsics make the rays (x, y, 1).
-    pts = np.empty((1, uv.shape[0], 3))
-    pts[0, :, 0] = uv[:, 0] * r
-    pts[0, :, 1] = (1.0 - uv[:, 1]) * r
-    pts[0, :, 2] = 1.0
-    intr = np.array([[1.0, 1.0, 0.0, 0.0]])
-    face_id, bary, _ = _raster_core(pts, faces, intr, r, r, 0.5, True)
-    return UVRaster(face_id[0], bary[0], face_id[0] >= 0)
 
 
 def rasterize_camera_space(

