@@ -20,19 +20,21 @@ def animate(
     output: Path = typer.Option(..., "--output", "-o", help="USD file: .usdc (binary, default), .usda (text) or .usd."),
     preview: Optional[Path] = typer.Option(None, "--preview", help="Also write a preview .mp4 splatted from a camera that follows the body."),
     schema: str = typer.Option("instancer", "--schema", help="instancer (UsdGeom.PointInstancer), particlefield (UsdVol.ParticleField3DGaussianSplat) or both."),
-    gaussians: int = typer.Option(131_072, "--gaussians", min=2, max=4_194_304, help="Gaussians per frame: half sampled uniformly in UV, half on the surface."),
+    gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=4_194_304, help="Gaussians per frame, half sampled uniformly in UV, half on the surface (default: the count the avatar was lifted with, else 131,072)."),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, max=2**32 - 1, help="Seed of the sample points (default: the avatar's own)."),
     fps: Optional[float] = typer.Option(None, "--fps", min=0.001, max=1000.0, callback=finite, help="Resample the motion to this frame rate (default: the motion's own)."),
     preview_size: int = typer.Option(512, "--preview-size", min=16, max=4096, help="Preview video size in pixels (square)."),
     allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
 ) -> None:
     """Animate an avatar with a motion and write it as USD (and a preview video)."""
-    from dlacli.body.motion_source import load_motion, split_spec
+    from dlacli.stages.motion_source import load_motion, split_spec
     from dlacli.cli.progress import progress_bar
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import check_outputs, output_group
     from dlacli.io.avatar import read_avatar
     from dlacli.io.usd import SCHEMAS, SUFFIXES
     from dlacli.io.video import write_video
+    from dlacli.stages.render import sample_settings
     from dlacli.stages.animate import animation_preview_frames, pose_avatar, write_animation
 
     if schema not in SCHEMAS:
@@ -44,11 +46,13 @@ def animate(
     check_outputs(files=[output, preview], inputs=[avatar, *split_spec(motion)])
     av = read_avatar(avatar)
     mot = load_motion(motion, fps=fps, phenotype=av.body.phenotype, allow_missing_joints=allow_missing_joints)
+    with naming(avatar=avatar):
+        gaussians, seed = sample_settings(av, gaussians, seed)
     if mot.num_frames * gaussians > MAX_GAUSSIAN_FRAMES:
         raise DlaInputError("--gaussians", f"{mot.num_frames} frames x {gaussians} Gaussians is more than dla animates at once "
                                            f"({MAX_GAUSSIAN_FRAMES:.3g} Gaussian-frames): lower --fps or --gaussians, or cut the motion")  # fmt: skip
     with naming(avatar=avatar, pose=avatar, phenotype=avatar), progress_bar("posing", mot.num_frames) as update:
-        anim = pose_avatar(av, mot, gaussians, where=str(avatar), progress=update)
+        anim = pose_avatar(av, mot, gaussians, seed, where=str(avatar), progress=update)
     with output_group():  # the USD and its preview land together or not at all
         if preview is not None:
             with progress_bar("preview", anim.num_frames) as update:

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Optional
 
 import typer
 
-from dlacli.stages.lift import LiftConfig
-
-_DEFAULTS = LiftConfig()
+# `dlacli.stages.lift.LiftConfig`'s defaults, written out so that loading the CLI (`dla --version`,
+# `dla info`) does not import the stage and torch; tests/test_layers.py checks that they agree.
+_DEFAULTS = SimpleNamespace(steps=50, resolution=256, gaussians=131_072)
 
 
 def lift(
@@ -17,7 +18,7 @@ def lift(
     output: Path = typer.Option(..., "--output", "-o", help="avatar.npz to write; a contact sheet PNG is written beside it."),
     ply: Optional[Path] = typer.Option(None, "--ply", help="Also write the unstructured pose-space Gaussians as a 3DGS .ply."),
     steps: int = typer.Option(_DEFAULTS.steps, "--steps", min=0, max=100_000, help="Refinement steps against the input views (0: mesh unprojection only); more is slower and closer."),
-    method: str = typer.Option("unproject", "--method", help="Encoder: 'unproject' (mesh unprojection, no weights)."),
+    method: str = typer.Option("unproject", "--method", help="Encoder into the latent Z: 'unproject' (mesh unprojection, no weights)."),
     resolution: int = typer.Option(_DEFAULTS.resolution, "--resolution", min=16, max=2048, help="UV resolution of the Gaussian map Z."),
     gaussians: int = typer.Option(_DEFAULTS.gaussians, "--gaussians", min=2, max=4_194_304, help="Gaussians sampled from Z while refining."),
     seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1, help="Seed of the Gaussian sample points."),
@@ -37,10 +38,11 @@ def lift(
     from dlacli.io.avatar import write_avatar
     from dlacli.io.ply import write_ply
     from dlacli.io.views import read_views, view_files
+    from dlacli.stages.codec import check_encoder
+    from dlacli.stages.lift import LiftConfig
     from dlacli.stages.lift import lift as run_lift
 
-    if method != "unproject":
-        raise DlaInputError("--method", f"unknown encoder {method!r} (available: unproject)")
+    check_encoder(method)
     if output.suffix.lower() != ".npz":
         raise DlaInputError(output, "the avatar is an .npz file")
     if ply is not None and ply.suffix.lower() != ".ply":

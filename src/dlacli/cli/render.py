@@ -21,14 +21,15 @@ def render(
     size: int = typer.Option(512, "--size", min=16, max=4096, help="Image size for --turntable."),
     video: Optional[Path] = typer.Option(None, "--video", help="Also write the images in order as an .mp4."),
     fps: float = typer.Option(24.0, "--fps", min=0.001, max=1000.0, callback=finite, help="Frame rate of --video."),
-    gaussians: int = typer.Option(131_072, "--gaussians", min=2, max=4_194_304, help="Gaussians sampled from the avatar."),
+    gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=4_194_304, help="Gaussians sampled from the avatar (default: the count it was lifted with, else 131,072)."),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, max=2**32 - 1, help="Seed of the sample points (default: the avatar's own)."),
     allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
 ) -> None:
     """Render an avatar from the cameras of a transforms.json, or as a turntable."""
     import numpy as np
     from PIL import Image
 
-    from dlacli.body.motion_source import load_motion, split_spec
+    from dlacli.stages.motion_source import load_motion, split_spec
     from dlacli.cli.progress import progress_bar
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_dir, check_outputs, output_group
@@ -62,7 +63,7 @@ def render(
                             f"{len(times)} images of {cams.width}x{cams.height} are more than dla renders at once ({MAX_PIXELS / 1e9:.1f} gigapixels)")  # fmt: skip
     frames = []
     with naming(**about_avatar), output_group(), atomic_dir(output) as tmp, progress_bar("rendering", len(times)) as update:
-        for shot in render_avatar(av, cams, times, mot, gaussians, where=str(avatar), progress=update):
+        for shot in render_avatar(av, cams, times, mot, gaussians, seed, where=str(avatar), progress=update):
             rgba8 = (np.clip(shot.rgba, 0, 1) * 255 + 0.5).astype(np.uint8)
             Image.fromarray(rgba8, "RGBA").save(tmp / shot.name)
             if video is not None:

@@ -142,8 +142,8 @@ def write_usd(
     positions,  # [T, N, 3] metres
     quats,  # [T, N, 4] (w, x, y, z)
     scales,  # [N, 3] or [T, N, 3] standard deviations, metres
-    rgb,  # [N, 3] in [0, 1]
-    opacities,  # [N] in [0, 1]
+    rgb,  # [N, 3] or [T, N, 3] in [0, 1] (per frame from a pose-conditioned decoder)
+    opacities,  # [N] or [T, N] in [0, 1]
     fps: float,
     *,
     sh=None,  # [N, K, 3] SH coefficients for the particle field, K = (degree + 1)^2
@@ -164,8 +164,14 @@ def write_usd(
         raise DlaInputError("positions", "needs at least one frame")
     quats = _to_numpy("quats", quats, [(t, n, 4)])
     scales = _to_numpy("scales", scales, [(n, 3), (t, n, 3)])
-    rgb = _to_numpy("rgb", rgb, [(n, 3)])
-    opacities = _to_numpy("opacities", opacities, [(n,)])
+    rgb = _to_numpy("rgb", rgb, [(n, 3), (t, n, 3)])
+    opacities = _to_numpy("opacities", opacities, [(n,), (t, n)])
+    if rgb.ndim == 3 and np.all(rgb == rgb[:1]):
+        rgb = rgb[0]  # constant over time: no time samples
+    if opacities.ndim == 2 and np.all(opacities == opacities[:1]):
+        opacities = opacities[0]
+    if sh is not None and rgb.ndim == 3:
+        raise DlaInputError("sh", "per-frame colours take their SH from rgb (pass sh=None)")
     if sh is not None:
         sh = _to_numpy("sh", sh, [(n, None, 3)])
         if sh.shape[1] not in (1, 4, 9, 16):
@@ -254,10 +260,19 @@ def _write_instancer(stage, positions, quats, scales, rgb, opacities, times):
     # "vertex" interpolation on a PointInstancer primvar means one value per instance.
     primvars = UsdGeom.PrimvarsAPI(inst.GetPrim())
     color = primvars.CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.vertex)
-    color.Set(Vt.Vec3fArray.FromNumpy(rgb))
     alpha = primvars.CreatePrimvar("displayOpacity", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex)
-    alpha.Set(Vt.FloatArray.FromNumpy(opacities))
+    _set_maybe_timed(color, rgb, Vt.Vec3fArray, times, timed=rgb.ndim == 3)
+    _set_maybe_timed(alpha, opacities, Vt.FloatArray, times, timed=opacities.ndim == 2)
     return inst
+
+
+def _set_maybe_timed(attr, values: np.ndarray, array_type, times, timed: bool) -> None:
+    """One value for all time, or (timed: values[i] for frame i) one time sample per frame."""
+    if timed:
+        for i, time in enumerate(times):
+            attr.Set(array_type.FromNumpy(np.ascontiguousarray(values[i])), time)
+    else:
+        attr.Set(array_type.FromNumpy(np.ascontiguousarray(values)))
 
 
 def _write_splats(stage, splat_cls, positions, quats, scales, opacities, rgb, sh, times):
@@ -281,13 +296,14 @@ def _write_splats(stage, splat_cls, positions, quats, scales, opacities, rgb, sh
             scale_attr.Set(Vt.Vec3fArray.FromNumpy(scales[i]), time)
         if n:
             extent_attr.Set(Vt.Vec3fArray.FromNumpy(boxes[i]), time)
-    splats.CreateOpacitiesAttr(Vt.FloatArray.FromNumpy(opacities))
+    _set_maybe_timed(splats.CreateOpacitiesAttr(), opacities, Vt.FloatArray, times, timed=opacities.ndim == 2)
     if sh is None:
-        sh = ((rgb - 0.5) / SH_C0)[:, None, :]  # [N, 1, 3] DC only
-    degree = int(round(np.sqrt(sh.shape[1]))) - 1
+        sh = ((rgb - 0.5) / SH_C0)[..., None, :]  # [(T,) N, 1, 3] DC only
+    degree = int(round(np.sqrt(sh.shape[-2]))) - 1
     splats.CreateRadianceSphericalHarmonicsDegreeAttr(degree)
-    coeffs = np.ascontiguousarray(sh.reshape(-1, 3), dtype=np.float32)  # [N * K, 3] per particle
-    splats.CreateRadianceSphericalHarmonicsCoefficientsAttr(Vt.Vec3fArray.FromNumpy(coeffs))
+    timed = sh.ndim == 4
+    coeffs = np.ascontiguousarray(sh.reshape(*sh.shape[:-3], -1, 3), dtype=np.float32)  # [(T,) N * K, 3]
+    _set_maybe_timed(splats.CreateRadianceSphericalHarmonicsCoefficientsAttr(), coeffs, Vt.Vec3fArray, times, timed)
     return splats
 
 
@@ -382,24 +398,34 @@ def read_usd(path: str | os.PathLike) -> UsdAnimation:
     has_scales = geom.GetAttribute("scales").HasValue()
     scales = frames("scales", 3) if has_scales else np.ones_like(positions)  # [T, N, 3]
 
+    def constant_or_frames(attr, width: int) -> np.ndarray | None:  # [N, width] or [T, N, width]
+        if attr and attr.GetNumTimeSamples() > 0:
+            got = [_array(attr, time) for time in times]
+            if any(a is None for a in got) or len({a.size for a in got}) != 1:
+                raise DlaInputError(path, f"{attr.GetPath()} has missing or uneven time samples")
+            return np.stack([a.reshape(-1, width) for a in got])
+        arr = _array(attr, default) if attr else None
+        return None if arr is None else arr.reshape(-1, width)
+
     sh = None
     if splats is not None:
-        opacities = _array(splats.GetAttribute("opacities"), default)
+        opacities = constant_or_frames(splats.GetAttribute("opacities"), 1)
         coeffs = _array(splats.GetAttribute("radiance:sphericalHarmonicsCoefficients"), default)
         degree = splats.GetAttribute("radiance:sphericalHarmonicsDegree").Get()
         k = (int(degree) + 1) ** 2 if degree is not None else 1
         if coeffs is not None and coeffs.size == 3 * n * k:
             sh = coeffs.reshape(n, k, 3)
     else:
-        opacities = _array(inst.GetAttribute("primvars:displayOpacity"), default)
+        opacities = constant_or_frames(inst.GetAttribute("primvars:displayOpacity"), 1)
     if inst is not None:
-        rgb = _array(inst.GetAttribute("primvars:displayColor"), default)
+        rgb = constant_or_frames(inst.GetAttribute("primvars:displayColor"), 3)
     else:
         rgb = np.clip(sh[:, 0] * SH_C0 + 0.5, 0, 1) if sh is not None else None
-    rgb = np.full((n, 3), 0.5, np.float32) if rgb is None else rgb.reshape(-1, 3)
-    opacities = np.ones(n, np.float32) if opacities is None else opacities.reshape(-1)
+    rgb = np.full((n, 3), 0.5, np.float32) if rgb is None else rgb
+    opacities = np.ones(n, np.float32) if opacities is None else opacities[..., 0]
     for name, arr in (("quats", quats), ("scales", scales), ("rgb", rgb), ("opacities", opacities)):
-        if arr.shape[1 if arr.ndim == 3 else 0] != n:
+        per_frame = arr.ndim == 3 or (name == "opacities" and arr.ndim == 2)
+        if arr.shape[1 if per_frame else 0] != n:
             raise DlaInputError(path, f"{name} has {arr.shape} entries for {n} instances")
     return UsdAnimation(
         fps=float(stage.GetTimeCodesPerSecond()),

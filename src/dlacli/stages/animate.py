@@ -22,6 +22,8 @@ PREVIEW_ELEVATION = 8.0
 PREVIEW_FOV = 40.0
 PREVIEW_EXTENT = 2.3  # metres of the scene the preview frames vertically
 FOLLOW_SECONDS = 0.5  # the preview camera follows the pelvis smoothed over this window
+USD_VIEW_AZIMUTH = 0.0  # degrees: view-conditioned decoders are evaluated from the front for USD
+USD_VIEW_DISTANCE = 3.0  # metres
 
 
 @dataclass
@@ -31,8 +33,8 @@ class Animation:
     positions: np.ndarray  # [T, N, 3]
     quats: np.ndarray  # [T, N, 4] (w, x, y, z)
     scales: np.ndarray  # [T, N, 3]
-    opacities: np.ndarray  # [N]
-    rgb: np.ndarray  # [N, 3]
+    opacities: np.ndarray  # [N], or [T, N] from a conditioned decoder
+    rgb: np.ndarray  # [N, 3], or [T, N, 3] from a conditioned decoder
     pelvis: np.ndarray  # [T, 3] root bone head per frame
     fps: float
 
@@ -41,10 +43,11 @@ class Animation:
         return self.positions.shape[0]
 
     def frame(self, t: int) -> Gaussians:
+        opacities = self.opacities[t] if self.opacities.ndim == 2 else self.opacities
+        rgb = self.rgb[t] if self.rgb.ndim == 3 else self.rgb
         return Gaussians.from_rgb(
             torch.from_numpy(self.positions[t]), torch.from_numpy(self.quats[t]),
-            torch.from_numpy(self.scales[t]), torch.from_numpy(self.opacities),
-            torch.from_numpy(self.rgb),
+            torch.from_numpy(self.scales[t]), torch.from_numpy(opacities), torch.from_numpy(rgb),
         )  # fmt: skip
 
 
@@ -52,32 +55,62 @@ class Animation:
 def pose_avatar(
     avatar: Avatar,
     motion: Motion,
-    n_gaussians: int = gm.DEFAULT_GAUSSIANS,
-    seed: int = 0,
+    n_gaussians: int | None = None,
+    seed: int | None = None,
     batch: int = 8,
     where: str = "avatar",
     progress: Callable[[int, int], None] | None = None,
 ) -> Animation:
-    """Skin the avatar's Gaussians for every frame of `motion` (on the avatar's own body shape)."""
+    """Skin the avatar's Gaussians for every frame of `motion` (on the avatar's own body shape).
+
+    The canonical map is decoded once; a conditioned decoder adds F_delta per frame, seen from
+    USD_VIEW_AZIMUTH when it is view-conditioned (formats/usd.md: a USD file has no camera), and
+    then colours and opacities are per frame too. Count and seed default to the avatar's own."""
     from dlacli.body.model import get_body_model
+    from dlacli.stages.codec import Decoded
+    from dlacli.stages.render import sample_settings
 
     model = get_body_model()
-    fmap = gm.decode(avatar, where)
-    samples = gm.make_samples(n_gaussians, seed)
+    decoded = Decoded(avatar, where)
+    samples = gm.make_samples(*sample_settings(avatar, n_gaussians, seed))
     t_total, n = motion.num_frames, len(samples)
     out = {k: np.empty((t_total, n, d), np.float32) for k, d in (("pos", 3), ("quat", 4), ("scale", 3))}
+    if decoded.conditioned:
+        out.update(rgb=np.empty((t_total, n, 3), np.float32), alpha=np.empty((t_total, n), np.float32))
     pelvis = np.empty((t_total, 3), np.float32)
     opacity = rgb = None
     for start in range(0, t_total, batch):
         sel = np.arange(start, min(start + batch, t_total))
         body = model.forward_motion(avatar.body.phenotype, motion, frames=sel)
         frames = gm.sample_frames(body.vertices, samples)
-        means, quats, scales, opacity, rgb = gm.skinned_params(fmap, samples, frames)
-        out["pos"][sel], out["quat"][sel], out["scale"][sel] = means.numpy(), quats.numpy(), scales.numpy()
+        if not decoded.conditioned:
+            means, quats, scales, opacity, rgb = gm.skinned_params(decoded.at(), samples, frames)
+            out["pos"][sel], out["quat"][sel], out["scale"][sel] = means.numpy(), quats.numpy(), scales.numpy()
+        else:
+            for k, t in enumerate(sel):
+                verts = body.vertices[k]  # [V, 3]
+                rays = decoded.rays(verts, usd_view_eye(body.bone_heads[k, 0])) if decoded.decoder.view_conditioned else None
+                fmap = decoded.at(decoded.pose(verts), rays)
+                one = tuple(f[k : k + 1] for f in frames)
+                means, quats, scales, opacity, rgb = gm.skinned_params(fmap, samples, one)
+                out["pos"][t], out["quat"][t], out["scale"][t] = means[0].numpy(), quats[0].numpy(), scales[0].numpy()
+                out["rgb"][t], out["alpha"][t] = rgb.numpy(), opacity.numpy()
         pelvis[sel] = body.bone_heads[:, 0].numpy()
         if progress is not None:
             progress(int(sel[-1]) + 1, t_total)
+    if decoded.conditioned:
+        return Animation(out["pos"], out["quat"], out["scale"], out["alpha"], out["rgb"], pelvis, motion.fps)
     return Animation(out["pos"], out["quat"], out["scale"], opacity.numpy(), rgb.numpy(), pelvis, motion.fps)
+
+
+def usd_view_eye(pelvis: torch.Tensor) -> torch.Tensor:
+    """The camera centre [3] a view-conditioned decoder is evaluated from for USD (formats/usd.md):
+    in front of the body (azimuth 0, the input photo's side), at pelvis height, 3 m away, moving
+    with the pelvis so the view of the body does not change as it walks."""
+    from dlacli.geometry import orbit_eyes
+
+    eye = orbit_eyes(pelvis.double().numpy(), USD_VIEW_DISTANCE, USD_VIEW_AZIMUTH, 0.0)
+    return torch.as_tensor(np.asarray(eye, dtype=np.float32).reshape(3))
 
 
 def follow_cameras(pelvis: np.ndarray, fps: float, size: int) -> Cameras:
@@ -108,5 +141,5 @@ def write_animation(anim: Animation, path: str | os.PathLike, schema: str = "ins
     """The USD contract (formats/usd.md); scales are time-sampled only where they change."""
     from dlacli.io.usd import write_usd
 
-    sh = rgb_to_sh0(torch.from_numpy(anim.rgb)).numpy()[:, None, :]
+    sh = rgb_to_sh0(torch.from_numpy(anim.rgb)).numpy()[:, None, :] if anim.rgb.ndim == 2 else None
     write_usd(path, anim.positions, anim.quats, anim.scales, anim.rgb, anim.opacities, anim.fps, sh=sh, schema=schema)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -36,7 +37,49 @@ MIN_PERSON_PX = 32  # the person must be at least this many pixels tall in the p
 CUT_DEPTH = 0.04  # metres: a shell triangle over two body parts spanning a larger jump is left out
 CUT_FAR = 0.3  # metres: any shell triangle spanning a larger depth jump is left out
 INFLATE = 0.8  # thickness of the shell outside the body (hair, loose cloth), x a round profile
-BACKENDS = ("template", "diffusion")
+@dataclass(frozen=True)
+class Backend:
+    """A way to make the novel views: `load(model, device, res, frames, say)` returns (what
+    `views(rgb, alpha, cam, vertices, loaded, frames=, steps=, seed=, say=)` needs, the model
+    name it loaded), and
+    `views` returns (images, masks, cameras, settings to record in dream's info)."""
+
+    views: Callable
+    load: Callable | None = None
+
+
+def _template(rgb, alpha, cam, vertices, loaded, *, frames, steps, seed, say):
+    say("rendering the template views")
+    images, masks, cams = template_views(rgb, alpha, cam, vertices)
+    return images, masks, cams, {}
+
+
+def _load_diffusion(model, device, res, frames, say):
+    from dlacli.nn.video_diffusion import DEFAULT_MODEL, load_pipeline
+
+    if res % 16:
+        raise DlaInputError("--res", f"the diffusion backend needs a multiple of 16, got {res}")
+    if frames < 4 or frames % 4:
+        raise DlaInputError("--frames", f"must be a positive multiple of 4, got {frames}")
+    say("loading the diffusion pipeline")
+    model = model or DEFAULT_MODEL
+    return load_pipeline(model, device=device), model
+
+
+def _diffusion(rgb, alpha, cam, vertices, pipe, *, frames, steps, seed, say):
+    if pipe is None:
+        raise DlaInputError("--backend diffusion", "no pipeline loaded")
+    images, masks, cams, _ = diffusion_views(rgb, alpha, cam, vertices, pipe, frames=frames, steps=steps, seed=seed, progress=say)
+    return images, masks, cams, {"steps": steps, "frames": frames, "seed": seed, "video_frames": [0, *view_frames(frames)]}
+
+
+BACKENDS: dict[str, Backend] = {"template": Backend(_template), "diffusion": Backend(_diffusion, _load_diffusion)}
+
+
+def _backend(name: str) -> Backend:
+    if name not in BACKENDS:
+        raise DlaInputError("--backend", f"unknown backend {name!r} (choose {' or '.join(BACKENDS)})")
+    return BACKENDS[name]
 
 Progress = Callable[[str], None]
 
@@ -402,16 +445,9 @@ def build_views(image: np.ndarray, mask: np.ndarray, fit, *, backend: str = "tem
     rgb, alpha, cam = frame_crop(image, mask, fit.camera, res)
     info = {"backend": backend, "azimuths": list(AZIMUTHS), "fit_overlay": "fit_overlay.png",
             "fit": {"reprojection_px": float(fit.reprojection_px), "mask_iou": float(fit.mask_iou)}}
-    if backend == "template":
-        say("rendering the template views")
-        images, masks, cams = template_views(rgb, alpha, cam, fit.vertices)
-    elif backend == "diffusion":
-        if pipe is None:
-            raise DlaInputError("--backend diffusion", "no pipeline loaded")
-        images, masks, cams, _ = diffusion_views(rgb, alpha, cam, fit.vertices, pipe, frames=frames, steps=steps, seed=seed, progress=say)
-        info.update({"steps": steps, "frames": frames, "seed": seed, "video_frames": [0, *view_frames(frames)]})
-    else:
-        raise DlaInputError("--backend", f"unknown backend {backend!r} (choose {' or '.join(BACKENDS)})")
+    images, masks, cams, settings = _backend(backend).views(rgb, alpha, cam, fit.vertices, pipe, frames=frames,
+                                                            steps=steps, seed=seed, say=say)  # fmt: skip
+    info.update(settings)
     names = [f"images/view_{i:03d}.png" for i in range(len(images))]
     return ViewSet(images, masks, cams, fit.body, names, [None] * len(images), {"dream": info})
 
@@ -437,23 +473,14 @@ def dream(photo: str | os.PathLike, output: str | os.PathLike, *, backend: str =
     from dlacli.stages.fit import fit_body, overlay_png
 
     say = progress or (lambda msg: None)
-    if backend not in BACKENDS:
-        raise DlaInputError("--backend", f"unknown backend {backend!r} (choose {' or '.join(BACKENDS)})")
+    chosen = _backend(backend)
     if not 64 <= res <= 4096:
         raise DlaInputError("--res", f"must be in [64, 4096], got {res}")
     if steps < 1:
         raise DlaInputError("--steps", f"must be >= 1, got {steps}")
     pipe = None
-    if backend == "diffusion":
-        from dlacli.nn.video_diffusion import DEFAULT_MODEL, load_pipeline
-
-        if res % 16:
-            raise DlaInputError("--res", f"the diffusion backend needs a multiple of 16, got {res}")
-        if frames < 4 or frames % 4:
-            raise DlaInputError("--frames", f"must be a positive multiple of 4, got {frames}")
-        say("loading the diffusion pipeline")
-        model = model or DEFAULT_MODEL
-        pipe = load_pipeline(model, device=device)
+    if chosen.load is not None:
+        pipe, model = chosen.load(model, device, res, frames, say)
     notes: list[str] = []
     image, person, kps = _read_inputs(photo, mask, keypoints, notes)
     for note in notes:

@@ -65,13 +65,16 @@ def swap_region(
 
     The body (shape and pose) stays `a`'s. `feather` (texels at Z's resolution) blends linearly
     across that many texels outside the region; texels farther away are exactly `a`'s.
-    A cached canonical map is swapped the same way when both avatars have one of the same size,
-    else dropped (it is recomputed from z when needed).
+    The result is re-decoded from its z: a cached canonical map is dropped, except for a decoder
+    that is linear in z (identity), whose maps swap exactly like z when both avatars have one of
+    the same size.
     """
+    from dlacli.stages.codec import is_linear
+
     check_compatible(a, b, where_a, where_b)
     z = _blend_maps(a.z, b.z, _region_weight(region, a.z.shape[1:], feather, where_a))
     canonical = None
-    if a.canonical is not None and b.canonical is not None and a.canonical.shape == b.canonical.shape:
+    if is_linear(a) and a.canonical is not None and b.canonical is not None and a.canonical.shape == b.canonical.shape:
         scale = a.canonical.shape[1] / a.z.shape[1]
         w = _region_weight(region, a.canonical.shape[1:], feather * scale, where_a)
         canonical = _blend_maps(a.canonical, b.canonical, w)
@@ -125,15 +128,19 @@ def interpolate(a: Avatar, b: Avatar, t: float, where_a: str = "A", where_b: str
     """The avatar a fraction `t` of the way from `a` to `b`: z = (1 - t) z_a + t z_b.
 
     t = 0 and t = 1 reproduce `a` and `b` exactly (z, body and cached canonical map); t outside
-    [0, 1] extrapolates. The canonical cache is blended when both have one of the same size.
+    [0, 1] extrapolates. Between them the blend is re-decoded from z: the canonical cache is
+    dropped, except for a decoder linear in z (identity), where it blends like z.
     """
+    from dlacli.stages.codec import is_linear
+
     check_compatible(a, b, where_a, where_b)
     t = float(t)
     if not np.isfinite(t):
         raise DlaInputError("--t", f"must be a finite number, got {t}")
     z = ((1.0 - t) * a.z + t * b.z).astype(np.float32)
-    canonical = None
-    if a.canonical is not None and b.canonical is not None and a.canonical.shape == b.canonical.shape:
+    canonical = {0.0: a.canonical, 1.0: b.canonical}.get(t)
+    if canonical is None and is_linear(a) and a.canonical is not None and b.canonical is not None \
+            and a.canonical.shape == b.canonical.shape:
         canonical = ((1.0 - t) * a.canonical + t * b.canonical).astype(np.float32)
     base = a if t < 0.5 else b
     return Avatar(

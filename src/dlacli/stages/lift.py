@@ -348,6 +348,7 @@ def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None) -> LiftRe
     out = render_views(fmap, vertices, cams, samples)
     sheet = contact_sheet(rgb.numpy(), out.rgb.numpy())
     extra = {"lift": {"steps": cfg.steps, "grid": cfg.grid, "gaussians": cfg.gaussians,
-                      "final_loss": history[-1] if history else None}}  # fmt: skip
+                      "final_loss": history[-1] if history else None},
+             "samples": {"count": cfg.gaussians, "seed": cfg.seed}}  # what render/animate draw by default  # fmt: skip
     avatar = Avatar(z=fmap, encoder=ENCODER, decoder=DECODER, body=views.body, uv_layout=UV_LAYOUT, extra=extra)
     return LiftResult(avatar, unstructured, sheet)

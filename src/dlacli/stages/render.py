@@ -18,6 +18,7 @@ from dlacli.errors import DlaInputError
 from dlacli.stages import gaussian_map as gm
 from dlacli.types import Avatar, Cameras, Motion
 
+MAX_GAUSSIANS = 4_194_304  # the most an avatar may ask to be drawn with (32x the default)
 TURNTABLE_ELEVATION = 5.0
 TURNTABLE_FOV = 40.0
 TURNTABLE_EXTENT = 2.2
@@ -52,31 +53,56 @@ def render_avatar(
     cameras: Cameras,
     times: list[int | None],
     motion: Motion | None = None,
-    n_gaussians: int = gm.DEFAULT_GAUSSIANS,
-    seed: int = 0,
+    n_gaussians: int | None = None,
+    seed: int | None = None,
     where: str = "avatar",
     progress: Callable[[int, int], None] | None = None,
 ) -> Iterator[Shot]:
-    """Shots for each camera (times [C]: motion frame per camera, None = frame 0 / own pose)."""
-    from dlacli.render.splat import render_gaussians
+    """Shots for each camera (times [C]: motion frame per camera, None = frame 0 / own pose).
 
-    fmap = gm.decode(avatar, where)
-    samples = gm.make_samples(n_gaussians, seed)
+    The decoder's canonical map is computed once; F is decoded per motion frame when the decoder
+    is pose-conditioned and per camera when it is view-conditioned (stages/codec.py). Gaussian
+    count and seed default to the ones the avatar records (`sample_settings`)."""
+    from dlacli.geometry import camera_centers
+    from dlacli.render.splat import render_gaussians
+    from dlacli.stages.codec import Decoded
+
+    decoded = Decoded(avatar, where)
+    count, seed = sample_settings(avatar, n_gaussians, seed)
+    samples = gm.make_samples(count, seed)
     frame_of = np.array([0 if t is None else int(t) for t in times], dtype=np.int64)
-    distinct = np.unique(frame_of)
     done = 0
-    for frame in distinct:
-        verts = _pose_vertices(avatar, motion, np.array([frame]))
-        (g,) = gm.gaussians_at_frames(fmap, samples, gm.sample_frames(verts, samples))
+    for frame in np.unique(frame_of):
+        verts = _pose_vertices(avatar, motion, np.array([frame]))  # [1, V, 3]
+        frames = gm.sample_frames(verts, samples)
+        pose = decoded.pose(verts[0])
         cams = np.nonzero(frame_of == frame)[0]
-        sub = Cameras(cameras.viewmats[cams], cameras.Ks[cams], cameras.width, cameras.height)
-        out = render_gaussians(g, sub)
-        for k, c in enumerate(cams):
-            rgba = torch.cat([out.rgb[k], out.alpha[k][..., None]], dim=-1).numpy()
-            yield Shot(int(frame), int(c), rgba)
-            done += 1
-            if progress is not None:
-                progress(done, len(times))
+        groups = [cams[k : k + 1] for k in range(len(cams))] if decoded.decoder.view_conditioned else [cams]
+        for group in groups:
+            sub = Cameras(cameras.viewmats[group], cameras.Ks[group], cameras.width, cameras.height)
+            rays = decoded.rays(verts[0], camera_centers(sub.viewmats[0])) if decoded.decoder.view_conditioned else None
+            (g,) = gm.gaussians_at_frames(decoded.at(pose, rays), samples, frames)
+            out = render_gaussians(g, sub)
+            for k, c in enumerate(group):
+                rgba = torch.cat([out.rgb[k], out.alpha[k][..., None]], dim=-1).numpy()
+                yield Shot(int(frame), int(c), rgba)
+                done += 1
+                if progress is not None:
+                    progress(done, len(times))
+
+
+def sample_settings(avatar: Avatar, n_gaussians: int | None = None, seed: int | None = None) -> tuple[int, int]:
+    """(Gaussian count, sample seed): the given ones, else what the avatar records
+    (`extra.samples`, written by lift: the points its Gaussians were refined at), else the
+    defaults (DEFAULT_GAUSSIANS, 0)."""
+    recorded = avatar.extra.get("samples", {}) if isinstance(avatar.extra.get("samples"), dict) else {}
+    count = n_gaussians if n_gaussians is not None else recorded.get("count", gm.DEFAULT_GAUSSIANS)
+    seed = seed if seed is not None else recorded.get("seed", 0)
+    if not isinstance(count, int) or isinstance(count, bool) or not 2 <= count <= MAX_GAUSSIANS:
+        raise DlaInputError("avatar", f"extra.samples.count must be an integer in [2, {MAX_GAUSSIANS}], got {count!r}")
+    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**32:
+        raise DlaInputError("avatar", f"extra.samples.seed must be an integer in [0, 2^32), got {seed!r}")
+    return count, seed
 
 
 def turntable_cameras(avatar: Avatar, n: int, size: int) -> Cameras:

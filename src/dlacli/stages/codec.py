@@ -1,0 +1,202 @@
+"""The codec: the one place that maps an avatar's `encoder` / `decoder` / `checkpoint` to code.
+
+Method (DESIGN.md §1, "Animate"): the Gaussian Parameter Decoder turns the latent Z into the UV
+Gaussian map F = F_c(Z) + F_delta(Z, pose maps, Plücker rays). F_c is the canonical part,
+computed once per avatar (and cacheable in avatar.npz); F_delta depends on the target pose and,
+for a view-conditioned decoder, on the camera. Callers never test method names: they ask the
+decoder what it needs (`pose_conditioned`, `view_conditioned`, `linear`) and call
+`canonical` once and `delta` per frame (and per camera when view-conditioned).
+
+The non-learned pair is one implementation of the same interface: encoder "unproject" (mesh
+unprojection, stages/lift.py) and decoder "identity" (F = Z: no delta, no checkpoint, linear).
+Learned decoders register themselves with `register_decoder` and load their weights through
+the checkpoint resolver.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import torch
+
+from dlacli.errors import DlaInputError
+from dlacli.types import Avatar
+
+
+@dataclass
+class PoseConditioning:
+    """What a pose-conditioned decoder sees of one target pose, as UV maps [3, R, R]."""
+
+    relative_positions: torch.Tensor  # [3, R, R] posed minus rest positions, metres
+    normals: torch.Tensor  # [3, R, R] unit normals of the posed body
+
+
+class Decoder:
+    """Z -> F. Subclasses set the flags and override `canonical` and, if conditioned, `delta`."""
+
+    name = "base"
+    pose_conditioned = False  # delta depends on the target pose
+    view_conditioned = False  # delta depends on the camera's rays
+    linear = False  # F is linear in Z: maps decoded from blended Zs may be blended directly
+    resolution: int | None = None  # the resolution of the UV maps `delta` wants (pose, rays)
+
+    def canonical(self, z: torch.Tensor) -> torch.Tensor:
+        """F_c [14, R, R] from z [C, H, W]."""
+        raise NotImplementedError
+
+    def delta(self, z: torch.Tensor, pose: PoseConditioning | None, rays: torch.Tensor | None) -> torch.Tensor | None:
+        """F_delta [14, R, R] for one pose (None unless pose_conditioned) and one camera's UV ray
+        map [6, R, R] (None unless view_conditioned); None means zero."""
+        return None
+
+    @property
+    def conditioned(self) -> bool:
+        return self.pose_conditioned or self.view_conditioned
+
+
+class IdentityDecoder(Decoder):
+    """F = Z (the Gaussian map is the code itself): no delta, no weights."""
+
+    name = "identity"
+    linear = True
+
+    def __init__(self, checkpoint: str = "", where: str = "avatar"):
+        if checkpoint:
+            raise DlaInputError(where, f"the identity decoder takes no checkpoint, found {checkpoint!r}")
+        self.where = where
+
+    def canonical(self, z: torch.Tensor) -> torch.Tensor:
+        from dlacli.stages.gaussian_map import CHANNELS
+
+        if z.shape[0] != CHANNELS:
+            raise DlaInputError(self.where, f"identity decoder needs z with {CHANNELS} channels, got {tuple(z.shape)}")
+        return z
+
+
+# name -> factory(checkpoint, where) -> Decoder
+_DECODERS: dict[str, Callable[[str, str], Decoder]] = {"identity": IdentityDecoder}
+# name -> encoder function (views, config) -> LiftResult; filled lazily by stages.lift
+_ENCODERS: dict[str, str] = {"unproject": "dlacli.stages.lift:lift"}
+
+
+def register_decoder(name: str, factory: Callable[[str, str], Decoder]) -> None:
+    """Make `factory(checkpoint, where)` the decoder for avatars whose `decoder` is `name`."""
+    _DECODERS[name] = factory
+
+
+def decoder_names() -> list[str]:
+    return sorted(_DECODERS)
+
+
+def encoder_names() -> list[str]:
+    return sorted(_ENCODERS)
+
+
+def check_encoder(name: str, where: str = "--method") -> str:
+    """`name` if it is a known encoder, else a one-line error listing them."""
+    if name not in _ENCODERS:
+        raise DlaInputError(where, f"unknown encoder {name!r} (available: {', '.join(encoder_names())})")
+    return name
+
+
+def is_linear(avatar: Avatar) -> bool:
+    """Whether the avatar's decoder is linear in Z (so its canonical maps may be blended like Z);
+    False for a decoder this version does not know."""
+    factory = _DECODERS.get(avatar.decoder)
+    return bool(factory is not None and getattr(factory, "linear", False))
+
+
+def resolve_decoder(avatar: Avatar, where: str = "avatar", checkpoint: str | None = None) -> Decoder:
+    """The decoder an avatar names, built with its checkpoint (`checkpoint`: a path that
+    overrides the hash's lookup, i.e. `--checkpoint PATH`); one-line error if unknown.
+
+    A registered name is built by its factory. Otherwise, an avatar with a checkpoint hash is
+    decoded by the network in that checkpoint (resolved in the checkpoints cache or at
+    `checkpoint`, nn/checkpoint.py), which must be a Decoder of that name."""
+    factory = _DECODERS.get(avatar.decoder)
+    if factory is not None:
+        return factory(avatar.checkpoint, where)
+    if not avatar.checkpoint:
+        raise DlaInputError(where, f"decoder {avatar.decoder!r} is not available in this version (known: {', '.join(decoder_names())})")
+    from dlacli.nn.checkpoint import load_checkpoint, resolve_checkpoint
+
+    path = resolve_checkpoint(checkpoint or avatar.checkpoint)
+    loaded = load_checkpoint(path)
+    if checkpoint is not None and loaded.hash != avatar.checkpoint:
+        raise DlaInputError(checkpoint, f"holds weights {loaded.hash[:16]}, but {where} was made with {avatar.checkpoint[:16]}")
+    net = loaded.module
+    if not isinstance(net, Decoder) or getattr(net, "name", None) != avatar.decoder:
+        raise DlaInputError(path, f"holds a {type(net).__name__}, not the {avatar.decoder!r} decoder {where} names")
+    return net
+
+
+def pose_conditioning(vertices: torch.Tensor, rest_vertices: np.ndarray, resolution: int) -> PoseConditioning:
+    """The UV maps a pose-conditioned decoder sees for posed vertices [V, 3] of a body whose
+    zero-pose vertices are rest_vertices [V, 3]."""
+    from dlacli.body.uv import normal_map, relative_position_map
+
+    rel = relative_position_map(vertices, rest_vertices, resolution)  # [R, R, 3]
+    nrm = normal_map(vertices, resolution)  # [R, R, 3]
+    return PoseConditioning(rel.permute(2, 0, 1).contiguous(), nrm.permute(2, 0, 1).contiguous())
+
+
+def uv_rays(vertices: torch.Tensor, eye: torch.Tensor, resolution: int) -> torch.Tensor:
+    """Plücker rays [6, R, R] from a camera centre eye [3] to each texel's point on the posed
+    body vertices [V, 3] (what a view-conditioned decoder sees of a camera)."""
+    from dlacli.body.uv import position_map
+    from dlacli.geometry import plucker_rays_uv
+
+    pos = position_map(vertices, resolution)  # [R, R, 3]
+    return plucker_rays_uv(pos, torch.as_tensor(eye, dtype=pos.dtype)).permute(2, 0, 1).contiguous()
+
+
+class Decoded:
+    """An avatar's decoder with its canonical map computed once: `at(pose, rays)` gives F.
+
+    A stored canonical map is used as the cache of F_c only for a non-linear decoder (for a
+    linear one, e.g. identity, F_c is recomputed: it costs nothing and cannot be stale)."""
+
+    def __init__(self, avatar: Avatar, where: str = "avatar", checkpoint: str | None = None):
+        self.decoder = resolve_decoder(avatar, where, checkpoint)
+        self.z = torch.from_numpy(np.ascontiguousarray(avatar.z, dtype=np.float32))
+        if avatar.canonical is not None and not self.decoder.linear:
+            self.f_c = torch.from_numpy(np.ascontiguousarray(avatar.canonical, dtype=np.float32))
+        else:
+            self.f_c = self.decoder.canonical(self.z)
+        self.phenotype = dict(avatar.body.phenotype)
+        self._rest: np.ndarray | None = None
+
+    @property
+    def conditioned(self) -> bool:
+        return self.decoder.conditioned
+
+    @property
+    def resolution(self) -> int:
+        return self.decoder.resolution or int(self.f_c.shape[-1])
+
+    def pose(self, vertices: torch.Tensor) -> PoseConditioning | None:
+        """Pose conditioning for posed vertices [V, 3], or None when the decoder needs none."""
+        if not self.decoder.pose_conditioned:
+            return None
+        if self._rest is None:
+            from dlacli.body.model import get_body_model
+
+            self._rest = get_body_model().rest_vertices(self.phenotype)
+        return pose_conditioning(vertices, self._rest, self.resolution)
+
+    def rays(self, vertices: torch.Tensor, eye) -> torch.Tensor | None:
+        """UV rays from camera centre eye [3] for posed vertices [V, 3], or None when the
+        decoder is not view-conditioned."""
+        if not self.decoder.view_conditioned:
+            return None
+        return uv_rays(vertices, eye, self.resolution)
+
+    def at(self, pose: PoseConditioning | None = None, rays: torch.Tensor | None = None) -> torch.Tensor:
+        """F [14, R, R] = F_c + F_delta(pose, rays); F_c itself for an unconditioned decoder."""
+        if not self.decoder.conditioned:
+            return self.f_c
+        d = self.decoder.delta(self.z, pose if self.decoder.pose_conditioned else None,
+                               rays if self.decoder.view_conditioned else None)  # fmt: skip
+        return self.f_c if d is None else self.f_c + d
