@@ -23,6 +23,15 @@ the small calibration case.
 
     python bench/bench_splat.py            # full table
     python bench/bench_splat.py --quick    # smoke run
+
+Before / after a change to the kernels, in the same run: `--baseline DIR` also runs every numba
+case with another copy of the package first on PYTHONPATH (path "numba_baseline", right after
+the "numba" case) and reports the ratios current / baseline (`vs_baseline`); `--rounds R`
+alternates the two R times per case (the ratios are then medians over the rounds, which cancels
+slow drifts of the machine's load); `--no-torch` skips the slow torch and dense paths. E.g.
+
+    git archive HEAD src | tar -x -C /tmp/base
+    python bench/bench_splat.py --baseline /tmp/base/src --no-torch --rounds 3
 """
 
 from __future__ import annotations
@@ -119,7 +128,10 @@ def worker(path: str, n: int, res: int, repeats: int, sh_degree: int, budget_s: 
         p.requires_grad_(True)
     rec = {"path": path, "n": n, "res": res, "sh_degree": sh_degree,
            "threads": torch.get_num_threads(), "loadavg_1min": round(os.getloadavg()[0], 2)}
-    if path == "numba":
+    import dlacli.render.splat as splat_module
+
+    rec["module"] = splat_module.__file__
+    if path in ("numba", "numba_baseline"):
         render = render_gaussians
     elif path == "torch":
         render = pairs_render
@@ -150,7 +162,7 @@ def worker(path: str, n: int, res: int, repeats: int, sh_degree: int, budget_s: 
     first = time.perf_counter() - t0
     rec["first_call_ms"] = round(first * 1e3, 1)
     rec["coverage"] = round(float((out.alpha > 0.5).float().mean()), 4)
-    if path != "numba" and first * 4 * (1 + repeats) > budget_s:
+    if not path.startswith("numba") and first * 4 * (1 + repeats) > budget_s:
         rec["skipped"] = f"first forward took {first:.1f} s; timed runs would exceed {budget_s:.0f} s"
         return rec
 
@@ -198,6 +210,11 @@ def main() -> None:
     ap.add_argument("--budget-s", type=float, default=150.0, help="time budget per torch case")
     ap.add_argument("--mem-budget-gb", type=float, default=6.0, help="torch backward memory cap")
     ap.add_argument("--cold", action="store_true", help="also time a JIT compile with no cache")
+    ap.add_argument("--baseline", metavar="DIR", help="also run the numba cases with the dlacli "
+                    "package under DIR (a src folder) first on PYTHONPATH, and report the ratios")
+    ap.add_argument("--rounds", type=int, default=1, help="with --baseline: alternate the two "
+                    "versions this many times per case; ratios are medians over the rounds")
+    ap.add_argument("--no-torch", action="store_true", help="skip the torch and dense paths")
     ap.add_argument("--worker", nargs=3, metavar=("PATH", "N", "RES"), help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.worker:
@@ -216,12 +233,41 @@ def main() -> None:
             env = dict(os.environ, NUMBA_CACHE_DIR=tmp)
             rec = run_sub(["numba", "2048", "64", "--repeats", "1"], env=env)
             report["cold_jit_ms"] = {k: rec.get(k) for k in ("first_call_ms", "first_fwd_bwd_ms")}
+    base_env = None
+    if a.baseline:
+        base_dir = os.path.abspath(a.baseline)
+        base_env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+            [base_dir] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+        report["baseline"] = base_dir
+        report["vs_baseline"] = []
     for n, res in cases:
         dense = ("dense",) if (n, res) in CALIBRATION and not a.quick else ()
-        for path in ("numba", "torch") + dense:
-            rec = run_sub([path, str(n), str(res), *common])
-            report["results"].append(rec)
-            print(json.dumps(rec), file=sys.stderr, flush=True)
+        paths = ("numba",) if a.no_torch else ("numba", "torch") + dense
+        for path in paths:
+            if path != "numba" or base_env is None:
+                rec = run_sub([path, str(n), str(res), *common])
+                report["results"].append(rec)
+                print(json.dumps(rec), file=sys.stderr, flush=True)
+                continue
+            ratios: dict[str, list[float]] = {}
+            for r in range(max(1, a.rounds)):
+                pair = {}
+                order = ("numba", "numba_baseline") if r % 2 == 0 else ("numba_baseline", "numba")
+                for which in order:
+                    rec = run_sub([which, str(n), str(res), *common],
+                                  env=base_env if which == "numba_baseline" else None)
+                    rec["round"] = r
+                    report["results"].append(rec)
+                    print(json.dumps(rec), file=sys.stderr, flush=True)
+                    pair[which] = rec
+                for key in ("fwd_ms", "fwd_bwd_ms", "fwd_min_ms", "fwd_bwd_min_ms", "peak_mb"):
+                    cur, base = pair["numba"].get(key), pair["numba_baseline"].get(key)
+                    if cur and base:
+                        ratios.setdefault(key, []).append(cur / base)
+            ratio = {"n": n, "res": res, "rounds": max(1, a.rounds)}
+            for key, vals in ratios.items():
+                ratio[key] = round(sorted(vals)[len(vals) // 2], 3)
+            report["vs_baseline"].append(ratio)
     report["loadavg_end"] = os.getloadavg()
     print(json.dumps(report, indent=1))
 

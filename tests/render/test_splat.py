@@ -95,6 +95,8 @@ def test_cpu_kernel_matches_reference(seed, degree):
     assert ref.alpha.max() > 0.5 and (ref.alpha == 0).any()
     for name, a, b in zip(("rgb", "alpha", "depth"), out, ref):
         assert a.shape == b.shape
+        # float32 kernel vs float64 reference: a front-to-back composite of up to 70 Gaussians
+        # (~10 roundings each) of values <= 3; ~300 float32 ulps of 3 (measured <= 1e-6)
         assert (a.double() - b).abs().max() < 1e-4, name
     gen = torch.Generator().manual_seed(100 + seed)
     weights = [torch.randn(t.shape, generator=gen, dtype=F64) for t in ref]
@@ -104,7 +106,7 @@ def test_cpu_kernel_matches_reference(seed, degree):
     grads_out = torch.autograd.grad(loss_out, [getattr(out_g, p) for p in PARAMS])
     for name, a, b in zip(PARAMS, grads_out, grads_ref):
         assert b.norm() > 0, name
-        assert rel_err(a, b) < 1e-3, name
+        assert rel_err(a, b) < 1e-3, name  # float32 backward: sums over pixels (measured <= 3e-6)
 
 
 def test_pairs_render_matches_reference():
@@ -133,7 +135,7 @@ def test_cpu_kernel_matches_reference_dense_scene():
     out = render_gaussians(out_g, cams.to(torch.float32))
     assert (ref.alpha > 1 - 1e-3).sum() > 50  # deep enough for the 1e-4 stop to matter
     for a, b in zip(out, ref):
-        assert (a.double() - b).abs().max() < 1e-4
+        assert (a.double() - b).abs().max() < 1e-4  # float32 vs float64, as above
     loss_ref = ref.rgb.sum() + 0.3 * ref.depth.sum() - ref.alpha.sum()
     loss_out = out.rgb.sum() + 0.3 * out.depth.sum() - out.alpha.sum()
     for p in PARAMS:
@@ -166,7 +168,7 @@ def _head_on_camera(w, h, f, dtype=F64):
 
 
 @pytest.mark.parametrize("render", [render_gaussians, reference_render], ids=["cpu", "reference"])
-def test_isotropic_gaussian_head_on(render):
+def test_isotropic_gaussian_head_on(render, tol):
     f, z, s, opacity = 40.0, 2.0, 0.12, 0.8
     w = h = 16  # one tile, so every pixel is a member of the Gaussian's tile range
     g = Gaussians(
@@ -182,11 +184,15 @@ def test_isotropic_gaussian_head_on(render):
     r2 = (xs - w / 2) ** 2 + (ys - h / 2) ** 2
     expect = opacity * np.exp(-r2 / (2 * var))
     expect[expect < 1 / 255] = 0.0
-    assert np.abs(out.alpha[0].numpy() - expect).max() < 1e-6
+    # float64 throughout (was 1e-6 and 1e-9: ~1e10 and ~1e7 ulps). The exponent (<= 5.3 where
+    # alpha >= 1/255) carries the 2D covariance's rounding (J W S W^T J^T, ~30 steps): <= ~160
+    # roundings relative, on values <= 1; the depth is a normalised weighted mean of z = 2
+    atol = tol(torch.float64, 1.0, 256)
+    assert np.abs(out.alpha[0].numpy() - expect).max() < atol
     rgb = 0.5 + 0.28209479177387814 * np.array([0.7, -0.2, 0.1])
-    assert np.abs(out.rgb[0].numpy() - expect[..., None] * rgb).max() < 1e-6
+    assert np.abs(out.rgb[0].numpy() - expect[..., None] * rgb).max() < atol
     seen = expect > 0
-    assert np.abs(out.depth[0].numpy()[seen] - z).max() < 1e-9
+    assert np.abs(out.depth[0].numpy()[seen] - z).max() < tol(torch.float64, z, 256)
     assert (out.depth[0].numpy()[~seen] == 0).all()
 
 
@@ -321,6 +327,7 @@ def test_rasterize_projected_direct():
     assert torch.allclose(alpha[0], want, atol=1e-6)
     assert torch.allclose(acc[0, ..., 3], 3.0 * want, atol=1e-5)
     alpha.sum().backward()
+    # a float32 sum over <= 256 pixels totalling 25: <= 256 eps32 * 25 = 7.6e-4
     assert abs(opac.grad.item() - (want / 0.5).sum().item()) < 1e-3
     assert abs(means2d.grad[0, 0, 0].item()) < 1e-4  # symmetric: no pull sideways
 

@@ -5,7 +5,9 @@ depth [C, H, W]), differentiable w.r.t. means, quats, scales, opacities and SH c
 The conventions (gsplat "classic" mode, eps2d 0.3, tile size 16, ...) are written in
 docs/rendering.md. The pieces are plain functions:
 
-- `project_gaussians` (torch): EWA projection to 2D means, conics, depths and integer radii;
+- `project_gaussians` (torch): EWA projection to 2D means, conics, depths and integer radii
+  (on CPU the world-to-camera transform is a numba kernel: bitwise the same for any thread
+  count, docs/rendering.md "Determinism");
 - `eval_sh_colors` (torch): view-dependent colour from SH, + 0.5, clamped at 0 (as 3DGS);
 - `rasterize_projected` (torch.autograd.Function over the numba kernels in splat_kernels.py):
   tile binning, front-to-back compositing and its backward pass.
@@ -74,6 +76,52 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
     ).reshape(q.shape[:-1] + (3, 3))
 
 
+class _CameraPoints(torch.autograd.Function):
+    """p[c, n] = R[c] mu[n] + t[c] on CPU tensors, by numba kernels whose results do not depend
+    on the thread count (`splat_kernels.camera_points`).
+
+    torch's einsum / matmul hands these shapes to MKL's gemm, whose results change with the
+    number of threads, forward (C = 3, N = 3,000: 1 vs 2 threads, up to 8e-6 px in the 2D
+    means) and backward (d mu, an [N, 3C] x [3C, 3] product: 1 vs 3 threads at C = 7 or 12).
+    d R and d t (only when the cameras themselves are optimised) are torch sums over N, one
+    output per thread (also independent of the thread count).
+    """
+
+    @staticmethod
+    def forward(ctx, R, t, means):  # R [C, 3, 3], t [C, 3], means [N, 3] -> [C, N, 3]
+        ctx.save_for_backward(R, means)
+        dtype = torch.promote_types(R.dtype, means.dtype)
+
+        def arr(x):
+            return x.detach().to(dtype).contiguous().numpy()
+
+        out = torch.empty((R.shape[0], means.shape[0], 3), dtype=dtype)
+        K.camera_points(arr(R), arr(t), arr(means), out.numpy())
+        return out
+
+    @staticmethod
+    def backward(ctx, g):  # g [C, N, 3]
+        R, means = ctx.saved_tensors
+        g = g.contiguous()
+        g_R = g_t = g_means = None
+        if ctx.needs_input_grad[2]:
+            out = torch.empty(means.shape, dtype=g.dtype)
+            K.camera_points_grad(R.detach().to(g.dtype).contiguous().numpy(), g.numpy(), out.numpy())
+            g_means = out.to(means.dtype)
+        if ctx.needs_input_grad[0]:
+            g_R = (g[:, :, :, None] * means[None, :, None, :].to(g.dtype)).sum(dim=1).to(R.dtype)
+        if ctx.needs_input_grad[1]:
+            g_t = g.sum(dim=1).to(R.dtype)
+        return g_R, g_t, g_means
+
+
+def _camera_points(R: torch.Tensor, t: torch.Tensor, means: torch.Tensor) -> torch.Tensor:
+    """R [C, 3, 3] @ means [N, 3] + t [C, 3] -> [C, N, 3]; thread-count independent on CPU."""
+    if R.device.type == "cpu" and means.device.type == "cpu":
+        return _CameraPoints.apply(R, t, means)
+    return torch.einsum("cij,nj->cni", R, means) + t[:, None, :]
+
+
 def project_gaussians(
     means: torch.Tensor,  # [N, 3] world
     quats: torch.Tensor,  # [N, 4] (w, x, y, z), any norm
@@ -103,7 +151,7 @@ def project_gaussians(
     M = quat_to_rotmat(quats) * scales[:, None, :]  # [N, 3, 3] columns R_i s_i
     R = viewmats[:, :3, :3]  # [C, 3, 3]
     t = viewmats[:, :3, 3]  # [C, 3]
-    pc = torch.einsum("cij,nj->cni", R, means) + t[:, None, :]  # [C, N, 3]
+    pc = _camera_points(R, t, means)  # [C, N, 3]
     x, y, z = pc.unbind(-1)  # [C, N]
     fx = Ks[:, 0, 0, None]  # [C, 1]
     fy = Ks[:, 1, 1, None]
@@ -117,6 +165,8 @@ def project_gaussians(
     # rows of J R (camera Jacobian times view rotation): [C, 3] broadcast with [C, N]
     j0 = (fx * rz)[..., None] * (R[:, None, 0, :] - u[..., None] * R[:, None, 2, :])  # [C, N, 3]
     j1 = (fy * rz)[..., None] * (R[:, None, 1, :] - v[..., None] * R[:, None, 2, :])  # [C, N, 3]
+    # per Gaussian [C, 3] x [3, 3] products: torch's plain loop kernel (bmm with < 400
+    # multiply-adds per matrix, i.e. C <= 44), the same for any thread count
     a0 = torch.einsum("cnj,njk->cnk", j0, M)  # [C, N, 3] row 0 of J R M
     a1 = torch.einsum("cnj,njk->cnk", j1, M)
     cov_xx = (a0 * a0).sum(-1) + eps2d  # [C, N]
@@ -188,7 +238,7 @@ class _RasterizeCPU(torch.autograd.Function):
         rd = radii.detach().cpu().numpy().astype(np.int64, copy=False)
         dk = np.ascontiguousarray(depths.detach().cpu().numpy().astype(np.float32))
         dk = np.where(rd > 0, dk, np.float32(1.0)).astype(np.float32).view(np.uint32)
-        params, src, offsets, lists = K.bin_gaussians(
+        params, src, offsets, lists, trect = K.bin_gaussians(
             np.ascontiguousarray(m2), np.ascontiguousarray(co), np.ascontiguousarray(op),
             np.ascontiguousarray(cl), np.ascontiguousarray(rd), dk, width, height
         )
@@ -202,14 +252,14 @@ class _RasterizeCPU(torch.autograd.Function):
         work = np.zeros(cost.shape[0], dtype=np.float64)
         K.raster_forward(params, offsets, lists, wptr, wtiles, ncam, width, height,
                          acc, tfin, last, work)
-        ctx.saved = (params, src, offsets, lists, tfin, last, work)
+        ctx.saved = (params, src, offsets, lists, trect, tfin, last, work)
         ctx.meta = (width, height, means2d.shape, dtype, means2d.device)
         alpha = torch.from_numpy(1.0 - tfin).to(dtype=dtype, device=means2d.device)
         return torch.from_numpy(acc).to(means2d.device), alpha
 
     @staticmethod
     def backward(ctx, g_acc, g_alpha):
-        params, src, offsets, lists, tfin, last, work = ctx.saved
+        params, src, offsets, lists, trect, tfin, last, work = ctx.saved
         width, height, shape, dtype, device = ctx.meta
         ncam, n = shape[0], shape[1]
         if g_acc is None:
@@ -220,11 +270,16 @@ class _RasterizeCPU(torch.autograd.Function):
         gl = np.ascontiguousarray(g_alpha.detach().cpu().numpy())
         nw = K.num_threads()
         wptr, wtiles = K.assign_workers(work, nw)
-        slabs = np.zeros((nw, params.shape[0], K.NGRAD), dtype=np.float64)
-        K.raster_backward(params, offsets, lists, wptr, wtiles, ncam, width, height,
-                          tfin, last, ga, gl, slabs)
+        # one gradient row per (Gaussian, tile), summed per Gaussian in a fixed order: the same
+        # gradients, bit for bit, for any thread count (docs/rendering.md "Determinism"); rows
+        # are stored in the input's precision, like the parameters, and summed in float64
+        sptr = K.isect_rows(trect)
+        isect_grad = np.empty((lists.shape[0], K.NGRAD), dtype=params.dtype)
+        isect_hit = np.zeros(lists.shape[0], dtype=np.uint8)
+        K.raster_backward(params, offsets, lists, trect, sptr, wptr, wtiles, ncam, width, height,
+                          tfin, last, ga, gl, isect_grad, isect_hit)
         full = np.zeros((ncam * n, K.NGRAD), dtype=np.float32 if dtype != torch.float64 else np.float64)
-        K.scatter_grads(slabs, src, ncam * n, full)
+        K.reduce_grads(isect_grad, isect_hit, sptr, src, full)
         full_t = torch.from_numpy(full).to(dtype=dtype, device=device).reshape(ncam, n, K.NGRAD)
         return (full_t[..., 0:2], full_t[..., 2:5], full_t[..., 6:10], full_t[..., 5],
                 None, None, None, None)

@@ -15,7 +15,11 @@ camera then depth):
   Gaussians count), unused, colour[4] (rgb + depth)
 - src [S] int64: flat index c * N + g of each sorted pair
 - tile_offsets [C * TH * TW + 1] int64, lists [n_isects] int64 (indices into S): the per-tile
-  lists, front to back.
+  lists, front to back; trect [S, 4] int32: each pair's tile rectangle (tx0, tx1, ty0, ty1, ends
+  exclusive), the tiles whose lists hold it.
+- backward: one gradient row per (pair, tile), pair s owning rows sptr[s] .. sptr[s + 1] - 1
+  (`isect_rows`), so that every row has one writer and each pair's rows are summed in a fixed
+  order: the gradients do not depend on the number of threads (docs/rendering.md "Determinism").
 All arithmetic is float64 inside the kernels (parameters may be stored as float32); fastmath off.
 """
 
@@ -201,12 +205,25 @@ def _tile_lists(src, trect, n, ncam, width, height):
     return counts, lists
 
 
+@njit(cache=True, nogil=True)
+def isect_rows(trect):
+    """Row offsets [S + 1] of a per-(Gaussian, tile) array laid out Gaussian by Gaussian: pair s owns
+    rows sptr[s] .. sptr[s + 1] - 1, one per tile of its rectangle trect[s] in row-major order."""
+    m = trect.shape[0]
+    sptr = np.empty(m + 1, dtype=np.int64)
+    sptr[0] = 0
+    for s in range(m):
+        sptr[s + 1] = sptr[s] + (trect[s, 1] - trect[s, 0]) * (trect[s, 3] - trect[s, 2])
+    return sptr
+
+
 def bin_gaussians(means2d, conics, opacities, colors, radii, depth_keys, width, height):
     """Sort visible Gaussians by (camera, depth) and build per-tile lists.
 
     means2d [C, N, 2], conics [C, N, 3], opacities [C, N], colors [C, N, 4], radii [C, N] int,
     depth_keys [C, N] uint32 (float32 bits of positive depths, same order as the depths).
-    Returns params [S, 16], src [S], tile_offsets [C*TH*TW + 1], lists [n_isects].
+    Returns params [S, 16], src [S], tile_offsets [C*TH*TW + 1], lists [n_isects] and the tile
+    rectangles trect [S, 4] int32 (tx0, tx1, ty0, ty1; ends exclusive) of the sorted pairs.
     """
     ncam, n = radii.shape
     params = np.empty((ncam * n, NPARAM), dtype=means2d.dtype)
@@ -215,7 +232,7 @@ def bin_gaussians(means2d, conics, opacities, colors, radii, depth_keys, width, 
     src = _depth_order(radii, depth_keys)
     params, trect = _gather(src, params, trect)
     offsets, lists = _tile_lists(src, trect, n, ncam, width, height)
-    return params, src, offsets, lists
+    return params, src, offsets, lists, trect
 
 
 @njit(cache=True, nogil=True)
@@ -378,18 +395,22 @@ def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, heigh
 
 
 @njit(parallel=True, cache=True)
-def raster_backward(params, tile_offsets, lists, wptr, wtiles, ncam, width, height,
-                    t_final, last_ids, g_acc, g_alpha, out_grad):
+def raster_backward(params, tile_offsets, lists, trect, sptr, wptr, wtiles, ncam, width, height,
+                    t_final, last_ids, g_acc, g_alpha, out_grad, out_hit):
     """Back to front pass (3DGS): recovers T_i = T_{i+1} / (1 - alpha_i) from the saved final
-    transmittance and accumulates per sorted Gaussian gradients into out_grad [W, S, 10]
-    (one slab per worker, summed by the caller): d mean2d (2), d conic (3), d opacity, d colour (4).
+    transmittance and writes the gradient of each (Gaussian s, tile), summed in float64, into its
+    own row of out_grad [n_isects, 10] (float32 or float64): row sptr[s] + the tile's row-major
+    index in trect[s] (`isect_rows`); columns d mean2d (2), d conic (3), d opacity, d colour (4).
+    Sets out_hit [n_isects] (uint8, zeroed by the caller) to 1 on the rows written; the others
+    are zero gradients and stay unwritten. Every row has exactly one writer, so the result does
+    not depend on the split of tiles over workers; `reduce_grads` sums each Gaussian's rows in
+    their fixed order.
     g_acc [C, H, W, 4] = dL/d out_acc, g_alpha [C, H, W] = dL/d alpha where alpha = 1 - T_final."""
     tw = (width + TILE - 1) // TILE
     th = (height + TILE - 1) // TILE
     ntiles = tw * th
     nworkers = wptr.shape[0] - 1
     for wk in prange(nworkers):
-        grad = out_grad[wk]
         tr = np.empty(TILE * TILE, dtype=np.float64)
         tfin = np.empty(TILE * TILE, dtype=np.float64)
         behind = np.zeros((TILE * TILE, 4), dtype=np.float64)
@@ -528,21 +549,60 @@ def raster_backward(params, tile_offsets, lists, wptr, wtiles, ncam, width, heig
                 for j in range(nb):  # flush the batch's sums (again many stores in flight)
                     if hits[j]:
                         s = lists[kb + j]
+                        row = (sptr[s] + (ty - trect[s, 2]) * (trect[s, 1] - trect[s, 0])
+                               + (tx - trect[s, 0]))
+                        out_hit[row] = 1
                         for q in range(NGRAD):
-                            grad[s, q] += gb[j, q]
+                            out_grad[row, q] = gb[j, q]
 
 
 @njit(parallel=True, cache=True)
-def scatter_grads(slabs, src, total, out):
-    """out [total, 10] (zeroed by the caller) <- sum over workers of slabs [W, S, 10] at rows src."""
-    nw, m = slabs.shape[0], slabs.shape[1]
-    for s in prange(m):
-        i = src[s]
-        for k in range(NGRAD):
+def reduce_grads(isect_grad, isect_hit, sptr, src, out):
+    """out [C * N, 10] at rows src[s] <- the float64 sum of pair s's per-tile rows sptr[s] ..
+    sptr[s + 1] - 1 of isect_grad [n_isects, 10] (where isect_hit), its tiles in row-major order:
+    a fixed order, so the gradients are bitwise the same for any number of threads. Rows of out
+    not in src are left as they are (the caller zeroes them)."""
+    m = src.shape[0]
+    nblocks = (m + 255) // 256
+    for blk in prange(nblocks):
+        v = np.empty(NGRAD, dtype=np.float64)
+        for s in range(blk * 256, min(blk * 256 + 256, m)):
+            v[:] = 0.0
+            for q in range(sptr[s], sptr[s + 1]):
+                if isect_hit[q]:
+                    for c in range(NGRAD):
+                        v[c] += isect_grad[q, c]
+            for c in range(NGRAD):
+                out[src[s], c] = v[c]
+
+
+@njit(parallel=True, cache=True)
+def camera_points(rot, trans, means, out):
+    """out[c, n] = rot[c] @ means[n] + trans[c]: rot [C, 3, 3], trans [C, 3], means [N, 3],
+    out [C, N, 3]. One thread per Gaussian, a fixed order of operations (float64)."""
+    ncam, n = rot.shape[0], means.shape[0]
+    for g in prange(n):
+        m0 = np.float64(means[g, 0])
+        m1 = np.float64(means[g, 1])
+        m2 = np.float64(means[g, 2])
+        for c in range(ncam):
+            for i in range(3):
+                out[c, g, i] = (np.float64(rot[c, i, 0]) * m0 + np.float64(rot[c, i, 1]) * m1
+                                + np.float64(rot[c, i, 2]) * m2 + np.float64(trans[c, i]))
+
+
+@njit(parallel=True, cache=True)
+def camera_points_grad(rot, grad, out):
+    """out[n, j] = sum over c, i (in that order) of grad[c, n, i] rot[c, i, j]: the gradient of
+    `camera_points` w.r.t. the means. rot [C, 3, 3], grad [C, N, 3], out [N, 3]."""
+    ncam, n = grad.shape[0], grad.shape[1]
+    for g in prange(n):
+        for j in range(3):
             v = 0.0
-            for w in range(nw):
-                v += slabs[w, s, k]
-            out[i, k] = v
+            for c in range(ncam):
+                for i in range(3):
+                    v += np.float64(grad[c, g, i]) * np.float64(rot[c, i, j])
+            out[g, j] = v
 
 
 def num_threads() -> int:

@@ -10,8 +10,9 @@ F is a [14, R, R] map over the body's UV space (docs/conventions.md "UV space"),
 
 Gaussians are sampled from F at fixed surface samples (half uniform in UV, half uniform on the
 mesh surface, as in the paper) by bilinear lookup, then placed with the posed body's tangent frames:
-x = T + R dxyz, R_g = R dR, s = S ds (dlacli.body.skinning). The non-learned decoder is the identity
-(F = Z); a learned GPD produces F from Z and plugs in at `decode`.
+x = T + R dxyz, R_g = R dR, s = S ds (dlacli.body.skinning). Which map F an avatar gives (the
+identity decoder's F = Z, or a learned GPD's F_c + F_delta) is the codec's business
+(dlacli.stages.codec); this module only samples and places a given F.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import torch
 import torch.nn.functional as nnf
 
 from dlacli.errors import DlaInputError
-from dlacli.types import Avatar, Gaussians, rgb_to_sh0
+from dlacli.types import Gaussians, rgb_to_sh0
 
 CHANNELS = 14
 OPACITY, RGB, OFFSET, ROTATION, LOG_SCALE = (
@@ -70,6 +71,28 @@ def lookup(fmap: torch.Tensor, uv: np.ndarray | torch.Tensor) -> torch.Tensor:
     return out[0, :, 0].T
 
 
+class _Sigmoid(torch.autograd.Function):
+    """torch.sigmoid whose value does not depend on the thread count.
+
+    torch's CPU sigmoid evaluates the elements of each thread's chunk with a vectorised formula
+    and the chunk's last few (< 16) with a scalar one; the two differ in the last bit for ~4% of
+    inputs, and the chunks follow the thread count (measured: N = 100,003, 1 vs 2 threads). Here
+    1 / (1 + exp(-x)): exp, + and / gave the same bits for 1-8 threads; the gradient is torch's
+    own sigmoid backward (also the same for any thread count). (docs/rendering.md "Determinism")
+    """
+
+    @staticmethod
+    def forward(ctx, x):
+        y = 1.0 / (1.0 + torch.exp(-x))  # x -> -inf: exp overflows to inf, y -> 0 as it should
+        ctx.save_for_backward(y)
+        return y
+
+    @staticmethod
+    def backward(ctx, g):
+        (y,) = ctx.saved_tensors
+        return torch.ops.aten.sigmoid_backward(g, y)
+
+
 def skinned_params(
     fmap: torch.Tensor,  # [14, R, R] the Gaussian map F
     samples: Samples,
@@ -85,7 +108,7 @@ def skinned_params(
     dquat = dquat / dquat.norm(dim=-1, keepdim=True).clamp_min(1e-8)
     ds = params[:, LOG_SCALE].exp()
     means, quats, scales = skin_gaussians(frames_T, frames_R, frames_S, params[:, OFFSET], dquat, ds, frames_Q)
-    return means, quats, scales, torch.sigmoid(params[:, 0]), params[:, RGB].clamp(0.0, 1.0)
+    return means, quats, scales, _Sigmoid.apply(params[:, 0]), params[:, RGB].clamp(0.0, 1.0)
 
 
 def gaussians_at_frames(fmap: torch.Tensor, samples: Samples, frames) -> list[Gaussians]:
@@ -103,15 +126,3 @@ def sample_frames(vertices: torch.Tensor, samples: Samples):
 
     frames_T, frames_R, frames_S = tangent_frames(vertices, samples.face_id, samples.bary)
     return frames_T, frames_R, frames_S, matrix_to_quat(frames_R)
-
-
-def decode(avatar: Avatar, where: str = "avatar") -> torch.Tensor:
-    """The Gaussian map F [14, R, R] of an avatar (float32 tensor); the identity decoder has
-    F = z, so it needs no canonical cache."""
-    if avatar.decoder != "identity":
-        raise DlaInputError(
-            where, f"decoder {avatar.decoder!r} is not available in this version (known: identity)"
-        )
-    if avatar.z.shape[0] != CHANNELS:
-        raise DlaInputError(where, f"identity decoder needs z with {CHANNELS} channels, got {avatar.z.shape}")
-    return torch.from_numpy(np.ascontiguousarray(avatar.z, dtype=np.float32))

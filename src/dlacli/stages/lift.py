@@ -258,13 +258,24 @@ def _resized_targets(views: ViewSet, max_size: int):
     return x[..., :3].contiguous(), x[..., 3].contiguous(), Cameras(views.cameras.viewmats, ks, rw, rh)
 
 
+def _mean(x: torch.Tensor, rows: int = 1024) -> torch.Tensor:
+    """Mean whose value does not depend on the thread count: torch splits a reduction to one
+    number of more than 32,768 elements over its threads, but sums each row of a [rows, -1]
+    view on one thread and the `rows` row sums serially. Same gradient as x.mean()."""
+    flat = x.reshape(-1)
+    pad = (-flat.numel()) % rows
+    if pad:
+        flat = torch.nn.functional.pad(flat, (0, pad))
+    return flat.view(rows, -1).sum(dim=1).sum() / x.numel()
+
+
 def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConfig, progress=None,
            samples: gm.Samples | None = None) -> tuple[np.ndarray, list[float]]:  # fmt: skip
     """Optimise the Gaussian map F [14, R, R] so that its Gaussians, placed on the body in the
     input pose (vertices [V, 3]), re-render the input views: L1 + w_mask * mask L1 +
     w_ssim * (1 - SSIM), Adam for cfg.steps steps. `progress(step, loss)` is called per step.
     Returns the refined map and the loss of every step."""
-    from dlacli.nn.losses import ssim
+    from dlacli.nn.losses import ssim_map
     from dlacli.render.splat import render_gaussians
 
     samples = samples or gm.make_samples(cfg.gaussians, cfg.seed)
@@ -279,10 +290,10 @@ def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConf
         opt.zero_grad(set_to_none=True)
         (g,) = gm.gaussians_at_frames(base + delta * step_scale, samples, frames)
         out = render_gaussians(g, cams)
-        loss = (out.rgb - target_rgb).abs().mean()
-        loss = loss + cfg.w_mask * (out.alpha - target_mask).abs().mean()
+        loss = _mean((out.rgb - target_rgb).abs())
+        loss = loss + cfg.w_mask * _mean((out.alpha - target_mask).abs())
         if cfg.w_ssim:
-            loss = loss + cfg.w_ssim * (1.0 - ssim(out.rgb, target_rgb))
+            loss = loss + cfg.w_ssim * (1.0 - _mean(ssim_map(out.rgb, target_rgb)))
         loss.backward()
         opt.step()
         history.append(float(loss.detach()))
