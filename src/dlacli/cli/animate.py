@@ -21,6 +21,7 @@ def animate(
     preview: Optional[Path] = typer.Option(None, "--preview", help="Also write a preview .mp4 splatted from a camera that follows the body."),
     schema: str = typer.Option("instancer", "--schema", help="instancer (UsdGeom.PointInstancer), particlefield (UsdVol.ParticleField3DGaussianSplat) or both."),
     gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=4_194_304, help="Gaussians per frame, half sampled uniformly in UV, half on the surface (default: the count the avatar was lifted with, else 131,072)."),
+    checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="The learned decoder's checkpoint folder, when it is not in the checkpoints cache (~/.cache/dla/checkpoints) under the hash the avatar records."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, max=2**32 - 1, help="Seed of the sample points (default: the avatar's own)."),
     fps: Optional[float] = typer.Option(None, "--fps", min=0.001, max=1000.0, callback=finite, help="Resample the motion to this frame rate (default: the motion's own)."),
     preview_size: int = typer.Option(512, "--preview-size", min=16, max=4096, help="Preview video size in pixels (square)."),
@@ -43,7 +44,7 @@ def animate(
         raise DlaInputError(output, "the animation is a .usdc, .usda or .usd file")
     if preview is not None and preview.suffix.lower() != ".mp4":
         raise DlaInputError(preview, "the preview is an .mp4 file")
-    check_outputs(files=[output, preview], inputs=[avatar, *split_spec(motion)])
+    check_outputs(files=[output, preview], inputs=[avatar, checkpoint, *split_spec(motion)])
     av = read_avatar(avatar)
     mot = load_motion(motion, fps=fps, phenotype=av.body.phenotype, allow_missing_joints=allow_missing_joints)
     with naming(avatar=avatar):
@@ -52,7 +53,8 @@ def animate(
         raise DlaInputError("--gaussians", f"{mot.num_frames} frames x {gaussians} Gaussians is more than dla animates at once "
                                            f"({MAX_GAUSSIAN_FRAMES:.3g} Gaussian-frames): lower --fps or --gaussians, or cut the motion")  # fmt: skip
     with naming(avatar=avatar, pose=avatar, phenotype=avatar), progress_bar("posing", mot.num_frames) as update:
-        anim = pose_avatar(av, mot, gaussians, seed, where=str(avatar), progress=update)
+        anim = pose_avatar(av, mot, gaussians, seed, where=str(avatar), progress=update,
+                           checkpoint=None if checkpoint is None else str(checkpoint))
     with output_group():  # the USD and its preview land together or not at all
         if preview is not None:
             with progress_bar("preview", anim.num_frames) as update:

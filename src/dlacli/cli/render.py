@@ -22,6 +22,7 @@ def render(
     video: Optional[Path] = typer.Option(None, "--video", help="Also write the images in order as an .mp4."),
     fps: float = typer.Option(24.0, "--fps", min=0.001, max=1000.0, callback=finite, help="Frame rate of --video."),
     gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=4_194_304, help="Gaussians sampled from the avatar (default: the count it was lifted with, else 131,072)."),
+    checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="The learned decoder's checkpoint folder, when it is not in the checkpoints cache (~/.cache/dla/checkpoints) under the hash the avatar records."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, max=2**32 - 1, help="Seed of the sample points (default: the avatar's own)."),
     allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
 ) -> None:
@@ -44,7 +45,7 @@ def render(
     if video is not None and video.suffix.lower() != ".mp4":
         raise DlaInputError(video, "the video is an .mp4 file")
     motion_files = split_spec(motion) if motion else ()
-    check_outputs(files=[video], folders=[(output, ("f*_c*.png",))], inputs=[avatar, cameras, *motion_files])
+    check_outputs(files=[video], folders=[(output, ("f*_c*.png",))], inputs=[avatar, cameras, checkpoint, *motion_files])
     av = read_avatar(avatar)
     about_avatar = dict(avatar=avatar, pose=avatar, phenotype=avatar)  # stage errors name the file
     mot = load_motion(motion, phenotype=av.body.phenotype, allow_missing_joints=allow_missing_joints) if motion else None
@@ -63,7 +64,8 @@ def render(
                             f"{len(times)} images of {cams.width}x{cams.height} are more than dla renders at once ({MAX_PIXELS / 1e9:.1f} gigapixels)")  # fmt: skip
     frames = []
     with naming(**about_avatar), output_group(), atomic_dir(output) as tmp, progress_bar("rendering", len(times)) as update:
-        for shot in render_avatar(av, cams, times, mot, gaussians, seed, where=str(avatar), progress=update):
+        for shot in render_avatar(av, cams, times, mot, gaussians, seed, where=str(avatar), progress=update,
+                                  checkpoint=None if checkpoint is None else str(checkpoint)):
             rgba8 = (np.clip(shot.rgba, 0, 1) * 255 + 0.5).astype(np.uint8)
             Image.fromarray(rgba8, "RGBA").save(tmp / shot.name)
             if video is not None:

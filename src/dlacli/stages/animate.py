@@ -60,6 +60,7 @@ def pose_avatar(
     batch: int = 8,
     where: str = "avatar",
     progress: Callable[[int, int], None] | None = None,
+    checkpoint: str | None = None,
 ) -> Animation:
     """Skin the avatar's Gaussians for every frame of `motion` (on the avatar's own body shape).
 
@@ -71,7 +72,7 @@ def pose_avatar(
     from dlacli.stages.render import sample_settings
 
     model = get_body_model()
-    decoded = Decoded(avatar, where)
+    decoded = Decoded(avatar, where, checkpoint)
     samples = gm.make_samples(*sample_settings(avatar, n_gaussians, seed))
     t_total, n = motion.num_frames, len(samples)
     out = {k: np.empty((t_total, n, d), np.float32) for k, d in (("pos", 3), ("quat", 4), ("scale", 3))}

@@ -57,6 +57,7 @@ def render_avatar(
     seed: int | None = None,
     where: str = "avatar",
     progress: Callable[[int, int], None] | None = None,
+    checkpoint: str | None = None,
 ) -> Iterator[Shot]:
     """Shots for each camera (times [C]: motion frame per camera, None = frame 0 / own pose).
 
@@ -67,7 +68,7 @@ def render_avatar(
     from dlacli.render.splat import render_gaussians
     from dlacli.stages.codec import Decoded
 
-    decoded = Decoded(avatar, where)
+    decoded = Decoded(avatar, where, checkpoint)
     count, seed = sample_settings(avatar, n_gaussians, seed)
     samples = gm.make_samples(count, seed)
     frame_of = np.array([0 if t is None else int(t) for t in times], dtype=np.int64)
