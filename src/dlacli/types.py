@@ -54,45 +54,57 @@ def sh0_to_rgb(sh0: torch.Tensor) -> torch.Tensor:
 
 @dataclass
 class Gaussians:
-    """A set of N 3D Gaussians in activated parameters (see module docstring)."""
+    """A set of N 3D Gaussians in activated parameters (see module docstring), optionally with
+    leading batch dimensions B... (one set per avatar, pose or training item), as gsplat's
+    `rasterization(means [..., N, 3], ...)`."""
 
-    means: torch.Tensor  # [N, 3] world position, metres
-    quats: torch.Tensor  # [N, 4] (w, x, y, z), unit
-    scales: torch.Tensor  # [N, 3] standard deviations along the local axes, metres
-    opacities: torch.Tensor  # [N] in [0, 1]
-    sh: torch.Tensor  # [N, K, 3] SH coefficients, K = (degree + 1)^2; sh[:, 0] is the DC term
+    means: torch.Tensor  # [B..., N, 3] world position, metres
+    quats: torch.Tensor  # [B..., N, 4] (w, x, y, z), unit
+    scales: torch.Tensor  # [B..., N, 3] standard deviations along the local axes, metres
+    opacities: torch.Tensor  # [B..., N] in [0, 1]
+    sh: torch.Tensor  # [B..., N, K, 3] SH coefficients, K = (degree + 1)^2; sh[..., 0, :] is the DC term
 
     def __post_init__(self) -> None:
-        n = self.means.shape[0]
-        assert self.means.shape == (n, 3), self.means.shape
-        assert self.quats.shape == (n, 4), self.quats.shape
-        assert self.scales.shape == (n, 3), self.scales.shape
-        assert self.opacities.shape == (n,), self.opacities.shape
-        assert self.sh.ndim == 3 and self.sh.shape[0] == n and self.sh.shape[2] == 3, self.sh.shape
-        sh_degree_for_coeffs(self.sh.shape[1])
+        lead, n = tuple(self.means.shape[:-2]), self.means.shape[-2]
+        assert self.means.shape == (*lead, n, 3), self.means.shape
+        assert self.quats.shape == (*lead, n, 4), (self.quats.shape, lead, n)
+        assert self.scales.shape == (*lead, n, 3), (self.scales.shape, lead, n)
+        assert self.opacities.shape == (*lead, n), (self.opacities.shape, lead, n)
+        assert self.sh.shape[:-2] == (*lead, n) and self.sh.shape[-1] == 3, (self.sh.shape, lead, n)
+        sh_degree_for_coeffs(self.sh.shape[-2])
 
     def __len__(self) -> int:
-        return self.means.shape[0]
+        return self.means.shape[-2]
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        """The leading batch dimensions (empty for one set)."""
+        return tuple(self.means.shape[:-2])
+
+    def item(self, index) -> "Gaussians":
+        """The set at `index` of the leading batch dimensions."""
+        return Gaussians(*(t[index] for t in self._tensors()))
 
     @property
     def sh_degree(self) -> int:
-        return sh_degree_for_coeffs(self.sh.shape[1])
+        return sh_degree_for_coeffs(self.sh.shape[-2])
 
     @property
     def rgb(self) -> torch.Tensor:
-        """[N, 3] view-independent colour from the DC term, clamped to [0, 1]."""
-        return sh0_to_rgb(self.sh[:, 0]).clamp(0.0, 1.0)
+        """[B..., N, 3] view-independent colour from the DC term, clamped to [0, 1]."""
+        return sh0_to_rgb(self.sh[..., 0, :]).clamp(0.0, 1.0)
 
     @classmethod
     def from_rgb(cls, means, quats, scales, opacities, rgb) -> "Gaussians":
-        """Build degree-0 Gaussians from [N, 3] rgb colours."""
-        return cls(means, quats, scales, opacities, rgb_to_sh0(rgb)[:, None, :])
+        """Build degree-0 Gaussians from [B..., N, 3] rgb colours."""
+        return cls(means, quats, scales, opacities, rgb_to_sh0(rgb)[..., None, :])
 
     def to(self, *args, **kwargs) -> "Gaussians":
         return Gaussians(*(t.to(*args, **kwargs) for t in self._tensors()))
 
     def subset(self, index: torch.Tensor) -> "Gaussians":
-        """Gaussians selected by a boolean mask [N] or an index tensor [M]."""
+        """Gaussians selected by a boolean mask [N] or an index tensor [M] (one set, no batch)."""
+        assert not self.batch_shape, f"subset of a batch {self.batch_shape}: take .item(i) first"
         return Gaussians(*(t[index] for t in self._tensors()))
 
     def _tensors(self) -> tuple[torch.Tensor, ...]:

@@ -357,10 +357,19 @@ def render_gaussians(
 ) -> RenderOutput:
     """Render C views of N Gaussians; differentiable w.r.t. every Gaussian parameter.
 
+    Leading batch dimensions B... of the Gaussians (`Gaussians.batch_shape`: several avatars,
+    poses or training items) give outputs [B..., C, H, W(, 3)], every set seen by the same C
+    cameras; item b equals rendering `gaussians.item(b)` alone, values and gradients.
     Device and dtype follow `gaussians.means`; cameras are moved there. float32 CUDA tensors with
     gsplat installed -> gsplat; otherwise the numba CPU path (CUDA tensors without gsplat, or
     not float32, are rendered on the CPU and the results moved back).
     """
+    lead = gaussians.batch_shape
+    if lead:
+        flat = Gaussians(*(t.reshape(-1, *t.shape[len(lead):]) for t in gaussians._tensors()))
+        outs = [render_gaussians(flat.item(b), cameras, background=background, sh_degree=sh_degree)
+                for b in range(flat.means.shape[0])]  # fmt: skip
+        return RenderOutput(*(torch.stack(parts).reshape(*lead, *parts[0].shape) for parts in zip(*outs)))
     degree, bg = _check_inputs(gaussians, cameras, background, sh_degree)
     device, dtype = gaussians.means.device, gaussians.means.dtype
     viewmats = cameras.viewmats.to(device=device, dtype=dtype)

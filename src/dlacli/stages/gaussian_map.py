@@ -35,7 +35,8 @@ DEFAULT_GAUSSIANS = 131_072  # 65,536 uniform in UV + 65,536 uniform on the surf
 
 @dataclass
 class Samples:
-    """Fixed surface sample points that carry one Gaussian each."""
+    """Fixed surface sample points that carry one Gaussian each (numpy; `lookup` and
+    `sample_frames` move them to the device and dtype of the map or vertices they meet)."""
 
     face_id: np.ndarray  # [N] int64 triangle of the body mesh
     bary: np.ndarray  # [N, 3] float32 barycentrics
@@ -59,16 +60,19 @@ def make_samples(n: int = DEFAULT_GAUSSIANS, seed: int = 0) -> Samples:
 
 
 def lookup(fmap: torch.Tensor, uv: np.ndarray | torch.Tensor) -> torch.Tensor:
-    """Bilinear lookup of a map [C, R, R] at UV points [N, 2] -> [N, C] (differentiable in fmap).
+    """Bilinear lookup of maps [B..., C, R, R] at UV points [N, 2] -> [B..., N, C]
+    (differentiable in fmap; the points move to fmap's device and dtype).
 
     Texel centres follow docs/conventions.md: u = (j + 0.5) / R, v = 1 - (i + 0.5) / R.
     """
+    assert fmap.ndim >= 3, f"fmap must be [..., C, R, R], got {tuple(fmap.shape)}"
+    lead, (c, r1, r2) = fmap.shape[:-3], fmap.shape[-3:]
+    maps = fmap.reshape(-1, c, r1, r2)  # [B, C, R, R]
     uv = torch.as_tensor(uv, dtype=fmap.dtype, device=fmap.device)
     grid = torch.stack([2.0 * uv[:, 0] - 1.0, 1.0 - 2.0 * uv[:, 1]], dim=-1)  # [N, 2] in [-1, 1]
-    out = nnf.grid_sample(
-        fmap[None], grid[None, None], mode="bilinear", padding_mode="border", align_corners=False
-    )  # [1, C, 1, N]
-    return out[0, :, 0].T
+    grid = grid[None, None].expand(maps.shape[0], 1, -1, 2)  # [B, 1, N, 2]
+    out = nnf.grid_sample(maps, grid, mode="bilinear", padding_mode="border", align_corners=False)  # [B, C, 1, N]
+    return out[:, :, 0].transpose(1, 2).reshape(*lead, -1, c)
 
 
 class _Sigmoid(torch.autograd.Function):
@@ -94,28 +98,39 @@ class _Sigmoid(torch.autograd.Function):
 
 
 def skinned_params(
-    fmap: torch.Tensor,  # [14, R, R] the Gaussian map F
+    fmap: torch.Tensor,  # [14, R, R] one map F for all frames, or [P, 14, R, R] one per frame
     samples: Samples,
     frames: tuple[torch.Tensor, ...],  # T [P,N,3], R [P,N,3,3], S [P,N], Q [P,N,4] (`sample_frames`)
 ):
     """Gaussian parameters for P posed frames (tangent frames precomputed at the samples):
-    means [P, N, 3], quats [P, N, 4] (w, x, y, z), scales [P, N, 3], opacities [N], rgb [N, 3]."""
+    means [P, N, 3], quats [P, N, 4] (w, x, y, z), scales [P, N, 3], and opacities [N] /
+    rgb [N, 3] for one map, [P, N] / [P, N, 3] for a map per frame (a batch: P avatars, or the
+    F of a pose-conditioned decoder at each frame)."""
     from dlacli.body.skinning import skin_gaussians
 
-    params = lookup(fmap, samples.uv)  # [N, 14]
     frames_T, frames_R, frames_S, frames_Q = frames
-    dquat = params[:, ROTATION]
+    assert fmap.ndim == 3 or fmap.shape[0] == frames_T.shape[0], (
+        f"a batch of {fmap.shape[0]} maps needs as many frames, got {frames_T.shape[0]}")
+    params = lookup(fmap, samples.uv)  # [(P,) N, 14]
+    dquat = params[..., ROTATION]
     dquat = dquat / dquat.norm(dim=-1, keepdim=True).clamp_min(1e-8)
-    ds = params[:, LOG_SCALE].exp()
-    means, quats, scales = skin_gaussians(frames_T, frames_R, frames_S, params[:, OFFSET], dquat, ds, frames_Q)
-    return means, quats, scales, _Sigmoid.apply(params[:, 0]), params[:, RGB].clamp(0.0, 1.0)
+    ds = params[..., LOG_SCALE].exp()
+    means, quats, scales = skin_gaussians(frames_T, frames_R, frames_S, params[..., OFFSET], dquat, ds, frames_Q)
+    return means, quats, scales, _Sigmoid.apply(params[..., 0]), params[..., RGB].clamp(0.0, 1.0)
+
+
+def posed_gaussians(fmap: torch.Tensor, samples: Samples, frames) -> Gaussians:
+    """World Gaussians of P posed frames as one batch [P, N, ...] (see `skinned_params`): the
+    differentiable path from maps [P, 14, R, R] (or one [14, R, R]) to `render_gaussians`."""
+    means, quats, scales, opacity, rgb = skinned_params(fmap, samples, frames)
+    p = means.shape[0]
+    return Gaussians.from_rgb(means, quats, scales, opacity.expand(p, -1), rgb.expand(p, -1, -1))
 
 
 def gaussians_at_frames(fmap: torch.Tensor, samples: Samples, frames) -> list[Gaussians]:
-    """World Gaussians for each of P posed frames (see `skinned_params`)."""
-    means, quats, scales, opacity, rgb = skinned_params(fmap, samples, frames)
-    sh = rgb_to_sh0(rgb)[:, None, :]
-    return [Gaussians(means[p], quats[p], scales[p], opacity, sh) for p in range(means.shape[0])]
+    """World Gaussians for each of P posed frames, one set each (see `posed_gaussians`)."""
+    batch = posed_gaussians(fmap, samples, frames)
+    return [batch.item(p) for p in range(batch.means.shape[0])]
 
 
 def sample_frames(vertices: torch.Tensor, samples: Samples):
