@@ -376,3 +376,38 @@ def test_motion_convert_over_its_source(work, capsys):
     before = (work / "m.npz").read_bytes()
     refused(["motion", "convert", work / "m.npz", "-o", work / "m.npz"], capsys, "input")
     assert (work / "m.npz").read_bytes() == before
+
+
+def test_absurd_body_and_motion_values_are_refused(work, capsys):
+    """Values no body or motion can have (overflowing float32 skinning) are refused on reading."""
+    from dlacli.io.avatar import read_avatar, write_avatar
+    from dlacli.io.motion import read_motion, write_motion
+
+    body = json.loads((work / "views" / "body.json").read_text())
+    body["pose"] = {"upperarm01.L": [1e30, 0.0, 0.0]}
+    (work / "views" / "body.json").write_text(json.dumps(body))
+    refused(["lift", work / "views", "-o", work / "a.npz"], capsys, "body.json", "pose['upperarm01.L']")
+    with np.load(EXAMPLES / "motion.npz") as golden:  # written by hand: dla's writer refuses these
+        arrays = {k: golden[k] for k in golden.files}
+    np.savez(work / "far.npz", **{**arrays, "root_translation": arrays["root_translation"] + 1e9})
+    refused(["motion", "convert", work / "far.npz", "-o", work / "o.npz"], capsys, "far.npz", "root_translation")
+    motion = read_motion(EXAMPLES / "motion.npz")
+    motion.bone_labels = ["not_a_bone", *motion.bone_labels[1:]]
+    write_motion(motion, work / "alien.npz")
+    refused(["motion", "convert", work / "alien.npz", "-o", work / "o.npz"], capsys, "alien.npz", "not_a_bone")
+    avatar = read_avatar(work / "av.npz")
+    avatar.uv_layout = "smplx"
+    write_avatar(avatar, work / "smplx.npz")
+    refused(["render", work / "smplx.npz", "--turntable", "1", "-o", work / "r"], capsys, "smplx.npz", "uv_layout")
+    assert not (work / "o.npz").exists() and not (work / "r").exists()
+
+
+def test_npz_claiming_gigabytes_of_arrays(work, capsys):
+    """A 3 GiB array declared in a few hundred bytes: refused before numpy allocates it."""
+    with zipfile.ZipFile(work / "x.npz", "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("z.npy", _npy((4,), b"\0" * 16))
+    data = bytearray((work / "x.npz").read_bytes())
+    at = data.index(b"PK\x01\x02")
+    data[at + 24:at + 28] = struct.pack("<I", 3 << 30)
+    (work / "x.npz").write_bytes(bytes(data))
+    refused(["render", work / "x.npz", "--turntable", "1", "-o", work / "r"], capsys, "x.npz", "MiB")

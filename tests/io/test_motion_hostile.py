@@ -410,12 +410,17 @@ def test_overflowing_positions_name_the_source(tmp_path):
 # built-in names vs file names; the CLI
 
 
-def test_a_file_named_like_a_builtin_is_the_file(tmp_path, monkeypatch):
+def test_a_builtin_name_wins_over_a_suffixless_file(tmp_path, monkeypatch):
+    """A file called `walk` can never be a motion file (no suffix), so the name means the
+    built-in; with a suffix the path is always the file."""
     monkeypatch.chdir(tmp_path)
-    assert load_motion("walk").num_frames > 1  # no such file: the built-in
+    builtin = load_motion("walk")
     (tmp_path / "walk").write_text("junk")
-    with pytest.raises(DlaInputError, match="^walk: unsupported motion file type"):
-        load_motion("walk")
+    again = load_motion("walk")
+    assert again.num_frames == builtin.num_frames and np.array_equal(again.rotations, builtin.rotations)
+    (tmp_path / "walk.bvh").write_text("junk")
+    with pytest.raises(DlaInputError, match="^walk.bvh: "):
+        load_motion("walk.bvh")
 
 
 def test_cli_one_line_exit_2(tmp_path, monkeypatch, capsys):

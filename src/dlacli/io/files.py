@@ -20,6 +20,7 @@ MiB = 1 << 20
 MAX_JSON_BYTES = 64 * MiB
 MAX_TEXT_BYTES = 512 * MiB  # BVH, AMC, ASF
 MAX_BINARY_BYTES = 4096 * MiB  # .ply, .npz, .usd* (the file itself; npz members are checked too)
+MAX_NPZ_UNPACKED = 1024 * MiB  # all arrays of one .npz: an avatar's maps or a 200,000-frame motion fit in far less
 MAX_IMAGE_BYTES = 512 * MiB
 MAX_IMAGE_PIXELS = 8192 * 8192  # one photo or view: 67 MP (decoded RGBA float32 = 1 GiB)
 

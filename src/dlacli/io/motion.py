@@ -12,7 +12,18 @@ from typing import Any
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.io.validate import as_float, as_str, check_finite, check_format, check_shape, load_npz, save_npz
+from dlacli.io.validate import (
+    MAX_ANGLE,
+    MAX_DISTANCE,
+    as_float,
+    as_str,
+    check_finite,
+    check_format,
+    check_magnitude,
+    check_shape,
+    load_npz,
+    save_npz,
+)
 from dlacli.types import MAX_FPS, MAX_FRAMES, Motion  # the limits every motion reader shares
 
 FORMAT = "dla.motion/1"
@@ -57,6 +68,9 @@ def motion_from_arrays(data: dict[str, Any], where: Any) -> Motion:
     check_shape(root_translation, (t, 3), where, "root_translation")
     for name, arr in (("rotations", rotations), ("root_rotation", root_rotation), ("root_translation", root_translation)):
         check_finite(arr, where, name)
+    check_magnitude(rotations, MAX_ANGLE, where, "rotations", "rad")
+    check_magnitude(root_rotation, MAX_ANGLE, where, "root_rotation", "rad")
+    check_magnitude(root_translation, MAX_DISTANCE, where, "root_translation", "m")
 
     fps_arr = np.asarray(data["fps"])
     if fps_arr.shape != ():

@@ -109,6 +109,18 @@ def check_finite(arr: np.ndarray, where: Any, name: str) -> None:
         raise DlaInputError(where, f"{name} has {bad} non-finite value{'s' if bad > 1 else ''} (NaN or Inf)")
 
 
+# Physical bounds for body and motion values: an axis-angle of 1e4 rad is already ~1600 turns and
+# a root 100 km from the origin is no scene dla renders; beyond them float32 skinning overflows.
+MAX_ANGLE = 1e4  # radians
+MAX_DISTANCE = 1e5  # metres
+
+
+def check_magnitude(arr: np.ndarray, limit: float, where: Any, name: str, unit: str) -> None:
+    """Every |value| of `arr` at most `limit` (after the finiteness check)."""
+    if arr.size and float(np.max(np.abs(arr))) > limit:
+        raise DlaInputError(where, f"{name} reaches {float(np.max(np.abs(arr))):.3g} {unit}; at most {limit:g} is supported")
+
+
 def as_str(value: Any, where: Any, name: str, allow_empty: bool = False) -> str:
     """A (non-empty) string; also accepts a 0-d numpy unicode array as stored in .npz files."""
     if isinstance(value, np.ndarray) and value.shape == () and value.dtype.kind == "U":
@@ -204,6 +216,6 @@ def check_npz_bounds(path: str | os.PathLike) -> None:
     headers claiming more data than the member holds), before numpy allocates anything."""
     from dlacli.io.npz_bounds import check_npz_bounds as check
 
-    from dlacli.io.files import MAX_BINARY_BYTES
+    from dlacli.io.files import MAX_NPZ_UNPACKED
 
-    check(path, MAX_BINARY_BYTES)
+    check(path, MAX_NPZ_UNPACKED)

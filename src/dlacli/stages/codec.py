@@ -159,6 +159,10 @@ class Decoded:
     linear one, e.g. identity, F_c is recomputed: it costs nothing and cannot be stale)."""
 
     def __init__(self, avatar: Avatar, where: str = "avatar", checkpoint: str | None = None):
+        from dlacli.body.uv import UV_LAYOUT
+
+        if avatar.uv_layout != UV_LAYOUT:
+            raise DlaInputError(where, f"uv_layout {avatar.uv_layout!r} is not one this version decodes ({UV_LAYOUT!r})")
         self.decoder = resolve_decoder(avatar, where, checkpoint)
         self.z = torch.from_numpy(np.ascontiguousarray(avatar.z, dtype=np.float32))
         if avatar.canonical is not None and not self.decoder.linear:

@@ -7,9 +7,9 @@ A spec is one of (checked in this order):
 - a path to an .amc file: its ASF skeleton is found beside it (`dlacli.io.asf_amc.find_asf`),
   or named explicitly as "CLIP.amc:SUBJECT.asf" (or with the `asf` argument);
 - a built-in motion name: idle, walk, turnaround, wave.
-A spec that names an existing file or folder is always that file (a file called `walk` is read
-as a file, and refused for its missing suffix); only a spec that exists nowhere is looked up
-among the built-ins. Third-party motions are retargeted (`dlacli.body.retarget`); `fps`
+A built-in name is the built-in motion even when a file of that name (with no suffix, so never
+a motion file dla reads) lies in the current folder; `./walk.bvh` and other paths with a suffix
+are always files. Third-party motions are retargeted (`dlacli.body.retarget`); `fps`
 resamples the result; `allow_missing_joints` lets a file lacking joints its naming family
 always has (a renamed LeftUpLeg, a cut AMASS layout) through, with those anny bones at rest.
 
@@ -56,7 +56,7 @@ def load_motion(
     path, asf_path = split_spec(spec)
     if asf is not None:
         asf_path = Path(asf)
-    if not path.exists():
+    if not path.exists() or (spec in BUILTINS and not path.suffix):
         if spec in BUILTINS:
             motion = builtin_motion(spec)
             return motion if fps is None else _resample(motion, fps)
@@ -73,6 +73,7 @@ def load_motion(
             from dlacli.io.motion import read_motion
 
             motion = read_motion(path)
+            _check_rig_labels(motion, path)
             return motion if fps is None else _resample(motion, fps)
         from dlacli.io.amass import read_amass
 
@@ -104,3 +105,15 @@ def _resample(motion: Motion, fps: float) -> Motion:
     from dlacli.body.retarget import resample_motion
 
     return resample_motion(motion, float(fps))
+
+
+def _check_rig_labels(motion: Motion, path: Path) -> None:
+    """A native motion drives anny's bones by label: every label must be one of the rig's."""
+    from dlacli.body.model import get_body_model
+
+    rig = set(get_body_model().bone_labels)
+    unknown = [label for label in motion.bone_labels if label not in rig]
+    if unknown:
+        more = f" and {len(unknown) - 3} more" if len(unknown) > 3 else ""
+        raise DlaInputError(path, f"bone_labels holds {', '.join(map(repr, unknown[:3]))}{more}, not bones of anny's rig "
+                                  "(convert third-party motions with dla motion convert)")
