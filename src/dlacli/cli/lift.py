@@ -37,9 +37,9 @@ def lift(
     from dlacli.io.atomic import atomic_path, check_outputs, output_group
     from dlacli.io.avatar import write_avatar
     from dlacli.io.ply import write_ply
-    from dlacli.io.views import read_views, view_files
+    from dlacli.io.views import read_transforms, read_views, view_files
     from dlacli.stages.codec import check_encoder
-    from dlacli.stages.lift import LiftConfig
+    from dlacli.stages.lift import MAX_VIEWS, LiftConfig
     from dlacli.stages.lift import lift as run_lift
 
     check_encoder(method)
@@ -49,6 +49,9 @@ def lift(
         raise DlaInputError(ply, "the Gaussians are a .ply file")
     sheet = output.with_name(output.stem + "_contact.png")
     check_outputs(files=[output, sheet, ply], inputs=[views, *view_files(views, allow_outside)])
+    n_views = len(read_transforms(views)["file_paths"])
+    if n_views > MAX_VIEWS:
+        raise DlaInputError(views, f"has {n_views} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
     cfg = LiftConfig(steps=steps, resolution=resolution, gaussians=gaussians, seed=seed)
     view_set = read_views(views, allow_outside=allow_outside)
     body = views / "body.json" if views.is_dir() else views.with_name("body.json")

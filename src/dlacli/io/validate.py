@@ -69,7 +69,10 @@ def as_float(value: Any, where: Any, name: str) -> float:
         value = value.item()
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise DlaInputError(where, f"{name} must be a number, found {_describe(value)}")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:  # a JSON integer of hundreds of digits
+        raise DlaInputError(where, f"{name} is too large to be a number dla uses") from None
     if not math.isfinite(value):
         raise DlaInputError(where, f"{name} is not finite ({value})")
     return value

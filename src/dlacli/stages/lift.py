@@ -28,6 +28,7 @@ from dlacli.geometry import project_points as _project  # points [..., 3] -> (pi
 from dlacli.stages import gaussian_map as gm
 from dlacli.types import Avatar, Cameras, Gaussians, ViewSet
 
+MAX_VIEWS = 64  # every view is rendered at every refinement step: memory and time grow with them
 ENCODER = "unproject"
 DECODER = "identity"
 CLOTH_MARGIN = 0.01  # metres in front of the body surface where the body is seen
@@ -348,6 +349,8 @@ def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None) -> LiftRe
     cfg = cfg or LiftConfig()
     if views.body is None:
         raise DlaInputError("views", "lift needs body.json beside transforms.json")
+    if len(views) > MAX_VIEWS:
+        raise DlaInputError("views", f"has {len(views)} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
     vertices = get_body_model().forward_body(views.body).vertices[0].numpy()
     unstructured, _, eyes = unstructured_gaussians(views, vertices, cfg.grid)
     fmap = unproject_to_uv(unstructured, eyes, vertices, cfg.resolution)
