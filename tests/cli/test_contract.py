@@ -411,3 +411,24 @@ def test_npz_claiming_gigabytes_of_arrays(work, capsys):
     data[at + 24:at + 28] = struct.pack("<I", 3 << 30)
     (work / "x.npz").write_bytes(bytes(data))
     refused(["render", work / "x.npz", "--turntable", "1", "-o", work / "r"], capsys, "x.npz", "MiB")
+
+
+def test_usda_that_would_crash_the_usd_parser(work, capsys):
+    """USD's text parser recurses per bracket and segfaults on deep nesting; junk bytes raise
+    from inside pxr: both are refused before pxr sees the file."""
+    (work / "deep.usda").write_text("#usda 1.0\n(\n" + 'def X "a" {\n' * 5000 + "}\n" * 5000 + ")\n")
+    refused(["info", work / "deep.usda"], capsys, "deep.usda", "nests")
+    (work / "junk.usda").write_bytes(b"#usda 1.0\n" + bytes([0xDA, 0xFF]) * 100)
+    refused(["info", work / "junk.usda"], capsys, "junk.usda", "UTF-8")
+
+
+def test_body_json_linking_out_of_the_view_folder(work, capsys):
+    shutil.move(work / "views" / "body.json", work / "elsewhere.json")
+    os.symlink(work / "elsewhere.json", work / "views" / "body.json")
+    refused(["lift", work / "views", "-o", work / "a.npz"], capsys, "body.json", "--allow-outside")
+
+
+def test_checkpoint_for_a_decoder_without_weights(work, capsys):
+    os.mkfifo(work / "ckpt")
+    refused(["render", work / "av.npz", "--turntable", "1", "-o", work / "r", "--checkpoint", work / "ckpt"],
+            capsys, "takes no checkpoint")  # fmt: skip

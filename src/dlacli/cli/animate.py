@@ -23,7 +23,7 @@ def animate(
     gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=4_194_304, help="Gaussians per frame, half sampled uniformly in UV, half on the surface (default: the count the avatar was lifted with, else 131,072)."),
     checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="The learned decoder's checkpoint folder, when it is not in the checkpoints cache (~/.cache/dla/checkpoints) under the hash the avatar records."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, max=2**32 - 1, help="Seed of the sample points (default: the avatar's own)."),
-    fps: Optional[float] = typer.Option(None, "--fps", min=0.001, max=1000.0, callback=finite, help="Resample the motion to this frame rate (default: the motion's own)."),
+    fps: Optional[float] = typer.Option(None, "--fps", min=0.1, max=1000.0, callback=finite, help="Resample the motion to this frame rate (default: the motion's own)."),
     preview_size: int = typer.Option(512, "--preview-size", min=16, max=4096, help="Preview video size in pixels (square)."),
     allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
 ) -> None:

@@ -18,7 +18,7 @@ def interp(
     steps: int = typer.Option(0, "--steps", min=0, max=1000, help="Write this many avatars from t=0 to t=1 (inclusive) into the folder OUTPUT instead."),
     video: Optional[Path] = typer.Option(None, "--video", help="With --steps: also render the blend from the front as an .mp4."),
     size: int = typer.Option(512, "--size", min=16, max=4096, help="Video size in pixels (square)."),
-    fps: float = typer.Option(12.0, "--fps", min=0.001, max=1000.0, callback=finite, help="Frame rate of --video."),
+    fps: float = typer.Option(12.0, "--fps", min=1.0, max=1000.0, callback=finite, help="Frame rate of --video."),
 ) -> None:
     """Blend avatars A and B: z = (1 - t) z_A + t z_B; the body blends too."""
     from dlacli.cli.progress import progress_bar

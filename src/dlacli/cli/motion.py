@@ -24,7 +24,7 @@ _SPEC_HELP = (
 def convert(
     source: str = typer.Argument(..., help=_SPEC_HELP),
     output: Path = typer.Option(..., "-o", "--output", help="motion.npz to write."),
-    fps: Optional[float] = typer.Option(None, "--fps", callback=finite, help="Resample to this frame rate (default: keep the source's)."),
+    fps: Optional[float] = typer.Option(None, "--fps", min=0.1, max=1000.0, callback=finite, help="Resample to this frame rate (default: keep the source's)."),
     asf: Optional[Path] = typer.Option(None, "--asf", help="ASF skeleton for an .amc source (default: found beside it)."),
     allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
 ) -> None:
@@ -53,7 +53,7 @@ def _check_fps(fps: Optional[float]) -> None:
 def preview(
     motion_spec: str = typer.Argument(..., metavar="MOTION", help=_SPEC_HELP),
     output: Path = typer.Option(..., "-o", "--output", help="mp4 file to write."),
-    fps: Optional[float] = typer.Option(None, "--fps", callback=finite, help="Frame rate of the video (default: the motion's, at most 30)."),
+    fps: Optional[float] = typer.Option(None, "--fps", min=1.0, max=1000.0, callback=finite, help="Frame rate of the video (default: the motion's, at most 30)."),
     res: int = typer.Option(384, "--res", min=64, max=2048, help="Video width and height in pixels (rounded up to a multiple of 16)."),
     allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
 ) -> None:
@@ -69,7 +69,7 @@ def preview(
     _check_fps(fps)
     check_outputs(files=[output], inputs=split_spec(motion_spec))
     motion = load_motion(motion_spec, allow_missing_joints=allow_missing_joints)
-    video_fps = fps if fps is not None else min(motion.fps, 30.0)
+    video_fps = fps if fps is not None else max(1.0, min(motion.fps, 30.0))
     if abs(video_fps - motion.fps) > 1e-9:
         from dlacli.body.retarget import resample_motion
 

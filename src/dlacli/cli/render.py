@@ -20,7 +20,7 @@ def render(
     turntable: int = typer.Option(0, "--turntable", min=0, max=3600, help="Instead of --cameras: this many cameras evenly around the body."),
     size: int = typer.Option(512, "--size", min=16, max=4096, help="Image size for --turntable."),
     video: Optional[Path] = typer.Option(None, "--video", help="Also write the images in order as an .mp4."),
-    fps: float = typer.Option(24.0, "--fps", min=0.001, max=1000.0, callback=finite, help="Frame rate of --video."),
+    fps: float = typer.Option(24.0, "--fps", min=1.0, max=1000.0, callback=finite, help="Frame rate of --video."),
     gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=4_194_304, help="Gaussians sampled from the avatar (default: the count it was lifted with, else 131,072)."),
     checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="The learned decoder's checkpoint folder, when it is not in the checkpoints cache (~/.cache/dla/checkpoints) under the hash the avatar records."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, max=2**32 - 1, help="Seed of the sample points (default: the avatar's own)."),

@@ -317,6 +317,8 @@ def _open_stage(path: Path):
     from dlacli.io.files import check_input
 
     check_input(path)
+    if _encoding(path) == "usda":
+        _check_usda_text(path)
     if path.suffix.lower() not in SUFFIXES:
         raise DlaInputError(path, f"unknown USD suffix {path.suffix!r} (use .usd, .usda or .usdc)")
     try:
@@ -333,6 +335,29 @@ def _tf_message(err: BaseException) -> str:
     text = " ".join(str(err).split())
     found = re.findall(r" : '(.*?)'(?= Error in |$)", text)
     return "; ".join(found) if found else text[:300]
+
+
+MAX_USDA_DEPTH = 256  # USD's text parser recurses per nesting level and crashes (SIGSEGV) far below 10^5
+
+
+def _check_usda_text(path: Path) -> None:
+    """A text layer must be UTF-8 and nest brackets at most MAX_USDA_DEPTH deep before pxr parses it
+    (counted over the raw bytes: brackets inside strings only make the count larger)."""
+    from dlacli.io.files import MAX_TEXT_BYTES, read_bytes
+
+    data = read_bytes(path, MAX_TEXT_BYTES)
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise DlaInputError(path, f"is not UTF-8 text (byte {err.start})") from None
+    step = np.zeros(256, np.int64)
+    step[list(b"([{")], step[list(b")]}")] = 1, -1
+    depth, chunk = 0, 1 << 24  # 16 MiB at a time: memory stays bounded for large layers
+    for start in range(0, len(data), chunk):
+        running = depth + np.cumsum(step[np.frombuffer(data, np.uint8, min(chunk, len(data) - start), start)])
+        if running.size and int(running.max()) > MAX_USDA_DEPTH:
+            raise DlaInputError(path, f"nests brackets deeper than {MAX_USDA_DEPTH} levels; not a USD layer dla reads")
+        depth = int(running[-1]) if running.size else depth
 
 
 def _encoding(path: Path) -> str:

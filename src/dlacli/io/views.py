@@ -230,6 +230,8 @@ def view_files(folder: str | os.PathLike, allow_outside: bool = False) -> list[P
     t = read_transforms(folder)
     where = folder / TRANSFORMS
     files = [where, folder / BODY]
+    if os.path.lexists(folder / BODY):
+        inside(folder, BODY, folder / BODY, "the link", allow_outside)
     for i, rel in enumerate(t["file_paths"]):
         files.append(_resolve(folder, rel, where, f"frames[{i}].file_path", allow_outside))
     for i, rel in enumerate(t["mask_paths"]):
@@ -243,7 +245,7 @@ def _load(folder: Path, require_body: bool, allow_outside: bool) -> tuple[dict[s
     but the Cameras (whose tensors need torch; `summarize_views` does without them)."""
     where = folder / TRANSFORMS
     t = read_transforms(folder)
-    body = _read_body(folder, require_body)
+    body = _read_body(folder, require_body, allow_outside)
     images, masks = zip(*(_load_view(folder, t, i, where, allow_outside) for i in range(len(t["file_paths"]))))
     return t, body, np.stack(images).astype(np.float32), np.stack(masks).astype(np.float32)
 
@@ -264,8 +266,10 @@ def _read(folder: str | os.PathLike, require_body: bool, allow_outside: bool = F
     return t, views
 
 
-def _read_body(folder: Path, require: bool) -> BodyParams | None:
+def _read_body(folder: Path, require: bool, allow_outside: bool = False) -> BodyParams | None:
     path = folder / BODY
+    if os.path.lexists(path):  # a link out of the folder counts as reading outside it
+        path = inside(folder, BODY, path, "the link", allow_outside)
     if not path.exists():
         if require:
             raise DlaInputError(path, "missing: a view folder needs the body parameters beside transforms.json")

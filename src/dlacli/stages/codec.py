@@ -117,7 +117,7 @@ def resolve_decoder(avatar: Avatar, where: str = "avatar", checkpoint: str | Non
     `checkpoint`, nn/checkpoint.py), which must be a Decoder of that name."""
     factory = _DECODERS.get(avatar.decoder)
     if factory is not None:
-        return factory(avatar.checkpoint, where)
+        return factory(checkpoint or avatar.checkpoint, checkpoint or where)
     if not avatar.checkpoint:
         raise DlaInputError(where, f"decoder {avatar.decoder!r} is not available in this version (known: {', '.join(decoder_names())})")
     from dlacli.nn.checkpoint import load_checkpoint, resolve_checkpoint
