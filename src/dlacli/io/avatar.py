@@ -19,6 +19,10 @@ from dlacli.io.body import body_from_dict, body_to_dict
 from dlacli.io.validate import as_str, check_finite, check_format, check_shape, load_npz, parse_json, save_npz
 from dlacli.types import Avatar
 
+# z and canonical together: a 14 x 2048^2 float32 map (the largest --resolution) is 235 MB, the
+# paper's Z (256 x 64^2) 4 MB; an avatar.npz unpacking to more is refused unread.
+MAX_UNPACKED = 320 * 2**20
+
 FORMAT = "dla.avatar/1"
 KEYS = ("format", "z", "encoder", "decoder", "checkpoint", "body", "uv_layout")
 OPTIONAL_KEYS = ("canonical", "extra")
@@ -95,7 +99,7 @@ def _json_object(value: Any, where: Any, name: str) -> dict[str, Any]:
 
 def read_avatar(path: str | os.PathLike) -> Avatar:
     """Read and validate an avatar.npz; z and canonical come back float32."""
-    return avatar_from_arrays(load_npz(path), Path(path))
+    return avatar_from_arrays(load_npz(path, MAX_UNPACKED), Path(path))
 
 
 def avatar_to_arrays(avatar: Avatar) -> dict[str, np.ndarray]:
@@ -136,7 +140,7 @@ def write_avatar(avatar: Avatar, path: str | os.PathLike) -> None:
 
 def summarize_avatar(path: str | os.PathLike) -> dict[str, Any]:
     """JSON-able summary of an avatar.npz."""
-    data = load_npz(path)
+    data = load_npz(path, MAX_UNPACKED)
     a = avatar_from_arrays(data, Path(path))
     out = {
         "kind": "avatar",

@@ -135,8 +135,10 @@ def as_str(value: Any, where: Any, name: str, allow_empty: bool = False) -> str:
     return value
 
 
-def load_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Every array of an .npz file, loaded eagerly without pickles (so truncation shows up here)."""
+def load_npz(path: str | os.PathLike, max_unpacked: int | None = None) -> dict[str, np.ndarray]:
+    """Every array of an .npz file, loaded eagerly without pickles (so truncation shows up here);
+    refused unread when its arrays would unpack to more than `max_unpacked` bytes (default
+    files.MAX_NPZ_UNPACKED)."""
     from dlacli.io.files import open_input
 
     path = Path(path)
@@ -144,7 +146,7 @@ def load_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
         magic = f.read(4)
     if magic not in (b"PK\x03\x04", b"PK\x05\x06"):
         raise DlaInputError(path, "not a readable .npz file (no zip header)")
-    check_npz_bounds(path)
+    check_npz_bounds(path, max_unpacked)
     try:
         with open_input(path) as f, np.load(f, allow_pickle=False) as data:
             return {key: data[key] for key in data.files}
@@ -214,11 +216,11 @@ def npz_format(path: str | os.PathLike) -> str:
     raise DlaInputError(path, "npz with neither a 'format' key (dla.motion/1, dla.avatar/1) nor AMASS 'poses'")
 
 
-def check_npz_bounds(path: str | os.PathLike) -> None:
+def check_npz_bounds(path: str | os.PathLike, max_unpacked: int | None = None) -> None:
     """Refuse an .npz whose members would decompress to more than dla reads (zip bombs, .npy
     headers claiming more data than the member holds), before numpy allocates anything."""
     from dlacli.io.npz_bounds import check_npz_bounds as check
 
     from dlacli.io.files import MAX_NPZ_UNPACKED
 
-    check(path, MAX_NPZ_UNPACKED)
+    check(path, MAX_NPZ_UNPACKED if max_unpacked is None else max_unpacked)
