@@ -85,6 +85,8 @@ def as_array(
 
     Accepts nested JSON lists or numpy arrays; bool, string and object data are rejected.
     """
+    if isinstance(value, (list, tuple)) and _holds_bool(value):  # JSON true/false would read as 1/0
+        raise DlaInputError(where, f"{name} must hold numbers, found true/false")
     try:
         arr = np.asarray(value)
     except (ValueError, TypeError):
@@ -95,6 +97,17 @@ def as_array(
     arr = arr.astype(dtype)
     check_finite(arr, where, name)
     return arr
+
+
+def _holds_bool(value) -> bool:
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, bool):
+            return True
+        if isinstance(item, (list, tuple)):
+            stack.extend(item)
+    return False
 
 
 def check_shape(arr: np.ndarray, shape: tuple[int | None, ...], where: Any, name: str) -> None:
