@@ -432,3 +432,27 @@ def test_checkpoint_for_a_decoder_without_weights(work, capsys):
     os.mkfifo(work / "ckpt")
     refused(["render", work / "av.npz", "--turntable", "1", "-o", work / "r", "--checkpoint", work / "ckpt"],
             capsys, "takes no checkpoint")  # fmt: skip
+
+
+def test_a_users_file_inside_a_dla_subfolder_is_never_deleted(work, capsys):
+    (work / "out").mkdir()
+    (work / "out" / "images").mkdir()
+    (work / "out" / "images" / "view_000.png").write_bytes(b"x")  # what dla writes there ...
+    (work / "out" / "images" / "notes.txt").write_text("mine")  # ... and what it does not
+    refused(["dream", work / "views" / "images" / "view_000.png", "-o", work / "out"], capsys, "images/notes.txt")
+    assert (work / "out" / "images" / "notes.txt").read_text() == "mine"
+
+
+def test_names_too_long_for_the_file_system_are_refused_before_work(work, capsys):
+    refused(["lift", work / "views", "-o", work / ("a" * 300 + ".npz")], capsys, "too long")
+
+
+def test_frame_rates_and_camera_positions_no_input_has(work, capsys):
+    bvh = ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n"
+           " End Site\n {\n  OFFSET 0 1 0\n }\n}\nMOTION\nFrames: 2\nFrame Time: 1e300\n0 0 0\n0 0 0\n")  # fmt: skip
+    (work / "slow.bvh").write_text(bvh)
+    refused(["motion", "convert", work / "slow.bvh", "-o", work / "o.npz"], capsys, "slow.bvh", "fps")
+    meta = json.loads((work / "views" / "transforms.json").read_text())
+    meta["frames"][0]["transform_matrix"][0][3] = 1e300
+    (work / "views" / "transforms.json").write_text(json.dumps(meta))
+    refused(["render", work / "av.npz", "--cameras", work / "views", "-o", work / "r"], capsys, "translation")

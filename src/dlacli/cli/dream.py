@@ -19,7 +19,7 @@ def dream(
     steps: int = typer.Option(50, "--steps", min=1, max=1000, help="Diffusion backend: sampling steps."),
     frames: int = typer.Option(80, "--frames", min=4, max=1024, help="Diffusion backend: frames of the 360-degree orbit (multiple of 4; views are frames N/4, N/2, 3N/4)."),
     seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1, help="Diffusion backend: noise seed."),
-    fit_steps: int = typer.Option(300, "--fit-steps", min=1, max=100_000, help="Optimisation steps of the body fit."),
+    fit_steps: int = typer.Option(300, "--fit-steps", min=3, max=100_000, help="Optimisation steps of the body fit."),
 ) -> None:
     """Dream novel views of a person from one photo: fit the body, then write a view folder with
     the photo (azimuth 0) and views at azimuths 90, 180, 270, plus body.json and fit_overlay.png.

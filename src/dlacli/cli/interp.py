@@ -21,6 +21,8 @@ def interp(
     fps: float = typer.Option(12.0, "--fps", min=1.0, max=1000.0, callback=finite, help="Frame rate of --video."),
 ) -> None:
     """Blend avatars A and B: z = (1 - t) z_A + t z_B; the body blends too."""
+    import numpy as np
+
     from dlacli.cli.progress import progress_bar
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_dir, check_outputs, output_group
@@ -43,20 +45,21 @@ def interp(
         raise DlaInputError(video, "the video is an .mp4 file")
     check_outputs(files=[video], folders=[(output, ("interp_*.npz",))], inputs=[a, b])
     avatar_a, avatar_b = read_avatar(a), read_avatar(b)
-    blends = [interpolate(avatar_a, avatar_b, k / (steps - 1), str(a), str(b)) for k in range(steps)]
-    with output_group(), atomic_dir(output) as tmp:
-        for k, avatar in enumerate(blends):
-            write_avatar(avatar, tmp / f"interp_{k:03d}.npz")
-        if video is not None:
-            from dlacli.io.video import write_video
-            from dlacli.stages.render import render_avatar, turntable_cameras
+    if video is not None:
+        from dlacli.io.video import write_video
+        from dlacli.stages.render import render_avatar, turntable_cameras
 
-            camera = turntable_cameras(avatar_a, 1, size)  # one fixed front camera for every blend
-            with progress_bar("rendering", steps) as update:
-                frames = []
-                for k, avatar in enumerate(blends):
-                    frames.append(next(render_avatar(avatar, camera, [None], where=str(a))).rgba)
-                    update(k + 1)
+        camera = turntable_cameras(avatar_a, 1, size)  # one fixed front camera for every blend
+    frames = []  # uint8 video frames only: each blend is written, rendered and dropped in turn
+    with output_group(), atomic_dir(output) as tmp, progress_bar("blending", steps) as update:
+        for k in range(steps):
+            avatar = interpolate(avatar_a, avatar_b, k / (steps - 1), str(a), str(b))
+            write_avatar(avatar, tmp / f"interp_{k:03d}.npz")
+            if video is not None:
+                rgba = next(render_avatar(avatar, camera, [None], where=str(a))).rgba
+                frames.append((np.clip(rgba, 0, 1) * 255 + 0.5).astype(np.uint8))
+            update(k + 1)
+        if video is not None:
             write_video(frames, video, fps)
     typer.echo(str(output))
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from dlacli.errors import DlaInputError
 from dlacli.io.bvh import check_motion_size, clean_fps
-from dlacli.types import MAX_FPS, SkeletonMotion
+from dlacli.types import MAX_FPS, MIN_FPS, SkeletonMotion
 
 SMPL_JOINTS = (
     "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
@@ -124,6 +124,8 @@ def read_amass(path: str | os.PathLike) -> SkeletonMotion:
         raise DlaInputError(path, f"{key} must be one number, got shape {np.shape(data[key])}") from None
     if not np.isfinite(fps) or fps <= 0:
         raise DlaInputError(path, f"{key} = {fps} must be > 0")
+    if fps < MIN_FPS:
+        raise DlaInputError(path, f"{key} = {fps:g} is below {MIN_FPS:g} fps (not supported)")
     if fps > MAX_FPS:
         raise DlaInputError(path, f"{key} = {fps:g} is above {MAX_FPS:g} fps (not supported)")
 

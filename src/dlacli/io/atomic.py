@@ -216,7 +216,38 @@ def _inside(child: Path, folder: Path) -> bool:
     return True
 
 
+MAX_NAME = 200  # bytes of a file name: NAME_MAX is 255 on common file systems, temporaries add ~40
+
+
+def _strangers(folder: Path, patterns: list[str], limit: int = 100_000) -> list[str]:
+    """Paths under `folder` (relative, '/'-separated, at any depth) that match none of `patterns`:
+    what replacing the folder would delete that dla did not write. A folder whose own path
+    matches a pattern that ends in it (e.g. "images") is walked: its entries must match too
+    (e.g. "images/view_*.png"), so a user's file inside a dla subfolder counts."""
+    found, seen, stack = [], 0, [("", folder)]
+    while stack:
+        rel, here = stack.pop()
+        try:
+            entries = list(os.scandir(here))
+        except OSError:
+            continue
+        for e in entries:
+            seen += 1
+            if seen > limit:
+                return found + ["(more than 100,000 entries)"]
+            name = f"{rel}{e.name}"
+            if _TEMP.match(e.name):
+                continue
+            if not any(fnmatch.fnmatchcase(name, p) for p in patterns):
+                found.append(name)
+            elif e.is_dir(follow_symlinks=False):
+                stack.append((name + "/", Path(e.path)))
+    return found
+
+
 def _check_parent(path: Path) -> None:
+    if len(os.fsencode(path.name)) > MAX_NAME:
+        raise DlaInputError(path, f"file name of {len(os.fsencode(path.name))} bytes is too long (at most {MAX_NAME})")
     p = path.parent
     while not os.path.lexists(p):
         p = p.parent
@@ -233,9 +264,9 @@ def check_outputs(
     """Refuse, before any work, outputs that would destroy something.
 
     files: output file paths; an existing one must be a regular file (or a link to one).
-    folders: (path, patterns): an existing output folder must be empty or hold only top-level
-        names matching `patterns` (what this command writes there), so that replacing it loses
-        nothing of the user's.
+    folders: (path, patterns): an existing output folder must be empty or hold only entries whose
+        relative paths (at any depth, '/'-separated) match `patterns` (what this command writes
+        there), so that replacing it loses nothing of the user's.
     inputs: every file or folder the command reads; no output may be one of them, and no output
         folder may hold one.
     """
@@ -266,8 +297,7 @@ def check_outputs(
                 mode = os.lstat(path).st_mode
                 what = "a link" if stat.S_ISLNK(mode) else "a file" if stat.S_ISREG(mode) else kind_of(mode)
                 raise DlaInputError(path, f"exists and is {what}, not a folder dla wrote; choose another output")
-            strangers = [e.name for e in os.scandir(path)
-                         if not _TEMP.match(e.name) and not any(fnmatch.fnmatchcase(e.name, p) for p in patterns)]  # fmt: skip
+            strangers = _strangers(path, patterns)
             if strangers:
                 raise DlaInputError(path, f"exists and holds files dla did not write there ({', '.join(sorted(strangers)[:3])}"
                                           f"{', ...' if len(strangers) > 3 else ''}); remove it or choose another output")  # fmt: skip

@@ -28,7 +28,7 @@ import numpy as np
 
 from dlacli.errors import DlaInputError
 from dlacli.kinematics import euler_matrices, rest_height
-from dlacli.types import MAX_FPS, MAX_FRAMES, SkeletonMotion
+from dlacli.types import MAX_FPS, MAX_FRAMES, MIN_FPS, SkeletonMotion
 
 _ROT_CHANNELS = {"xrotation": "x", "yrotation": "y", "zrotation": "z"}
 _POS_CHANNELS = {"xposition": 0, "yposition": 1, "zposition": 2}
@@ -343,6 +343,8 @@ def _parse_motion(text: str, pos: int, path: Path, num_channels: int, num_joints
         raise DlaInputError(path, f"motion has {frames} frames (at least one needed)")
     if not np.isfinite(frame_time) or frame_time <= 0:
         raise DlaInputError(path, f"Frame Time {frame_time} must be > 0")
+    if 1.0 / frame_time < MIN_FPS:
+        raise DlaInputError(path, f"Frame Time {frame_time:g} s is {1.0 / frame_time:g} fps; at least {MIN_FPS:g} fps is supported")
     if 1.0 / frame_time > MAX_FPS:
         raise DlaInputError(path, f"Frame Time {frame_time:g} s is {1.0 / frame_time:g} fps; at most {MAX_FPS:g} fps is supported")
     if num_channels == 0:

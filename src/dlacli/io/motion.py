@@ -24,7 +24,7 @@ from dlacli.io.validate import (
     load_npz,
     save_npz,
 )
-from dlacli.types import MAX_FPS, MAX_FRAMES, Motion  # the limits every motion reader shares
+from dlacli.types import MAX_FPS, MAX_FRAMES, MIN_FPS, Motion  # the limits every motion reader shares
 
 FORMAT = "dla.motion/1"
 MODELS = ("anny",)
@@ -78,6 +78,8 @@ def motion_from_arrays(data: dict[str, Any], where: Any) -> Motion:
     fps = as_float(fps_arr, where, "fps")
     if fps <= 0:
         raise DlaInputError(where, f"fps = {fps} must be > 0")
+    if fps < MIN_FPS:
+        raise DlaInputError(where, f"fps = {fps:g} is below {MIN_FPS:g} (not a frame rate a motion has)")
     if fps > MAX_FPS:
         raise DlaInputError(where, f"fps = {fps:g} is above {MAX_FPS:g} (not supported)")
     return Motion(bone_labels, rotations, root_rotation, root_translation, fps, model)

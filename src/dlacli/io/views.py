@@ -19,7 +19,7 @@ from dlacli.errors import DlaInputError
 from dlacli.io.atomic import atomic_dir
 from dlacli.io.body import body_from_dict, body_to_dict
 from dlacli.io.files import MAX_IMAGE_PIXELS, inside, open_image
-from dlacli.io.validate import as_array, as_float, check_format, dump_json, load_json
+from dlacli.io.validate import MAX_DISTANCE, as_array, as_float, check_format, check_magnitude, dump_json, load_json
 from dlacli.types import BodyParams, Cameras, ViewSet
 
 FORMAT = "dla.views/1"
@@ -28,7 +28,7 @@ BODY = "body.json"
 CAMERA_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE")  # all read as a pinhole without distortion
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 INTRINSIC_KEYS = ("w", "h", "fl_x", "fl_y", "cx", "cy")
-LAYOUT = (TRANSFORMS, BODY, "images")  # what write_views puts in a folder
+LAYOUT = (TRANSFORMS, BODY, "images", "images/view_*.png")  # what write_views puts in a folder
 MAX_FRAMES = 4096
 MAX_TOTAL_PIXELS = 1 << 27  # all views together: 128 MP (2 GiB as float32 RGB + mask)
 RIGID_TOL = 1e-3  # max |R^T R - I| and |det R - 1| accepted for a camera-to-world rotation
@@ -139,6 +139,7 @@ def _rigid(value: Any, where: Path, name: str) -> np.ndarray:
     err = float(np.abs(r.T @ r - np.eye(3)).max())
     if err > RIGID_TOL or abs(det - 1.0) > RIGID_TOL:
         raise DlaInputError(where, f"{name} is not a rigid camera pose (rotation part: determinant {det:.4g}, max |R^T R - I| = {err:.3g})")
+    check_magnitude(m[:3, 3], MAX_DISTANCE, where, f"{name} translation", "m")
     return m
 
 

@@ -18,6 +18,7 @@ from dlacli.errors import DlaInputError
 from dlacli.stages import gaussian_map as gm
 from dlacli.types import Avatar, Cameras, Motion
 
+CAMERAS_PER_CALL = 8  # splat this many cameras at once: projections are [C, N, ...], memory grows with C
 MAX_GAUSSIANS = 4_194_304  # the most an avatar may ask to be drawn with (32x the default)
 TURNTABLE_ELEVATION = 5.0
 TURNTABLE_FOV = 40.0
@@ -78,7 +79,8 @@ def render_avatar(
         frames = gm.sample_frames(verts, samples)
         pose = decoded.pose(verts[0])
         cams = np.nonzero(frame_of == frame)[0]
-        groups = [cams[k : k + 1] for k in range(len(cams))] if decoded.decoder.view_conditioned else [cams]
+        step = 1 if decoded.decoder.view_conditioned else CAMERAS_PER_CALL
+        groups = [cams[k : k + step] for k in range(0, len(cams), step)]
         for group in groups:
             sub = Cameras(cameras.viewmats[group], cameras.Ks[group], cameras.width, cameras.height)
             rays = decoded.rays(verts[0], camera_centers(sub.viewmats[0])) if decoded.decoder.view_conditioned else None

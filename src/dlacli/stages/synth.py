@@ -405,7 +405,11 @@ def _view_set(rgba: np.ndarray, cams: Cameras, body: BodyParams, times, extra: d
                    file_paths=[], times=list(times), extra=extra)  # fmt: skip
 
 
-SUBJECT_LAYOUT = ("transforms.json", "body.json", "images", "novel_views", "novel_poses")  # what synth writes
+# what synth writes (paths relative to the subject folder; dla.io.atomic.check_outputs)
+SUBJECT_LAYOUT = ("transforms.json", "body.json", "images", "images/view_*.png",
+                  *(f"{sub}{rest}" for sub in ("novel_views", "novel_poses")
+                    for rest in ("", "/transforms.json", "/body.json", "/images", "/images/view_*.png")),
+                  "novel_poses/motion.npz")  # fmt: skip
 
 
 def synth(seed: int, out: str | os.PathLike, *, res: int = 512, novel_views: int = 12,
