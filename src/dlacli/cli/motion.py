@@ -36,18 +36,10 @@ def convert(
 
     if output.suffix.lower() != ".npz":
         raise DlaInputError(output, "the output must be a .npz file")
-    _check_fps(fps)
     check_outputs(files=[output], inputs=[*split_spec(source), asf])
     motion = load_motion(source, fps=fps, asf=asf, allow_missing_joints=allow_missing_joints)
     write_motion(motion, output)
     typer.echo(f"{output}  {motion.num_frames} frames at {motion.fps:g} fps")
-
-
-def _check_fps(fps: Optional[float]) -> None:
-    from dlacli.errors import DlaInputError
-
-    if fps is not None and not (0.0 < fps <= 1000.0):
-        raise DlaInputError("--fps", f"{fps} must be in (0, 1000]")
 
 
 def preview(
@@ -66,7 +58,6 @@ def preview(
 
     if output.suffix.lower() != ".mp4":
         raise DlaInputError(output, "the output must be a .mp4 file")
-    _check_fps(fps)
     check_outputs(files=[output], inputs=split_spec(motion_spec))
     motion = load_motion(motion_spec, allow_missing_joints=allow_missing_joints)
     video_fps = fps if fps is not None else max(1.0, min(motion.fps, 30.0))

@@ -70,25 +70,17 @@ def _read_text(path: str | os.PathLike, max_bytes: int | None = None) -> str:
     """The text of a BVH, ASF or AMC file (UTF-8, bad bytes replaced) through the shared input
     checks (`dlacli.io.files`: regular files only, at most `max_bytes` (default MAX_TEXT_BYTES),
     never blocking on a FIFO); old Mac line ends ("\r") become "\n"."""
-    from dlacli.io.files import MAX_TEXT_BYTES, open_input
+    from dlacli.io.files import MAX_TEXT_BYTES, read_text
 
     path = Path(path)
-    cap = MAX_TEXT_BYTES if max_bytes is None else max_bytes
     try:
-        with open_input(path, cap) as f:
-            # read what fstat says is there (f.read(cap) would allocate `cap` bytes up front)
-            data = f.read(os.fstat(f.fileno()).st_size + 1)
-            while len(data) <= cap and (more := f.read(1 << 20)):  # it grew meanwhile
-                data += more
+        text = read_text(path, MAX_TEXT_BYTES if max_bytes is None else max_bytes, errors="replace")
     except DlaInputError as err:
         if err.problem == "no such file":
             raise DlaInputError(path, "cannot read (no such file)") from None
         raise
     except OSError as err:
         raise DlaInputError(path, f"cannot read ({err.strerror or err})") from None
-    if len(data) > cap:
-        raise DlaInputError(path, f"is larger than {cap / 2**20:g} MiB; larger files are refused")
-    text = data.decode("utf-8", errors="replace")
     if "\n" not in text and "\r" in text:
         text = text.replace("\r", "\n")
     return text

@@ -155,11 +155,7 @@ def load_npz(path: str | os.PathLike, max_unpacked: int | None = None) -> dict[s
     from dlacli.io.files import open_input
 
     path = Path(path)
-    with open_input(path) as f:
-        magic = f.read(4)
-    if magic not in (b"PK\x03\x04", b"PK\x05\x06"):
-        raise DlaInputError(path, "not a readable .npz file (no zip header)")
-    check_npz_bounds(path, max_unpacked)
+    check_npz_bounds(path, max_unpacked)  # also the regular-file check and the zip magic
     try:
         with open_input(path) as f, np.load(f, allow_pickle=False) as data:
             return {key: data[key] for key in data.files}
