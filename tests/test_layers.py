@@ -52,13 +52,13 @@ ALLOWED = {
     ),
 }
 
-# heavy or optional third-party packages -> the one module that may import them (lazily).
+# heavy or optional third-party packages -> the modules that may import them (lazily).
 # bpy is used by the Blender checks in tests only, so no module under src imports it.
 HEAVY = {
     "anny": {"dlacli.body.model"},
     "warp": {"dlacli.body.model"},
     "gsplat": {"dlacli.render.splat"},
-    "pxr": {"dlacli.io.usd"},
+    "pxr": {"dlacli.io.usd", "dlacli.io.usd_rig"},  # the animation and the rigged asset
     "diffusers": {"dlacli.nn.video_diffusion"},
     "mediapipe": {"dlacli.io.detect"},
     "bpy": set(),

@@ -202,14 +202,11 @@ def test_rotate_sh_keeps_the_colour_seen_along_rotated_directions():
 
 def test_rig_passes_its_arguments_to_the_rig_writer(avatar_path, tmp_path, capsys, monkeypatch):
     """--rig hands the avatar, path, motion, count, seed and checkpoint to
-    dlacli.io.usd_rig.write_rigged_usd (a stand-in here, so this runs without pxr)."""
-    import sys
-    import types
+    dlacli.stages.rig.write_rigged_usd (a stand-in here, so this runs without pxr)."""
+    import dlacli.stages.rig as rig
 
     calls = []
-    fake = types.ModuleType("dlacli.io.usd_rig")
-    fake.write_rigged_usd = lambda avatar, path, **kw: calls.append((avatar, path, kw))
-    monkeypatch.setitem(sys.modules, "dlacli.io.usd_rig", fake)
+    monkeypatch.setattr(rig, "write_rigged_usd", lambda avatar, path, **kw: calls.append((avatar, path, kw)))
     _export(capsys, avatar_path, "--rig", "-o", tmp_path / "rig.usdc", "--motion", "wave", "--gaussians", 64, "--seed", 9)
     ((av, path, kw),) = calls
     assert path == tmp_path / "rig.usdc" and kw["n_gaussians"] == 64 and kw["seed"] == 9
@@ -217,11 +214,10 @@ def test_rig_passes_its_arguments_to_the_rig_writer(avatar_path, tmp_path, capsy
 
 
 def test_rig_writes_a_usd(avatar_path, tmp_path, capsys):
-    rig = pytest.importorskip("dlacli.io.usd_rig", reason="the rigged USD writer is not in this checkout yet")
-    if not hasattr(rig, "write_rigged_usd"):
-        pytest.skip("dlacli.io.usd_rig has no write_rigged_usd yet")
+    """The real --rig path: a UsdSkel file and its colour texture (tests/io/test_usd_rig.py and
+    tests/blender/ check what is in them)."""
     _export(capsys, avatar_path, "--rig", "-o", tmp_path / "rig.usda")
-    assert (tmp_path / "rig.usda").stat().st_size > 0
+    assert (tmp_path / "rig.usda").stat().st_size > 0 and (tmp_path / "rig.albedo.png").is_file()
 
 
 @pytest.mark.parametrize("argv, words", [

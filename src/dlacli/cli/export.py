@@ -80,7 +80,7 @@ def export(
     ckpt = None if checkpoint is None else str(checkpoint)
 
     if rig:
-        from dlacli.io.usd_rig import write_rigged_usd
+        from dlacli.stages.rig import write_rigged_usd
 
         with naming(**about_avatar):
             write_rigged_usd(av, output, motion=mot, n_gaussians=gaussians, seed=seed, where=str(avatar), checkpoint=ckpt)
