@@ -48,15 +48,25 @@ def lift(
     if ply is not None and ply.suffix.lower() != ".ply":
         raise DlaInputError(ply, "the Gaussians are a .ply file")
     sheet = output.with_name(output.stem + "_contact.png")
-    check_outputs(files=[output, sheet, ply], inputs=[views, *view_files(views, allow_outside)])
+    novel_dir = views / "novel_views" if views.is_dir() else None  # synth's ground truth, when present
+    if novel_dir is not None and not (novel_dir / "transforms.json").is_file():
+        novel_dir = None
+    novel_files = view_files(novel_dir, allow_outside) if novel_dir is not None else []
+    check_outputs(files=[output, sheet, ply], inputs=[views, *view_files(views, allow_outside), *novel_files])
     n_views = len(read_transforms(views)["file_paths"])
     if n_views > MAX_VIEWS:
         raise DlaInputError(views, f"has {n_views} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
     cfg = LiftConfig(steps=steps, resolution=resolution, gaussians=gaussians, seed=seed)
     view_set = read_views(views, allow_outside=allow_outside)
+    novel = read_views(novel_dir, require_body=False, allow_outside=allow_outside) if novel_dir is not None else None
     body = views / "body.json" if views.is_dir() else views.with_name("body.json")
     with naming(views=views, pose=body, phenotype=body), progress_bar("refining", steps) as update:
-        result = run_lift(view_set, cfg, progress=lambda i, loss: update(i + 1, note=f"loss {loss:.4f}"))
+        result = run_lift(view_set, cfg, progress=lambda i, loss: update(i + 1, note=f"loss {loss:.4f}"), novel=novel)
+    if result.novel_view is not None:
+        from dlacli.bench.metrics import masked_psnr
+
+        score = masked_psnr(*result.novel_view)
+        typer.echo(f"note: {novel_dir}: first novel view, masked PSNR {score:.2f} dB (fifth column of {sheet.name})", err=True)
     with output_group():  # the avatar, its contact sheet and the .ply land together or not at all
         if ply is not None:
             write_ply(result.unstructured, ply)

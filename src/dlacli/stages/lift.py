@@ -6,11 +6,15 @@ a. `unstructured_gaussians`: one Gaussian per (block of) masked pixel, placed al
    depth of the fitted body (slightly in front of it, for clothing) or, where the body is not
    seen (hair, loose clothing), at the front of the silhouettes' visual hull; colour from the pixel.
 b. `unproject_to_uv`: each Gaussian goes to the nearest body texel that faces its camera; texels
-   average what they receive (colour, offset along the tangent frame), and texels no view saw
+   average what they receive (opacity, offset along the tangent frame), and texels no view saw
    take the values of the nearest seen texel in 3D. The result is the Gaussian map F = Z
-   (identity decoder; stages/gaussian_map.py).
-c. `refine`: optimise F through sampling + skinning + splatting against the input views
-   (L1 + mask + D-SSIM), `steps` Adam steps.
+   (identity decoder; stages/gaussian_map.py). `bake_colours` then gives every texel the colour
+   the views show at its own 3D point (projective texturing, the most frontal view dominating).
+c. `refine`: optimise F's geometry (opacity, normal offset, rotation, scale) through sampling +
+   skinning + splatting against the input views (L1 + mask + D-SSIM) at the views' own size, up
+   to 512 px, `steps` Adam steps; colours are held at their baked values while the geometry
+   moves and re-baked from the refined geometry at the end. docs/lift.md "Why colours are baked"
+   says what this buys on novel views and why letting Adam move colours loses it.
 """
 
 from __future__ import annotations
@@ -31,11 +35,12 @@ from dlacli.types import Avatar, Cameras, Gaussians, ViewSet
 MAX_VIEWS = 64  # every view is rendered at every refinement step: memory and time grow with them
 ENCODER = "unproject"
 DECODER = "identity"
-CLOTH_MARGIN = 0.01  # metres in front of the body surface where the body is seen
+CLOTH_MARGIN = 0.003  # metres in front of the body surface where the body is seen (tight clothing)
 HULL_STEPS = 128  # ray-marching samples through the body's bounding sphere
 HULL_BISECT = 6
 MAX_OFFSET = 0.08  # metres: farther Gaussians are not attached to a texel (loose clothing stays)
 VIEW_SHARPNESS = 4.0  # texel colour weight ~ cos(view angle) ** VIEW_SHARPNESS
+VISIBLE_DEPTH = 0.03  # metres: a texel point up to this far behind the body's depth still counts as seen
 
 
 @dataclass
@@ -44,7 +49,7 @@ class LiftConfig:
     grid: int = 128  # unstructured Gaussians: one per pixel of a grid x grid downsampled view
     steps: int = 50  # refinement steps (0: unprojection only); see `dla bench pipeline`
     gaussians: int = gm.DEFAULT_GAUSSIANS  # sampled during refinement
-    render_size: int = 256  # refinement renders views at most this many pixels on the long side
+    render_size: int = 512  # refinement renders views at most this many pixels on the long side
     lr: float = 0.01
     w_mask: float = 1.0
     w_ssim: float = 0.2
@@ -233,11 +238,74 @@ def unproject_to_uv(
     return _fill_outside_charts(fmap, valid).astype(np.float32)
 
 
+def _bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """image [H, W, C] at continuous pixel coordinates (x, y) [M] (pixel centres at +0.5), clamped
+    to the image -> [M, C]."""
+    h, w = image.shape[:2]
+    x = np.clip(x - 0.5, 0.0, w - 1.0)
+    y = np.clip(y - 0.5, 0.0, h - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), max(w - 2, 0))
+    y0 = np.minimum(np.floor(y).astype(np.int64), max(h - 2, 0))
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    return (image[y0, x0] * (1 - fx) * (1 - fy) + image[y0, x1] * fx * (1 - fy)
+            + image[y1, x0] * (1 - fx) * fy + image[y1, x1] * fx * fy)  # fmt: skip
+
+
+def bake_colours(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray) -> np.ndarray:
+    """F [14, R, R] with its colour channels baked from the views: each texel's point on the body
+    in the input pose (T + R dx, its own offset) is projected into every view; a view counts where
+    the point is inside the image and its mask, faces the camera (cos > 0.05) and is not hidden by
+    the body (camera depth at most VISIBLE_DEPTH behind the body's depth at that pixel); the
+    texel takes the bilinear colour of those views weighted by cos ** VIEW_SHARPNESS x mask.
+    Texels no view sees keep their colour. Gathering at the texel's own point keeps colour and
+    geometry aligned to the pixel, where scattering pixel Gaussians to their nearest texel (step b)
+    leaves holes and shifts of up to a texel."""
+    from dlacli.body.model import get_body_model
+    from dlacli.body.uv import FRAME_RESOLUTION, texel_frames, uv_raster
+    from dlacli.render.raster import rasterize
+
+    res = fmap.shape[-1]
+    valid = uv_raster(res).mask
+    t_map, r_map, _ = texel_frames(torch.from_numpy(np.asarray(vertices, dtype=np.float64)), res, FRAME_RESOLUTION)
+    pos, rot = t_map.numpy()[valid], r_map.numpy()[valid]  # [M, 3], [M, 3, 3]
+    points = pos + np.einsum("mij,mj->mi", rot, fmap[gm.OFFSET][:, valid].T.astype(np.float64))
+    normals = rot[:, :, 2]
+    body_depth = rasterize(vertices, get_body_model().faces, views.cameras).depth  # [V, H, W]
+    h, w = views.masks.shape[1:]
+    acc = np.zeros((len(points), 3))
+    wsum = np.zeros(len(points))
+    for v in range(len(views)):
+        w2c = views.cameras.viewmats[v].double().numpy()
+        px, z = _project(points, w2c, views.cameras.Ks[v].double().numpy())
+        to_eye = np.linalg.inv(w2c)[:3, 3] - points
+        cosine = np.einsum("mc,mc->m", to_eye, normals) / (np.linalg.norm(to_eye, axis=1) + 1e-12)
+        rgba = np.concatenate([views.images[v] * views.masks[v][..., None], views.masks[v][..., None]], -1)
+        sampled = _bilinear(rgba, px[:, 0], px[:, 1])  # premultiplied rgb, mask
+        mask = sampled[:, 3]
+        col = np.clip(np.floor(px[:, 0]).astype(np.int64), 0, w - 1)
+        row = np.clip(np.floor(px[:, 1]).astype(np.int64), 0, h - 1)
+        inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h) & (z > 0)
+        seen = inside & (z <= body_depth[v][row, col] + VISIBLE_DEPTH) & (cosine > 0.05) & (mask > 0.5)
+        weight = np.where(seen, np.clip(cosine, 0.05, 1.0) ** VIEW_SHARPNESS * mask, 0.0)
+        acc += weight[:, None] * sampled[:, :3] / np.maximum(mask, 1e-6)[:, None]
+        wsum += weight
+    out = fmap.copy()
+    rgb = out[gm.RGB][:, valid].T.astype(np.float64)  # [M, 3]
+    got = wsum > 0
+    rgb[got] = acc[got] / wsum[got, None]
+    full = np.zeros((3, res, res))
+    full[:, valid] = rgb.T
+    out[gm.RGB] = _fill_outside_charts(full, valid)
+    return out.astype(np.float32)
+
+
 # ----------------------------------------------------------------------------- c. refinement
 
 # Adam steps move F by about lr * scale per channel: opacity logit, rgb, offset (metres),
-# rotation (quaternion), log scale.
-_CHANNEL_STEP = torch.tensor([5.0, 1, 1, 1, 0.1, 0.1, 0.1, 1, 1, 1, 1, 1, 1, 1])
+# rotation (quaternion), log scale. Colours and the tangential offsets are held (0): colours are
+# baked from the views, and a tangential offset would slide a texel off the colour baked for it.
+_CHANNEL_STEP = torch.tensor([5.0, 0, 0, 0, 0, 0, 0.1, 1, 1, 1, 1, 1, 1, 1])
 
 
 def _resized_targets(views: ViewSet, max_size: int):
@@ -272,10 +340,10 @@ def _mean(x: torch.Tensor, rows: int = 1024) -> torch.Tensor:
 
 def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConfig, progress=None,
            samples: gm.Samples | None = None) -> tuple[np.ndarray, list[float]]:  # fmt: skip
-    """Optimise the Gaussian map F [14, R, R] so that its Gaussians, placed on the body in the
-    input pose (vertices [V, 3]), re-render the input views: L1 + w_mask * mask L1 +
-    w_ssim * (1 - SSIM), Adam for cfg.steps steps. `progress(step, loss)` is called per step.
-    Returns the refined map and the loss of every step."""
+    """Optimise the geometry of the Gaussian map F [14, R, R] (the channels `_CHANNEL_STEP` moves)
+    so that its Gaussians, placed on the body in the input pose (vertices [V, 3]), re-render the
+    input views: L1 + w_mask * mask L1 + w_ssim * (1 - SSIM), Adam for cfg.steps steps.
+    `progress(step, loss)` is called per step. Returns the refined map and the loss of every step."""
     from dlacli.nn.losses import ssim_map
     from dlacli.render.splat import render_gaussians
 
@@ -311,6 +379,7 @@ class LiftResult:
     avatar: Avatar
     unstructured: Gaussians  # the pose-space Gaussians of step a (for the .ply)
     contact_sheet: np.ndarray  # [H, W, 3] uint8: inputs (top) vs re-renders of the avatar (bottom)
+    novel_view: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # render, truth, mask of the first novel view
 
 
 def render_views(fmap: np.ndarray, vertices: np.ndarray, cameras: Cameras, samples: gm.Samples):
@@ -324,7 +393,8 @@ def render_views(fmap: np.ndarray, vertices: np.ndarray, cameras: Cameras, sampl
 
 
 def contact_sheet(inputs: np.ndarray, renders: np.ndarray, tile: int = 256) -> np.ndarray:
-    """Inputs [V, H, W, 3] above renders [V, H, W, 3] (floats in [0, 1]) -> uint8 image."""
+    """Inputs [V, H, W, 3] above renders [V, H, W, 3] (floats in [0, 1]) -> uint8 image; tiles
+    are framed by a 1-pixel grey line so that columns stay apart on a black background."""
     from PIL import Image
 
     def row(images):
@@ -334,15 +404,19 @@ def contact_sheet(inputs: np.ndarray, renders: np.ndarray, tile: int = 256) -> n
             pil.thumbnail((tile, tile))
             canvas = Image.new("RGB", (tile, tile))
             canvas.paste(pil, ((tile - pil.width) // 2, (tile - pil.height) // 2))
-            tiles.append(np.asarray(canvas))
+            framed = np.asarray(canvas).copy()
+            framed[[0, -1], :] = framed[:, [0, -1]] = 64
+            tiles.append(framed)
         return np.concatenate(tiles, axis=1)
 
     return np.concatenate([row(inputs), row(renders)], axis=0)
 
 
-def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None) -> LiftResult:
+def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: ViewSet | None = None) -> LiftResult:
     """A view folder (with body.json) -> avatar (Z = the Gaussian map F), the unstructured
-    Gaussians and a contact sheet."""
+    Gaussians and a contact sheet. `novel`: ground-truth views of the same pose that lift does not
+    see (synth's novel_views/); the first one joins the contact sheet as a fifth column and is
+    returned rendered (`LiftResult.novel_view`) for scoring."""
     from dlacli.body.model import get_body_model
     from dlacli.body.uv import UV_LAYOUT
 
@@ -353,16 +427,24 @@ def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None) -> LiftRe
         raise DlaInputError("views", f"has {len(views)} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
     vertices = get_body_model().forward_body(views.body).vertices[0].numpy()
     unstructured, _, eyes = unstructured_gaussians(views, vertices, cfg.grid)
-    fmap = unproject_to_uv(unstructured, eyes, vertices, cfg.resolution)
+    fmap = bake_colours(unproject_to_uv(unstructured, eyes, vertices, cfg.resolution), views, vertices)
     samples = gm.make_samples(cfg.gaussians, cfg.seed)  # the Gaussians refined and shown
     history: list[float] = []
     if cfg.steps > 0:
         fmap, history = refine(fmap, views, vertices, cfg, progress, samples)
+        fmap = bake_colours(fmap, views, vertices)  # colours where the refined geometry puts them
     rgb, mask, cams = _resized_targets(views, 512)
     out = render_views(fmap, vertices, cams, samples)
-    sheet = contact_sheet(rgb.numpy(), out.rgb.numpy())
+    inputs, renders, novel_view = rgb.numpy(), out.rgb.numpy(), None
+    if novel is not None and len(novel):
+        n_rgb, n_mask, n_cams = _resized_targets(novel, 512)
+        first = Cameras(n_cams.viewmats[:1], n_cams.Ks[:1], n_cams.width, n_cams.height)
+        n_out = render_views(fmap, vertices, first, samples).rgb.numpy()
+        novel_view = (n_out[0], n_rgb[0].numpy(), n_mask[0].numpy())
+        inputs, renders = np.concatenate([inputs, n_rgb[:1].numpy()]), np.concatenate([renders, n_out])
+    sheet = contact_sheet(inputs, renders)
     extra = {"lift": {"steps": cfg.steps, "grid": cfg.grid, "gaussians": cfg.gaussians,
                       "final_loss": history[-1] if history else None},
              "samples": {"count": cfg.gaussians, "seed": cfg.seed}}  # what render/animate draw by default  # fmt: skip
     avatar = Avatar(z=fmap, encoder=ENCODER, decoder=DECODER, body=views.body, uv_layout=UV_LAYOUT, extra=extra)
-    return LiftResult(avatar, unstructured, sheet)
+    return LiftResult(avatar, unstructured, sheet, novel_view)
