@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
+from typing import Optional
 
 import typer
 
@@ -49,6 +51,57 @@ def pipeline(
     else:
         typer.echo(markdown_table(result))
         typer.echo(f"animate {result['animate_frames']} frames (pose + USD): {result['animate_s_median']:.1f} s median")
+
+
+@bench_app.command("regions")
+def regions(
+    seed: int = typer.Option(1001, "--seed", min=0, max=2**32 - 1, help="Synthetic subject (use a seed no test uses)."),
+    steps: int = typer.Option(50, "--steps", min=0, max=100_000, help="Lift refinement steps."),
+    res: int = typer.Option(512, "--res", min=32, max=4096, help="Image size of the subject."),
+    output: Optional[Path] = typer.Option(None, "--output", "-o", help="Error picture (.png): ground truth | render | error x4 | regions, an input view above a novel view."),
+) -> None:
+    """Where the error lives: synth -> lift, then masked PSNR per body region (face, hair, hands,
+    arms, torso, legs, feet, off body, silhouette band) on the input views and the novel views."""
+    import tempfile
+
+    import numpy as np
+    from PIL import Image
+
+    from dlacli.bench.regions import error_picture, pixel_regions, region_psnr
+    from dlacli.body.model import get_body_model
+    from dlacli.errors import DlaInputError
+    from dlacli.io.atomic import atomic_path, check_outputs
+    from dlacli.io.views import read_views
+    from dlacli.stages.lift import LiftConfig, lift
+    from dlacli.stages.render import render_avatar
+    from dlacli.stages.synth import synth
+
+    if output is not None and output.suffix.lower() != ".png":
+        raise DlaInputError(output, "the error picture is a .png file")
+    check_outputs(files=[output])
+    rows, pictures = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = synth(seed, Path(tmp) / "subject", res=res, novel_views=4, novel_poses=0)
+        views = read_views(folder)
+        avatar = lift(views, LiftConfig(steps=steps)).avatar
+        verts = get_body_model().forward_body(views.body).vertices[0].numpy()
+        for split, vs in (("input views", views), ("novel views", read_views(folder / "novel_views", require_body=False))):
+            shots = sorted(render_avatar(avatar, vs.cameras, [None] * len(vs)), key=lambda s: s.camera)
+            pred = np.stack([s.rgba[..., :3] for s in shots])
+            gt = vs.images * vs.masks[..., None]
+            labels = pixel_regions(verts, vs.cameras, vs.masks)
+            rows.append((split, region_psnr(pred, gt, labels)))
+            pictures.append(error_picture(gt[0], pred[0], labels[0]))
+    typer.echo("| region | " + " | ".join(f"{split}: masked PSNR / pixels / error share" for split, _ in rows) + " |")
+    typer.echo("|---|" + "---|" * len(rows))
+    from dlacli.bench.regions import REGIONS
+
+    for name in REGIONS:
+        cells = [f"{r[name]['psnr']:.2f} / {r[name]['pixels']:.0%} / {r[name]['error']:.0%}" if name in r else "-" for _, r in rows]
+        typer.echo(f"| {name} | " + " | ".join(cells) + " |")
+    if output is not None:
+        with atomic_path(output) as tmp:
+            Image.fromarray(np.concatenate(pictures, axis=0)).save(tmp)
 
 
 def register(app: typer.Typer) -> None:
