@@ -81,6 +81,20 @@ def test_output_that_names_an_input_is_refused(work, capsys):
     assert snapshot(work) == before
 
 
+def test_view_page_over_an_input_or_a_non_file(work, capsys):
+    """dla view writes AVATAR.html by default: an avatar that is itself named .html is refused."""
+    shutil.copy(work / "av.npz", work / "av.html")
+    os.mkfifo(work / "pipe.html")
+    (work / "dir.html").mkdir()
+    before = snapshot(work)
+    refused(["view", work / "av.html"], capsys, "av.html", "input")
+    refused(["view", work / "av.npz", "-o", work / "av.npz"], capsys, "av.npz", ".html")
+    refused(["view", work / "av.npz", "-o", work / "pipe.html"], capsys, "pipe.html", "FIFO")
+    refused(["view", work / "av.npz", "-o", work / "dir.html"], capsys, "dir.html", "folder")
+    refused(["view", work / "av.npz", "-o", work / "notes.txt" / "v.html"], capsys, "not a folder")
+    assert snapshot(work) == before
+
+
 def test_contact_sheet_over_an_input_image(work, capsys):
     """lift writes NAME_contact.png beside NAME.npz: when that is one of the input images, refuse."""
     meta = json.loads((work / "views" / "transforms.json").read_text())
@@ -166,7 +180,8 @@ def test_npz_zip_bomb(work, capsys):
         at += 4
     (work / "bomb.npz").write_bytes(bytes(data))
     refused(["animate", work / "bomb.npz", "walk", "-o", work / "o.usdc"], capsys, "bomb.npz", "MiB")
-    assert not (work / "o.usdc").exists()
+    refused(["view", work / "bomb.npz", "-o", work / "o.html"], capsys, "bomb.npz", "MiB")
+    assert not (work / "o.usdc").exists() and not (work / "o.html").exists()
 
 
 @pytest.mark.parametrize("argv", [
@@ -177,12 +192,20 @@ def test_npz_zip_bomb(work, capsys):
     ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--fps", "1e9"],
     ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--gaussians", "1000000000"],
     ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--preview-size", "100000"],
+    ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--tolerance", "1e9"],
+    ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--tolerance", "-1"],
+    ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--tolerance", "nan"],
+    ["view", "{av}", "-o", "{w}/v.html", "--gaussians", "1000000000"],
+    ["view", "{av}", "--motion", "walk", "-o", "{w}/v.html", "--fps", "1e9"],
     ["interp", "{av}", "{av}", "-o", "{w}/o", "--steps", "100000000"],
     ["interp", "{av}", "{av}", "-o", "{w}/o.npz", "--t", "nan"],
     ["dream", "{views}/images/view_000.png", "-o", "{w}/v", "--res", "100000"],
     ["synth", "--seed", "1", "-o", "{w}/s", "--res", "100000"],
     ["synth", "--seed", "1", "-o", "{w}/s", "--novel-views", "100000000"],
     ["edit", "swap", "{av}", "{av}", "-r", "face", "-o", "{w}/o.npz", "--feather", "inf"],
+    ["export", "{av}", "-o", "{w}/a.ply", "--gaussians", "1000000000"],
+    ["export", "{av}", "-o", "{w}/a.ply", "--motion", "walk", "--frame", "100000000"],
+    ["export", "{av}", "-o", "{w}/a.ply", "--motion", "walk", "--frame", "0", "--fps", "1e9"],
 ])
 def test_flags_have_upper_bounds(argv, work, capsys):
     before = snapshot(work)

@@ -3,6 +3,7 @@ quaternion oracle, UsdGeom's own extent computation, and pxr.UsdValidation."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 
@@ -122,35 +123,47 @@ def test_quaternion_order_with_a_non_symmetric_rotation(tmp_path):
     np.testing.assert_allclose(np.asarray(xform)[:3, :3].T, rot.as_matrix(), atol=QUATH_RAD)
 
 
-@pytest.mark.parametrize("schema", ["instancer", "both"])
-def test_extent_matches_usdgeom(tmp_path, schema):
+@pytest.mark.parametrize("schema", ["instancer", "points", "particlefield"])
+@pytest.mark.parametrize("tolerance", [0.0, 0.05])
+def test_extent_matches_usdgeom(tmp_path, schema, tolerance):
+    """Every geometry prim's authored extent is what UsdGeom's own extent plug-ins compute at
+    each frame (in the prim's own space; parts included), except the particle field, whose 3-sigma
+    ellipsoid box has no plug-in: there, the box must hold every splat centre."""
     positions, quats, scales, rgb, opacities = make_anim(t=3, n=20, seed=4, varying_scales=True)
     path = tmp_path / "ext.usdc"
-    write_usd(path, positions, quats, scales, rgb, opacities, fps=30, schema=schema)
+    write_usd(path, positions, quats, scales, rgb, opacities, fps=30, schema=schema, tolerance=tolerance)
     stage = open_stage(path)  # keep the stage alive while its prims are used
-    inst = UsdGeom.PointInstancer(stage.GetPrimAtPath("/Avatar/Gaussians"))
-    for t in range(3):
-        ours = np.asarray(inst.GetExtentAttr().Get(t))
-        theirs = np.asarray(inst.ComputeExtentAtTime(t, t))
-        np.testing.assert_allclose(ours, theirs, atol=1e-5)
+    prims = [p for p in stage.Traverse() if p.GetTypeName() in ("PointInstancer", "Points", "ParticleField3DGaussianSplat")]
+    assert prims
+    for prim in prims:
+        for t in range(3):
+            ours = np.asarray(UsdGeom.Boundable(prim).GetExtentAttr().Get(t))
+            if schema == "particlefield":
+                centres = np.asarray(prim.GetAttribute("positions").Get(t))
+                assert np.all(ours[0] <= centres.min(0)) and np.all(centres.max(0) <= ours[1])
+                continue
+            theirs = np.asarray(UsdGeom.Boundable.ComputeExtentFromPlugins(UsdGeom.Boundable(prim), t))
+            np.testing.assert_allclose(ours, theirs, atol=1e-5)
 
 
 def test_scales_time_sampled_only_when_varying(tmp_path):
     positions, quats, scales_tn, rgb, opacities = make_anim(t=3, n=5, varying_scales=True)
     const = np.broadcast_to(scales_tn[0], scales_tn.shape)
     cases = {"const_n.usda": scales_tn[0], "const_tn.usda": const, "varying.usda": scales_tn}
-    for name, scales in cases.items():
-        write_usd(tmp_path / name, positions, quats, scales, rgb, opacities, fps=30, schema="both")
-        stage = open_stage(tmp_path / name)
-        for prim in ("/Avatar/Gaussians", "/Avatar/Splats"):
-            attr = stage.GetPrimAtPath(prim).GetAttribute("scales")
-            if name == "varying.usda":
-                assert attr.GetTimeSamples() == [0.0, 1.0, 2.0]
-                for t in range(3):
-                    np.testing.assert_array_equal(np.asarray(attr.Get(t)), scales_tn[t])
-            else:
-                assert attr.GetNumTimeSamples() == 0
-                np.testing.assert_array_equal(np.asarray(attr.Get()), scales_tn[0])
+    for (name, scales), (schema, prim) in itertools.product(
+        cases.items(), [("instancer", "/Avatar/Gaussians"), ("particlefield", "/Avatar/Splats")]
+    ):
+        out = tmp_path / f"{schema}_{name}"  # a new name: pxr keeps an open layer cached
+        write_usd(out, positions, quats, scales, rgb, opacities, fps=30, schema=schema)
+        stage = open_stage(out)
+        attr = stage.GetPrimAtPath(prim).GetAttribute("scales")
+        if name == "varying.usda":
+            assert attr.GetTimeSamples() == [0.0, 1.0, 2.0]
+            for t in range(3):
+                np.testing.assert_array_equal(np.asarray(attr.Get(t)), scales_tn[t])
+        else:
+            assert attr.GetNumTimeSamples() == 0
+            np.testing.assert_array_equal(np.asarray(attr.Get()), scales_tn[0])
 
 
 def test_start_frame_and_torch_inputs(tmp_path):
@@ -209,12 +222,13 @@ def test_particle_field_dc_from_rgb(tmp_path):
 # --- validation -------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("schema", ["instancer", "particlefield", "both"])
+@pytest.mark.parametrize("schema", ["points", "instancer", "particlefield", "both"])
 @pytest.mark.parametrize("suffix", [".usda", ".usdc"])
-def test_validators_find_no_errors(tmp_path, schema, suffix):
+@pytest.mark.parametrize("tolerance", [0.0, 0.01])
+def test_validators_find_no_errors(tmp_path, schema, suffix, tolerance):
     positions, quats, scales, rgb, opacities = make_anim(t=3, n=8, varying_scales=True)
     path = tmp_path / f"v{suffix}"
-    write_usd(path, positions, quats, scales, rgb, opacities, fps=30, schema=schema)
+    write_usd(path, positions, quats, scales, rgb, opacities, fps=30, schema=schema, tolerance=tolerance)
     assert validate_usd(path) == []
 
 
@@ -232,6 +246,8 @@ def test_validators_do_report_errors(tmp_path):
 
 @pytest.mark.parametrize("schema", ["instancer", "particlefield", "both"])
 def test_read_round_trip(tmp_path, schema):
+    """Exact files (tolerance 0) give back what was written; `both` reads its geometry from the
+    particle field and its colours from the points."""
     positions, quats, scales, rgb, opacities = make_anim(t=3, n=7, seed=9, varying_scales=True)
     path = tmp_path / "rt.usdc"
     write_usd(path, positions, quats, scales, rgb, opacities, fps=25, schema=schema, start_frame=5)
@@ -304,6 +320,9 @@ def test_golden_animation(formats_dir):
     path = formats_dir / "examples" / "animation.usda"
     anim = read_usd(path)
     assert anim.schema == "both" and anim.fps == 30.0 and anim.num_frames == 3
+    stage = open_stage(path)
+    widths = np.asarray(UsdGeom.Points(stage.GetPrimAtPath("/Avatar/Points")).GetWidthsAttr().Get())
+    np.testing.assert_allclose(widths, 2 * np.cbrt(0.01 * 0.02 * 0.03), rtol=1e-6)  # float32 cube root
     for t in range(3):
         np.testing.assert_allclose(anim.positions[t], [[0.1 * i, 0, 0.05 * t] for i in range(3)], atol=1e-7)
         half = math.radians(45.0 * t) / 2
@@ -324,10 +343,11 @@ def test_summarize_golden(formats_dir):
     assert summary["encoding"] == "usda" and summary["up_axis"] == "Z"
     assert summary["meters_per_unit"] == 1.0 and summary["fps"] == 30.0
     assert summary["frames"] == 3 and summary["instances"] == 3 and summary["schema"] == "both"
-    assert "/Avatar/Gaussians (PointInstancer)" in summary["prims"]
+    assert "/Avatar/Points (Points)" in summary["prims"]
     assert "/Avatar/Splats (ParticleField3DGaussianSplat)" in summary["prims"]
-    assert "/Avatar/Gaussians.positions" in summary["time_sampled"]
-    assert "/Avatar/Gaussians.scales" not in summary["time_sampled"]
+    assert "/Avatar/Points.points" in summary["time_sampled"]
+    assert "/Avatar/Points.widths" not in summary["time_sampled"]
+    assert "/Avatar/Splats.scales" not in summary["time_sampled"]
 
 
 def test_summarize_binary(tmp_path):
@@ -359,3 +379,286 @@ def test_particle_field_needs_the_schema(tmp_path, monkeypatch):
         write_usd(tmp_path / "x.usdc", positions, quats, scales, rgb, opacities, 30, schema="both")
     write_usd(tmp_path / "ok.usdc", positions, quats, scales, rgb, opacities, 30)  # instancer still works
     assert [p.name for p in tmp_path.iterdir()] == ["ok.usdc"]
+
+
+# --- the points schema ------------------------------------------------------------------------
+
+
+def test_points_reopened_with_pxr(tmp_path):
+    positions, quats, scales, rgb, opacities = make_anim(t=3, n=7, seed=11, varying_scales=True)
+    path = tmp_path / "p.usda"
+    write_usd(path, positions, quats, scales, rgb, opacities, fps=24, schema="points")
+    stage = open_stage(path)
+    assert not stage.GetPrimAtPath("/Avatar/Gaussians") and not stage.GetPrimAtPath("/Avatar/Splats")
+    points = UsdGeom.Points(stage.GetPrimAtPath("/Avatar/Points"))
+    assert points and points.GetPurposeAttr().Get() == UsdGeom.Tokens.default_
+    assert points.GetPointsAttr().GetTimeSamples() == [0.0, 1.0, 2.0]
+    assert points.GetWidthsInterpolation() == UsdGeom.Tokens.vertex
+    for t in range(3):
+        np.testing.assert_array_equal(np.asarray(points.GetPointsAttr().Get(t)), positions[t])
+        # diameter 2 (s0 s1 s2)^(1/3); float32 log/exp/mean against a float64 cube root
+        want = 2 * np.cbrt(np.prod(scales[t].astype(np.float64), axis=-1))
+        np.testing.assert_allclose(np.asarray(points.GetWidthsAttr().Get(t)), want, rtol=1e-6)
+    color = UsdGeom.PrimvarsAPI(points).GetPrimvar("displayColor")
+    alpha = UsdGeom.PrimvarsAPI(points).GetPrimvar("displayOpacity")
+    assert color.GetInterpolation() == alpha.GetInterpolation() == UsdGeom.Tokens.vertex
+    np.testing.assert_array_equal(np.asarray(color.Get()), rgb)
+    np.testing.assert_array_equal(np.asarray(alpha.Get()), opacities)
+    from pxr import UsdShade
+
+    material, _ = UsdShade.MaterialBindingAPI(points.GetPrim()).ComputeBoundMaterial()
+    assert material.GetPath() == Sdf.Path("/Avatar/Looks/GaussianColor")
+    shader = material.ComputeSurfaceSource()[0]
+    assert shader.GetIdAttr().Get() == "UsdPreviewSurface"
+    source = shader.GetInput("diffuseColor").GetConnectedSources()[0][0].source
+    assert UsdShade.Shader(source.GetPrim()).GetInput("varname").Get() == "displayColor"
+
+
+def test_read_points_schema(tmp_path):
+    """Points have no orientations: identity rotations and isotropic scales width / 2."""
+    positions, quats, scales, rgb, opacities = make_anim(t=3, n=9, seed=12, varying_scales=True)
+    path = tmp_path / "p.usdc"
+    write_usd(path, positions, quats, scales, rgb, opacities, fps=30, schema="points", start_frame=2)
+    anim = read_usd(path)
+    assert anim.schema == "points" and anim.num_frames == 3
+    np.testing.assert_array_equal(anim.time_codes, [2.0, 3.0, 4.0])
+    np.testing.assert_array_equal(anim.positions, positions)
+    np.testing.assert_array_equal(anim.quats, np.broadcast_to([1, 0, 0, 0], (3, 9, 4)))
+    radius = np.cbrt(np.prod(scales.astype(np.float64), axis=-1))  # [T, N]
+    np.testing.assert_allclose(anim.scales, np.repeat(radius[..., None], 3, -1), rtol=1e-6)
+    np.testing.assert_array_equal(anim.rgb, rgb)
+    np.testing.assert_array_equal(anim.opacities, opacities)
+
+
+def test_both_is_points_and_splats_with_no_purpose(tmp_path):
+    """`both` must show something in a default Blender import (which skips "proxy" prims)."""
+    positions, quats, scales, rgb, opacities = make_anim(t=2, n=4)
+    path = tmp_path / "b.usda"
+    write_usd(path, positions, quats, scales, rgb, opacities, fps=30, schema="both")
+    stage = open_stage(path)
+    assert stage.GetPrimAtPath("/Avatar/Points").GetTypeName() == "Points"
+    assert stage.GetPrimAtPath("/Avatar/Splats").GetTypeName() == "ParticleField3DGaussianSplat"
+    assert not stage.GetPrimAtPath("/Avatar/Gaussians")
+    for prim in stage.Traverse():
+        assert not prim.GetAttribute("purpose").HasAuthoredValue(), prim.GetPath()
+
+
+def _legacy_both(tmp_path, positions, quats, scales, rgb, opacities):
+    """A file as dla wrote `--schema both` before the points schema: the instancer (purpose
+    proxy) and the splats (purpose render, proxyPrim -> the instancer) in one layer."""
+    write_usd(tmp_path / "inst.usda", positions, quats, scales, rgb, opacities, fps=30, schema="instancer")
+    write_usd(tmp_path / "pf.usda", positions, quats, scales, rgb, opacities, fps=30, schema="particlefield")
+    layer, splats = Sdf.Layer.FindOrOpen(str(tmp_path / "inst.usda")), Sdf.Layer.FindOrOpen(str(tmp_path / "pf.usda"))
+    assert Sdf.CopySpec(splats, "/Avatar/Splats", layer, "/Avatar/Splats")
+    stage = Usd.Stage.Open(layer)
+    UsdGeom.Imageable(stage.GetPrimAtPath("/Avatar/Gaussians")).CreatePurposeAttr(UsdGeom.Tokens.proxy)
+    UsdGeom.Imageable(stage.GetPrimAtPath("/Avatar/Splats")).CreatePurposeAttr(UsdGeom.Tokens.render)
+    stage.GetPrimAtPath("/Avatar/Splats").CreateRelationship("proxyPrim").SetTargets([Sdf.Path("/Avatar/Gaussians")])
+    out = tmp_path / "legacy.usdc"
+    layer.Export(str(out))
+    return out
+
+
+def test_files_of_the_previous_version_are_read(tmp_path):
+    positions, quats, scales, rgb, opacities = make_anim(t=3, n=5, seed=13)
+    anim = read_usd(_legacy_both(tmp_path, positions, quats, scales, rgb, opacities))
+    assert anim.schema == "instancer+particlefield" and anim.num_frames == 3
+    np.testing.assert_array_equal(anim.positions, positions)
+    assert same_rotation(anim.quats.astype(np.float64), quats.astype(np.float64), atol=QUATF_RAD)
+    np.testing.assert_array_equal(anim.scales, np.broadcast_to(scales, (3, 5, 3)))
+    np.testing.assert_array_equal(anim.rgb, rgb)
+    np.testing.assert_array_equal(anim.opacities, opacities)
+
+
+# --- compact time samples ---------------------------------------------------------------------
+
+
+def test_keep_frames_keeps_every_corner_of_a_piecewise_linear_path():
+    """Linear interpolation reproduces a piecewise-linear path exactly between its corners and
+    nowhere across one, so the kept frames are the corners (and both ends), and nothing else."""
+    from dlacli.io.usd_compact import keep_frames, lerp_check
+
+    corners = [0, 5, 6, 19, 33, 34, 47]
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=(len(corners), 4, 3))
+    path = np.stack([np.array([np.interp(t, corners, values[:, i, d]) for i in range(4) for d in range(3)]).reshape(4, 3)
+                     for t in range(48)]).astype(np.float32)  # fmt: skip
+    kept = keep_frames(lerp_check(path, path, 1e-5), 48)  # 1e-5 m: far above float32 rounding of O(1) values
+    assert kept.tolist() == corners
+
+
+def test_rigid_motion_recovers_a_known_motion():
+    from dlacli.io.usd_compact import rigid_motion
+
+    rng = np.random.default_rng(5)
+    shape = rng.normal(size=(50, 3))
+    rots = Rotation.random(6, random_state=6)
+    shift = rng.normal(size=(6, 3))
+    rots = Rotation.concatenate([Rotation.identity(), rots])
+    shift = np.vstack([np.zeros(3), shift])
+    frames = np.stack([rots[t].apply(shape) + shift[t] for t in range(7)])  # [T, n, 3]
+    r, c = rigid_motion(frames)
+    np.testing.assert_allclose(r, rots.as_matrix() @ rots[0].as_matrix().T, atol=1e-9)
+    np.testing.assert_allclose(c, frames.mean(axis=1), atol=1e-12)
+
+
+def analytic_motion(t=40, per_group=2048, jump=23):
+    """Three groups of Gaussians [T, 3 * per_group]: (a) a ring spinning about +Z at a smoothly
+    varying rate (rigid), its Gaussians turning with it; (b) a sheet swaying on sine waves of
+    per-Gaussian phase, its scales growing smoothly, that stretches by 1.3 at frame `jump`
+    (abrupt and not rigid: interpolation across it would be 2 cm or more off); (c) still."""
+    rng = np.random.default_rng(8)
+    tt = np.arange(t, dtype=np.float64)
+    angle = 0.6 * np.sin(tt / 12)  # [T]
+    ring0 = np.stack([np.cos(a := rng.uniform(0, 2 * np.pi, per_group)), np.sin(a), rng.uniform(-0.1, 0.1, per_group)], -1)
+    ring = np.stack([Rotation.from_rotvec([0, 0, x]).apply(ring0) for x in angle]) + [2, 0, 0]
+    sheet0 = np.stack([rng.uniform(-0.5, 0.5, per_group), np.zeros(per_group), rng.uniform(0, 1, per_group)], -1)
+    phase = rng.uniform(0, 2 * np.pi, per_group)
+    sway = 0.05 * np.sin(tt[:, None] / 5 + phase)  # [T, n]
+    sheet = sheet0 + np.stack([np.zeros_like(sway), sway, np.zeros_like(sway)], -1)
+    sheet = np.where(tt[:, None, None] >= jump, sheet * 1.3, sheet) + [-2, 0, 0]
+    still = np.broadcast_to(rng.normal(size=(per_group, 3)) + [0, 3, 0], (t, per_group, 3))
+    positions = np.concatenate([ring, sheet, still], axis=1).astype(np.float32)
+    n = 3 * per_group
+    base = Rotation.random(n, random_state=9)
+    quats = np.empty((t, n, 4), np.float32)
+    for k in range(t):
+        spin = Rotation.from_rotvec(np.concatenate([np.tile([0, 0, angle[k]], (per_group, 1)),
+                                                    np.tile([0.01 * k, 0, 0], (2 * per_group, 1))]))  # fmt: skip
+        quats[k] = (spin * base).as_quat()[:, [3, 0, 1, 2]]
+    scales = np.broadcast_to(rng.uniform(0.002, 0.01, size=(n, 3)), (t, n, 3)).copy()
+    scales[:, per_group : 2 * per_group] *= (1 + 0.3 * np.sin(tt / 20))[:, None, None]
+    return positions, quats, scales.astype(np.float32), jump
+
+
+def composed(stage, kind: str, n: int, time) -> dict[str, np.ndarray]:
+    """World values of every Gaussian at `time`, straight from pxr: each part's values (pxr
+    interpolates), times its prim's local-to-world matrix, put back by `dla:indices`."""
+    path = {"instancer": "/Avatar/Gaussians", "points": "/Avatar/Points", "particlefield": "/Avatar/Splats"}[kind]
+    group = stage.GetPrimAtPath(path)
+    parts = list(group.GetChildren()) if group.GetTypeName() == "Xform" else [group]
+    parts = [p for p in parts if p.GetTypeName() != "Scope"]
+    out = {"positions": np.zeros((n, 3)), "quats": np.zeros((n, 4)), "sizes": np.zeros((n, 3 if kind != "points" else 1))}
+    for prim in parts:
+        idx = np.asarray(prim.GetAttribute("dla:indices").Get()) if prim.GetAttribute("dla:indices") else np.arange(n)
+        m = np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(time))  # row vectors: p M
+        local = np.asarray(prim.GetAttribute("points" if kind == "points" else "positions").Get(time), np.float64)
+        out["positions"][idx] = local @ m[:3, :3] + m[3, :3]
+        if kind == "points":
+            out["sizes"][idx] = np.asarray(prim.GetAttribute("widths").Get(time))[:, None]
+            continue
+        q = np.asarray(prim.GetAttribute("orientations").Get(time), np.float64)  # (x, y, z, w)
+        world = Rotation.from_matrix(m[:3, :3].T) * Rotation.from_quat(q)
+        out["quats"][idx] = world.as_quat()[:, [3, 0, 1, 2]]
+        out["sizes"][idx] = np.asarray(prim.GetAttribute("scales").Get(time))
+    return out
+
+
+@pytest.mark.parametrize("kind", ["instancer", "points", "particlefield"])
+def test_compact_samples_stay_within_the_tolerance(tmp_path, kind):
+    """At every time code, what pxr returns from the compact file (interpolated where samples
+    were left out) is within the tolerance of the analytic motion; the abrupt stretch is kept;
+    and the smooth and still groups really are stored with fewer samples than frames."""
+    from dlacli.io.usd_compact import SIZE_REL
+
+    positions, quats, scales, jump = analytic_motion()
+    t, n = positions.shape[:2]
+    rgb, opacities = np.full((n, 3), 0.5, np.float32), np.ones(n, np.float32)
+    tol = 0.002
+    path = tmp_path / "c.usdc"
+    write_usd(path, positions, quats, scales, rgb, opacities, fps=30, schema=kind, tolerance=tol)
+    stage = open_stage(path)
+    assert stage.GetInterpolationType() == Usd.InterpolationTypeLinear  # what the compaction assumes
+    widths = 2 * np.cbrt(np.prod(scales.astype(np.float64), axis=-1))[..., None]  # [T, N, 1]
+    sigma_max = scales.max(axis=(0, 2)).astype(np.float64)  # [N]
+    for k in range(t):
+        got = composed(stage, kind, n, Usd.TimeCode(k))
+        # positions: tol, plus float32 rounding of coordinates <= 4 m through ~8 operations
+        assert np.linalg.norm(got["positions"] - positions[k], axis=-1).max() <= tol + 8 * 4 * 1.2e-7, k
+        want = widths[k] if kind == "points" else scales[k]
+        # sizes: SIZE_REL relative, plus float32 rounding
+        assert np.all(np.abs(got["sizes"] - want) <= (SIZE_REL + 1e-6) * want), k
+        if kind != "points":
+            # the 1-sigma ellipsoid's surface moves <= tol; plus half-precision rounding of the
+            # stored samples and of pxr's slerp result (instancer), float32 (particle field)
+            slack = 2 * QUATH_RAD if kind == "instancer" else 1e-5
+            angle = rotation_angle(got["quats"], quats[k].astype(np.float64))
+            assert np.all(angle <= tol / sigma_max + slack), k
+    group = stage.GetPrimAtPath({"instancer": "/Avatar/Gaussians", "points": "/Avatar/Points", "particlefield": "/Avatar/Splats"}[kind])
+    parts = list(group.GetChildren()) if group.GetTypeName() == "Xform" else [group]
+    samples = [p.GetAttribute("points" if kind == "points" else "positions").GetTimeSamples() for p in parts]
+    for prim, times in zip(parts, samples):
+        idx = np.asarray(prim.GetAttribute("dla:indices").Get()) if prim.GetAttribute("dla:indices") else np.arange(n)
+        if np.any((idx >= 2048) & (idx < 4096)):  # holds sheet Gaussians: the stretch is kept
+            assert {jump - 1.0, jump}.issubset(times), (prim.GetPath(), times)
+    if kind != "particlefield":  # parts: the still and the rigid ring need no per-frame samples
+        assert len(parts) >= 3
+        assert sum(len(s) for s in samples) < 0.6 * t * len(parts), samples
+    else:  # one world-space prim: the sway and the spin need (nearly) every frame
+        assert len(parts) == 1
+
+
+def test_compact_keeps_per_frame_colours(tmp_path):
+    positions, quats, scales, _, opacities = make_anim(t=4, n=20, seed=14)
+    rgb = np.random.default_rng(15).uniform(size=(4, 20, 3)).astype(np.float32)
+    path = tmp_path / "c.usda"
+    write_usd(path, positions, quats, scales, rgb, opacities, fps=30, schema="points", tolerance=0.001)
+    anim = read_usd(path)
+    np.testing.assert_array_equal(anim.rgb, rgb)
+    np.testing.assert_array_equal(anim.opacities, opacities)
+    # random positions cannot be interpolated within 1 mm: every frame is kept, values exact
+    # up to float32 rounding of the part's rigid transform (coordinates ~ 3, a few operations)
+    np.testing.assert_allclose(anim.positions, positions, atol=8 * 3 * 1.2e-7)
+
+
+@pytest.mark.parametrize("tolerance", [-0.001, float("nan"), 2.0])
+def test_bad_tolerance(tmp_path, tolerance):
+    positions, quats, scales, rgb, opacities = make_anim(t=2, n=3)
+    with pytest.raises(DlaInputError, match="tolerance"):
+        write_usd(tmp_path / "a.usdc", positions, quats, scales, rgb, opacities, 30, tolerance=tolerance)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_rigid_reassignment_scores_like_the_brute_force_sum():
+    """The expanded, matrix-product form of the rigid fit cost picks the same part as summing
+    |R_f^T (p_f - c_f) - (p_0 - c_0)|^2 directly (float64 oracle), and split_parts separates
+    limbs that swing alike in space but out of phase."""
+    from dlacli.io.usd_compact import _best_rigid_part, _part_motions, split_parts
+
+    rng = np.random.default_rng(1)
+    frames = rng.normal(size=(5, 300, 3)).astype(np.float32)
+    motions = _part_motions(frames, rng.integers(0, 4, 300), 4)
+    costs = []
+    for r, c, c0 in motions:
+        local = np.matmul(frames.astype(np.float64) - c[:, None], r.astype(np.float64))
+        costs.append(((local - (frames[0] - c0)) ** 2).sum(axis=(0, 2)))
+    np.testing.assert_array_equal(_best_rigid_part(frames, motions), np.argmin(np.stack(costs, 1), 1))
+
+    t, n = 24, 4096  # two overlapping blobs, each swinging rigidly about +X, a quarter turn apart
+    limb = rng.integers(0, 2, n)
+    base = rng.normal(0, 0.2, (n, 3))
+    angle = 0.5 * np.sin(np.arange(t)[:, None] / 4 + np.pi / 2 * limb)  # [T, N]
+    c, s = np.cos(angle), np.sin(angle)
+    positions = np.stack([np.broadcast_to(base[:, 0], c.shape), c * base[:, 1] - s * base[:, 2], s * base[:, 1] + c * base[:, 2]], -1)
+    labels = split_parts(positions.astype(np.float32), 2)
+    assert abs(np.corrcoef(labels, limb)[0, 1]) == pytest.approx(1.0)
+
+
+def test_parts_with_bad_indices_are_one_line_errors(tmp_path):
+    positions, quats, scales, rgb, opacities = make_anim(t=3, n=4200, seed=16)  # 2 parts
+    path = tmp_path / "c.usda"
+    write_usd(path, positions, quats, scales, rgb, opacities, fps=30, schema="points", tolerance=0.001)
+    stage = open_stage(path)
+    parts = stage.GetPrimAtPath("/Avatar/Points").GetChildren()
+    assert len(parts) == 2
+    attr = parts[0].GetAttribute("dla:indices")
+    bad = np.asarray(attr.Get()).copy()
+    bad[0] = bad[1]
+    attr.Set(Vt.IntArray.FromNumpy(bad))
+    stage.GetRootLayer().Export(str(tmp_path / "dup.usda"))
+    with pytest.raises(DlaInputError, match="permutation"):
+        read_usd(tmp_path / "dup.usda")
+    parts[0].RemoveProperty("dla:indices")
+    stage.GetRootLayer().Export(str(tmp_path / "none.usda"))
+    with pytest.raises(DlaInputError, match="dla:indices"):
+        read_usd(tmp_path / "none.usda")

@@ -19,7 +19,8 @@ def animate(
     motion: str = typer.Argument(..., metavar="MOTION", help="Native motion.npz, BVH, ASF/AMC (.amc with its .asf beside it, or CLIP.amc:SKELETON.asf), AMASS .npz, or a built-in name: idle, walk, turnaround, wave."),
     output: Path = typer.Option(..., "--output", "-o", help="USD file: .usdc (binary, default), .usda (text) or .usd."),
     preview: Optional[Path] = typer.Option(None, "--preview", help="Also write a preview .mp4 splatted from a camera that follows the body."),
-    schema: str = typer.Option("instancer", "--schema", help="instancer (UsdGeom.PointInstancer), particlefield (UsdVol.ParticleField3DGaussianSplat) or both."),
+    schema: str = typer.Option("points", "--schema", help="points (UsdGeom.Points: coloured in Blender), instancer (UsdGeom.PointInstancer: oriented, anisotropic), particlefield (UsdVol.ParticleField3DGaussianSplat, for splat renderers) or both (points + particlefield)."),
+    tolerance: float = typer.Option(1.0, "--tolerance", min=0.0, max=100.0, callback=finite, metavar="MM", help="Compact the time samples: leave out what USD's interpolation reproduces within this many millimetres (orientations and sizes: formats/usd.md); 0 writes every frame exactly."),
     gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=4_194_304, help="Gaussians per frame, half sampled uniformly in UV, half on the surface (default: the count the avatar was lifted with, else 131,072)."),
     checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="The learned decoder's checkpoint folder, when it is not in the checkpoints cache (~/.cache/dla/checkpoints) under the hash the avatar records."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, max=2**32 - 1, help="Seed of the sample points (default: the avatar's own)."),
@@ -63,7 +64,7 @@ def animate(
                         update(t + 1)
                         yield frame
                 write_video(frames(), preview, anim.fps)
-        write_animation(anim, output, schema)
+        write_animation(anim, output, schema, tolerance / 1000.0)
     typer.echo(str(output))
 
 

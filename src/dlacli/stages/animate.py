@@ -138,9 +138,16 @@ def animation_preview_frames(anim: Animation, size: int = 512) -> Iterator[np.nd
         yield torch.cat([out.rgb[0], out.alpha[0][..., None]], dim=-1).numpy()
 
 
-def write_animation(anim: Animation, path: str | os.PathLike, schema: str = "instancer") -> None:
-    """The USD contract (formats/usd.md); scales are time-sampled only where they change."""
+def write_animation(
+    anim: Animation, path: str | os.PathLike, schema: str = "instancer", tolerance: float = 0.0
+) -> None:
+    """The USD contract (formats/usd.md). `tolerance` (metres) > 0 compacts the time samples:
+    rigid parts, and samples USD's interpolation reproduces within it left out; 0 writes every
+    frame exactly (scales only where they change)."""
     from dlacli.io.usd import write_usd
 
     sh = rgb_to_sh0(torch.from_numpy(anim.rgb)).numpy()[:, None, :] if anim.rgb.ndim == 2 else None
-    write_usd(path, anim.positions, anim.quats, anim.scales, anim.rgb, anim.opacities, anim.fps, sh=sh, schema=schema)
+    write_usd(
+        path, anim.positions, anim.quats, anim.scales, anim.rgb, anim.opacities, anim.fps,
+        sh=sh, schema=schema, tolerance=tolerance,
+    )  # fmt: skip
