@@ -327,3 +327,21 @@ def test_spz_version_2_rotations_decode():
     ok = np.linalg.norm(want[:, 1:], axis=1) < 0.99  # where |xyz| rounds past 1 the reader normalises
     assert np.abs(ours[ok, 1:] - want[ok, 1:]).max() <= 0.5 / 127.5 + 1e-7
     assert np.allclose(np.linalg.norm(ours, axis=1), 1)
+
+
+@pytest.mark.parametrize("suffix", [".spz", ".splat", ".ply"])
+def test_info_summarises_splat_files(tmp_path, suffix):
+    """`dla info` on each splat file: its kind, the count, SH degree and a bounding box that holds
+    the written positions within the format's position step (SPZ: 2^-12 m; the others exact)."""
+    from dlacli.io.inspect import summarize
+
+    g = _gaussians(degree=1 if suffix != ".splat" else 0)
+    path = tmp_path / f"g{suffix}"
+    {".spz": write_spz, ".splat": write_splat, ".ply": write_ply}[suffix](g, path)
+    info = summarize(path)
+    means = g.means.double().numpy()
+    assert info["kind"] == f"gaussians{suffix}" and info["count"] == len(means)
+    assert info["sh_degree"] == (1 if suffix != ".splat" else 0)
+    step = 2.0**-12 if suffix == ".spz" else 1e-6
+    assert np.allclose(info["bbox_min"], means.min(axis=0), atol=step) and np.allclose(info["bbox_max"], means.max(axis=0), atol=step)
+    assert 0.0 < info["opacity_mean"] <= 1.0 and info["scale_median"] > 0

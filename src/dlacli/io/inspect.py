@@ -25,6 +25,14 @@ def _summarizer(path: Path) -> Callable[[Path], dict[str, Any]]:
         from dlacli.io.ply import summarize_ply
 
         return summarize_ply
+    if suffix == ".spz":
+        from dlacli.io.spz import summarize_spz
+
+        return summarize_spz
+    if suffix == ".splat":
+        from dlacli.io.splat import summarize_splat
+
+        return summarize_splat
     if suffix in (".usd", ".usda", ".usdc"):
         from dlacli.io.usd import summarize_usd
 
@@ -59,7 +67,7 @@ def _summarizer(path: Path) -> Callable[[Path], dict[str, Any]]:
     raise DlaInputError(
         path,
         "unrecognised artifact (expected a view folder, body .json, motion or avatar .npz, "
-        "Gaussians .ply, .usd/.usda/.usdc, or a .bvh, .asf, .amc or AMASS .npz motion)",
+        "Gaussians .ply/.spz/.splat, .usd/.usda/.usdc, or a .bvh, .asf, .amc or AMASS .npz motion)",
     )
 
 

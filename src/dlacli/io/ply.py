@@ -251,20 +251,28 @@ def summarize_ply(path: str | os.PathLike) -> dict[str, Any]:
     """JSON-able summary of a Gaussians .ply (used by `dla info`)."""
     path = Path(path)
     ply, (means, _, scales, opacities, sh), extras = _read(path)
-    n = means.shape[0]
-    means = means.astype(np.float64)
-    scales = np.sort(scales.astype(np.float64), axis=None)
     return {
         "kind": "gaussians.ply",
         "format": "3dgs-ply (INRIA)",
-        "count": n,
-        "sh_degree": sh_degree_for_coeffs(sh.shape[1]),
-        "bbox_min": means.min(axis=0).tolist() if n else None,
-        "bbox_max": means.max(axis=0).tolist() if n else None,
-        "opacity_mean": float(opacities.astype(np.float64).mean()) if n else None,
-        "scale_median": float(scales[(scales.size - 1) // 2]) if n else None,  # the lower median
+        **gaussian_stats(means, scales, opacities, sh_degree_for_coeffs(sh.shape[1])),
         "encoding": _encoding(ply),
         "extra_properties": extras,
+    }
+
+
+def gaussian_stats(means: np.ndarray, scales: np.ndarray, opacities: np.ndarray, sh_degree: int) -> dict[str, Any]:
+    """The numbers `dla info` shows for any splat file: count, SH degree, bounding box, mean
+    opacity and the (lower) median of all scales."""
+    n = means.shape[0]
+    means = np.asarray(means, np.float64)
+    scales = np.sort(np.asarray(scales, np.float64), axis=None)
+    return {
+        "count": n,
+        "sh_degree": sh_degree,
+        "bbox_min": means.min(axis=0).tolist() if n else None,
+        "bbox_max": means.max(axis=0).tolist() if n else None,
+        "opacity_mean": float(np.asarray(opacities, np.float64).mean()) if n else None,
+        "scale_median": float(scales[(scales.size - 1) // 2]) if n else None,  # the lower median
     }
 
 

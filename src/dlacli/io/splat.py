@@ -121,3 +121,13 @@ def read_splat(path: str | os.PathLike) -> Gaussians:
     a = decode_splat(read_bytes(path), path)
     t = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in a.items()}
     return Gaussians.from_rgb(t["means"], t["quats"], t["scales"], t["opacities"], t["rgb"])
+
+
+def summarize_splat(path: str | os.PathLike) -> dict:
+    """JSON-able summary of a .splat (used by `dla info`)."""
+    from dlacli.io.files import read_bytes
+    from dlacli.io.ply import gaussian_stats
+
+    a = decode_splat(read_bytes(path), path)
+    return {"kind": "gaussians.splat", "format": "splat (antimatter15, 32 bytes a splat)",
+            **gaussian_stats(a["means"], a["scales"], a["opacities"], 0)}  # fmt: skip

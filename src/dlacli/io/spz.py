@@ -186,3 +186,13 @@ def read_spz(path: str | os.PathLike) -> Gaussians:
     a = decode_spz(read_bytes(path), path)
     t = [torch.from_numpy(np.ascontiguousarray(a[k], dtype=np.float32)) for k in ("means", "quats", "scales", "opacities", "sh")]
     return Gaussians(*t)
+
+
+def summarize_spz(path: str | os.PathLike) -> dict:
+    """JSON-able summary of an .spz (used by `dla info`), values in the PLY's frame."""
+    from dlacli.io.files import read_bytes
+    from dlacli.io.ply import gaussian_stats
+
+    a = decode_spz(read_bytes(path), path)
+    return {"kind": "gaussians.spz", "format": f"spz v{a['version']} (Niantic)",
+            **gaussian_stats(a["means"], a["scales"], a["opacities"], int(a["degree"]))}  # fmt: skip
