@@ -7,7 +7,9 @@
 set -euo pipefail
 if ! command -v chromium >/dev/null; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
-    apt-get install -y -q chromium >/dev/null
+    apt-get install -y -q chromium >/dev/null 2>&1 \
+      || { apt-get update -q >/dev/null 2>&1 && apt-get install -y -q chromium >/dev/null 2>&1; } \
+      || echo "test-tools: apt-get could not install chromium; the browser tests will skip" >&2
   else
     echo "test-tools: no chromium (Debian: sudo apt-get install chromium); the browser tests will skip" >&2
   fi
