@@ -92,3 +92,17 @@ def markdown_table(result: dict) -> str:
         npose = " / ".join(f"{s[f'novel_poses_{k}_mean']:.{2 if k.startswith('psnr') else 3}f}" for k in ("psnr", "psnr_masked", "ssim", "iou"))
         lines.append(f"| {steps} | {s['lift_s_median']:.1f} | {nv} | {npose} |")
     return "\n".join(lines)
+
+
+def result_rows(result: dict) -> list[dict]:
+    """The run as `dla.bench/1` rows (dlacli.bench.results): one per subject, steps setting and
+    split; method "unproject" (0 steps) or "unproject+refine"."""
+    from dlacli.bench.results import make_row
+
+    rows = []
+    for r in result["rows"]:
+        method = "unproject" if r["steps"] == 0 else "unproject+refine"
+        for split in ("novel_views", "novel_poses"):
+            rows.append(make_row(method, {"steps": r["steps"], "res": result["res"]}, split, r["lift_s"], None,
+                                 r[split], subject=r["seed"]))  # fmt: skip
+    return rows

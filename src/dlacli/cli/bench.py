@@ -37,15 +37,24 @@ def pipeline(
     steps: str = typer.Option("0,50,150", "--steps", help="Refinement steps to compare."),
     res: int = typer.Option(512, "--res", min=32, max=4096, help="Image size of the subjects."),
     as_json: bool = typer.Option(False, "--json", help="Print the full result as one JSON object."),
+    jsonl: Optional[Path] = typer.Option(None, "--jsonl", help="Also append the runs as dla.bench/1 JSON lines to this file (`dla bench report` reads it)."),
 ) -> None:
     """synth -> lift -> render: PSNR (whole image and inside the mask), SSIM and alpha IoU on 12
     novel views and 8 novel poses per subject, lift time per steps setting, animate time."""
     import sys
 
-    from dlacli.bench.pipeline import markdown_table, run
+    from dlacli.bench.pipeline import markdown_table, result_rows, run
+    from dlacli.errors import DlaInputError
+
+    if jsonl is not None and (jsonl.suffix.lower() != ".jsonl" or jsonl.is_dir()):
+        raise DlaInputError(jsonl, "the results file is a .jsonl file")
 
     result = run(_ints(seeds, "--seeds", 2**32 - 1), _ints(steps, "--steps", 100_000), res=res,
                  log=lambda line: print(line, file=sys.stderr))  # fmt: skip
+    if jsonl is not None:
+        from dlacli.bench.results import append_rows
+
+        append_rows(jsonl, result_rows(result))
     if as_json:
         typer.echo(json.dumps(result))
     else:
@@ -102,6 +111,31 @@ def regions(
     if output is not None:
         with atomic_path(output) as tmp:
             Image.fromarray(np.concatenate(pictures, axis=0)).save(tmp)
+
+
+@bench_app.command("report")
+def report(
+    results: Path = typer.Argument(..., metavar="RESULTS", help="dla.bench/1 JSON lines (`dla bench pipeline --jsonl`)."),
+    output: Path = typer.Option(Path("docs/benchmarks.md"), "--output", "-o", help="The markdown page; its chart is written beside it as <name>.png."),
+) -> None:
+    """Regenerate the benchmark page (tables per split, the Pareto frontier, the time-vs-accuracy
+    chart) from result rows, so the page never drifts from the numbers."""
+    from dlacli.bench.results import draw_chart, read_rows, report_markdown
+    from dlacli.errors import DlaInputError
+    from dlacli.io.atomic import atomic_path, check_outputs, output_group
+
+    if output.suffix.lower() != ".md":
+        raise DlaInputError(output, "the page is a .md file")
+    chart = output.with_suffix(".png")
+    check_outputs(files=[output, chart], inputs=[results])
+    rows = read_rows(results)
+    if not rows:
+        raise DlaInputError(results, "holds no result rows")
+    with output_group():
+        draw_chart(rows, chart)
+        with atomic_path(output) as tmp:
+            tmp.write_text(report_markdown(rows, chart.name) + "\n", encoding="utf-8")
+    typer.echo(str(output))
 
 
 def register(app: typer.Typer) -> None:
