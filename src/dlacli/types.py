@@ -42,6 +42,13 @@ def sh_degree_for_coeffs(k: int) -> int:
     raise ValueError(f"{k} SH coefficients per channel is not (d+1)^2 for a degree 0..3")
 
 
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] -> linear (IEC 61966-2-1 transfer function); dla's colours
+    are sRGB-encoded, glTF's COLOR_0 and USD's displayColor are linear. Clipped to [0, 1] first."""
+    c = np.clip(np.asarray(c, np.float64), 0.0, 1.0)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
 def rgb_to_sh0(rgb: torch.Tensor) -> torch.Tensor:
     """[..., 3] rgb in [0, 1] -> [..., 3] DC SH coefficient."""
     return (rgb - 0.5) / SH_C0

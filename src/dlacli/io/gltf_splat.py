@@ -25,7 +25,7 @@ import numpy as np
 from dlacli.errors import DlaInputError
 from dlacli.io.atomic import atomic_path
 from dlacli.io.splat import checked_arrays, to_u8
-from dlacli.types import SH_C0, Gaussians
+from dlacli.types import SH_C0, Gaussians, sh_degree_for_coeffs, srgb_to_linear
 
 EXTENSION = "KHR_gaussian_splatting"
 FLOAT, UNSIGNED_BYTE = 5126, 5121
@@ -34,11 +34,6 @@ POINTS = 0
 GLB_MAGIC, GLB_VERSION = 0x46546C67, 2  # "glTF"
 CHUNK_JSON, CHUNK_BIN = 0x4E4F534A, 0x004E4942
 MAX_BYTES = (1 << 32) - 1  # a GLB's length field is a uint32
-
-
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] -> linear (IEC 61966-2-1 transfer function)."""
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
 def sh_attribute_names(degree: int) -> list[str]:
@@ -63,7 +58,7 @@ def encode_glb(gaussians: Gaussians, generator: str = "dla") -> bytes:
         (f"{EXTENSION}:SCALE", scales.astype("<f4"), "VEC3", FLOAT, False),
         (f"{EXTENSION}:OPACITY", opacities.astype("<f4"), "SCALAR", FLOAT, False),
     ]
-    degree = {1: 0, 4: 1, 9: 2, 16: 3}[sh.shape[1]]
+    degree = sh_degree_for_coeffs(sh.shape[1])
     for k, name in enumerate(sh_attribute_names(degree)):
         columns.append((name, sh[:, k, :].astype("<f4"), "VEC3", FLOAT, False))
     if not all(np.all(np.isfinite(c[1])) for c in columns if c[3] == FLOAT):

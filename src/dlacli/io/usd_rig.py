@@ -30,11 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from dlacli.errors import DlaInputError
+from dlacli.io.usd import AVATAR, FORMAT_KEY, SUFFIXES  # one USD stage convention for both writers
+from dlacli.types import srgb_to_linear
 
 FORMAT = "dla.usd-rig/1"
-FORMAT_KEY = "dla:format"
-SUFFIXES = (".usd", ".usda", ".usdc")
-AVATAR = "/Avatar"
 SKELETON = "/Avatar/Skeleton"
 BODY = "/Avatar/Body"
 MATERIAL = "/Avatar/Materials/Skin"
@@ -219,9 +218,3 @@ def write_rig_usd(path: str | os.PathLike, asset: RigAsset) -> Path:
             if not stage.GetRootLayer().Export(str(tmp), "", {"format": fmt}):
                 raise OSError(f"{path}: USD export failed")
     return tex_path
-
-
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] -> linear (IEC 61966-2-1): USD colours are linear."""
-    c = np.clip(np.asarray(c, np.float64), 0.0, 1.0)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
