@@ -252,7 +252,15 @@ def _bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
             + image[y1, x0] * (1 - fx) * fy + image[y1, x1] * fx * fy)  # fmt: skip
 
 
-def bake_colours(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray) -> np.ndarray:
+def body_depth_maps(vertices: np.ndarray, views: ViewSet) -> np.ndarray:
+    """Camera depth [V, H, W] of the body (vertices [V, 3]) in every view, inf off the body."""
+    from dlacli.body.model import get_body_model
+    from dlacli.render.raster import rasterize
+
+    return rasterize(vertices, get_body_model().faces, views.cameras).depth
+
+
+def bake_colours(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_depth: np.ndarray | None = None) -> np.ndarray:
     """F [14, R, R] with its colour channels baked from the views: each texel's point on the body
     in the input pose (T + R dx, its own offset) is projected into every view; a view counts where
     the point is inside the image and its mask, faces the camera (cos > 0.05) and is not hidden by
@@ -260,10 +268,9 @@ def bake_colours(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray) -> np.n
     texel takes the bilinear colour of those views weighted by cos ** VIEW_SHARPNESS x mask.
     Texels no view sees keep their colour. Gathering at the texel's own point keeps colour and
     geometry aligned to the pixel, where scattering pixel Gaussians to their nearest texel (step b)
-    leaves holes and shifts of up to a texel."""
-    from dlacli.body.model import get_body_model
+    leaves holes and shifts of up to a texel. `body_depth` [V, H, W]: the body's depth in the views
+    (`body_depth_maps`), when the caller has it already."""
     from dlacli.body.uv import FRAME_RESOLUTION, texel_frames, uv_raster
-    from dlacli.render.raster import rasterize
 
     res = fmap.shape[-1]
     valid = uv_raster(res).mask
@@ -271,7 +278,8 @@ def bake_colours(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray) -> np.n
     pos, rot = t_map.numpy()[valid], r_map.numpy()[valid]  # [M, 3], [M, 3, 3]
     points = pos + np.einsum("mij,mj->mi", rot, fmap[gm.OFFSET][:, valid].T.astype(np.float64))
     normals = rot[:, :, 2]
-    body_depth = rasterize(vertices, get_body_model().faces, views.cameras).depth  # [V, H, W]
+    if body_depth is None:
+        body_depth = body_depth_maps(vertices, views)
     h, w = views.masks.shape[1:]
     acc = np.zeros((len(points), 3))
     wsum = np.zeros(len(points))
@@ -427,12 +435,13 @@ def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: Vi
         raise DlaInputError("views", f"has {len(views)} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
     vertices = get_body_model().forward_body(views.body).vertices[0].numpy()
     unstructured, _, eyes = unstructured_gaussians(views, vertices, cfg.grid)
-    fmap = bake_colours(unproject_to_uv(unstructured, eyes, vertices, cfg.resolution), views, vertices)
+    depth = body_depth_maps(vertices, views)  # for both bakes
+    fmap = bake_colours(unproject_to_uv(unstructured, eyes, vertices, cfg.resolution), views, vertices, depth)
     samples = gm.make_samples(cfg.gaussians, cfg.seed)  # the Gaussians refined and shown
     history: list[float] = []
     if cfg.steps > 0:
         fmap, history = refine(fmap, views, vertices, cfg, progress, samples)
-        fmap = bake_colours(fmap, views, vertices)  # colours where the refined geometry puts them
+        fmap = bake_colours(fmap, views, vertices, depth)  # colours where the refined geometry puts them
     rgb, mask, cams = _resized_targets(views, 512)
     out = render_views(fmap, vertices, cams, samples)
     inputs, renders, novel_view = rgb.numpy(), out.rgb.numpy(), None
