@@ -20,12 +20,17 @@ import numpy as np
 from dlacli.bench.metrics import alpha_iou, masked_psnr, psnr, ssim
 
 
-def _score(avatar, views, motion=None) -> dict[str, float]:
+def render_split(avatar, views, motion=None) -> tuple[np.ndarray, np.ndarray]:
+    """The avatar rendered at a split's cameras (and motion frames) -> (RGBA [C, H, W, 4] in the
+    views' order, ground truth [C, H, W, 3] on black)."""
     from dlacli.stages.render import render_avatar
 
     shots = sorted(render_avatar(avatar, views.cameras, views.times, motion), key=lambda s: s.camera)
-    pred = np.stack([s.rgba for s in shots])
-    gt = views.images * views.masks[..., None]
+    return np.stack([s.rgba for s in shots]), views.images * views.masks[..., None]
+
+
+def _score(avatar, views, motion=None) -> dict[str, float]:
+    pred, gt = render_split(avatar, views, motion)
     return {
         "psnr": psnr(pred[..., :3], gt),
         "psnr_masked": masked_psnr(pred[..., :3], gt, views.masks),

@@ -76,13 +76,13 @@ def regions(
     import numpy as np
     from PIL import Image
 
-    from dlacli.bench.regions import error_picture, pixel_regions, region_psnr
+    from dlacli.bench.pipeline import render_split
+    from dlacli.bench.regions import REGIONS, error_picture, pixel_regions, region_psnr
     from dlacli.body.model import get_body_model
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_path, check_outputs
     from dlacli.io.views import read_views
     from dlacli.stages.lift import LiftConfig, lift
-    from dlacli.stages.render import render_avatar
     from dlacli.stages.synth import synth
 
     if output is not None and output.suffix.lower() != ".png":
@@ -95,16 +95,13 @@ def regions(
         avatar = lift(views, LiftConfig(steps=steps)).avatar
         verts = get_body_model().forward_body(views.body).vertices[0].numpy()
         for split, vs in (("input views", views), ("novel views", read_views(folder / "novel_views", require_body=False))):
-            shots = sorted(render_avatar(avatar, vs.cameras, [None] * len(vs)), key=lambda s: s.camera)
-            pred = np.stack([s.rgba[..., :3] for s in shots])
-            gt = vs.images * vs.masks[..., None]
+            rgba, gt = render_split(avatar, vs)
+            pred = rgba[..., :3]
             labels = pixel_regions(verts, vs.cameras, vs.masks)
             rows.append((split, region_psnr(pred, gt, labels)))
             pictures.append(error_picture(gt[0], pred[0], labels[0]))
     typer.echo("| region | " + " | ".join(f"{split}: masked PSNR / pixels / error share" for split, _ in rows) + " |")
     typer.echo("|---|" + "---|" * len(rows))
-    from dlacli.bench.regions import REGIONS
-
     for name in REGIONS:
         cells = [f"{r[name]['psnr']:.2f} / {r[name]['pixels']:.0%} / {r[name]['error']:.0%}" if name in r else "-" for _, r in rows]
         typer.echo(f"| {name} | " + " | ".join(cells) + " |")
