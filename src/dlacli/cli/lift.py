@@ -17,8 +17,9 @@ def lift(
     views: Path = typer.Argument(..., metavar="VIEWS", help="View folder: transforms.json, images, body.json."),
     output: Path = typer.Option(..., "--output", "-o", help="avatar.npz to write; a contact sheet PNG is written beside it."),
     ply: Optional[Path] = typer.Option(None, "--ply", help="Also write the unstructured pose-space Gaussians as a 3DGS .ply."),
-    steps: int = typer.Option(_DEFAULTS.steps, "--steps", min=0, max=100_000, help="Refinement steps against the input views (0: mesh unprojection only); more is slower and closer."),
-    method: str = typer.Option("unproject", "--method", help="Encoder into the latent Z: 'unproject' (mesh unprojection, no weights)."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=0, max=100_000, help=f"Refinement steps against the input views (unproject: default {_DEFAULTS.steps}, 0 = mesh unprojection only; learned: default 0, N refines Z through the frozen decoder); more is slower and closer."),
+    method: str = typer.Option("unproject", "--method", help="Encoder into the latent Z: 'unproject' (mesh unprojection, no weights) or 'learned' (U-Net + cross-attention encoder + GPD from --checkpoint)."),
+    checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="With --method learned: the network checkpoint folder (`dla train`'s RUN/ckpt-N/generator) or its hash in the checkpoints cache."),
     resolution: int = typer.Option(_DEFAULTS.resolution, "--resolution", min=16, max=2048, help="UV resolution of the Gaussian map Z."),
     gaussians: int = typer.Option(_DEFAULTS.gaussians, "--gaussians", min=2, max=4_194_304, help="Gaussians sampled from Z while refining."),
     seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1, help="Seed of the Gaussian sample points."),
@@ -43,6 +44,13 @@ def lift(
     from dlacli.stages.lift import lift as run_lift
 
     check_encoder(method)
+    learned = method == "learned"
+    if learned and checkpoint is None:
+        raise DlaInputError("--checkpoint", "--method learned needs the network's checkpoint (dla train)")
+    if not learned and checkpoint is not None:
+        raise DlaInputError("--checkpoint", f"--method {method} takes no checkpoint")
+    if steps is None:
+        steps = 0 if learned else _DEFAULTS.steps
     if output.suffix.lower() != ".npz":
         raise DlaInputError(output, "the avatar is an .npz file")
     if ply is not None and ply.suffix.lower() != ".ply":
@@ -52,7 +60,8 @@ def lift(
     if novel_dir is not None and not (novel_dir / "transforms.json").is_file():
         novel_dir = None
     novel_files = view_files(novel_dir, allow_outside) if novel_dir is not None else []
-    check_outputs(files=[output, sheet, ply], inputs=[views, *view_files(views, allow_outside), *novel_files])
+    ckpt_files = [checkpoint] if checkpoint is not None and checkpoint.exists() else []
+    check_outputs(files=[output, sheet, ply], inputs=[views, *view_files(views, allow_outside), *novel_files, *ckpt_files])
     n_views = len(read_transforms(views)["file_paths"])
     if n_views > MAX_VIEWS:
         raise DlaInputError(views, f"has {n_views} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
@@ -61,7 +70,13 @@ def lift(
     novel = read_views(novel_dir, require_body=False, allow_outside=allow_outside) if novel_dir is not None else None
     body = views / "body.json" if views.is_dir() else views.with_name("body.json")
     with naming(views=views, pose=body, phenotype=body), progress_bar("refining", steps) as update:
-        result = run_lift(view_set, cfg, progress=lambda i, loss: update(i + 1, note=f"loss {loss:.4f}"), novel=novel)
+        report = lambda i, loss: update(i + 1, note=f"loss {loss:.4f}")  # noqa: E731
+        if learned:
+            from dlacli.stages.learned import lift_learned
+
+            result = lift_learned(view_set, str(checkpoint), steps=steps, progress=report, novel=novel)
+        else:
+            result = run_lift(view_set, cfg, progress=report, novel=novel)
     if result.novel_view is not None:
         from dlacli.bench.metrics import masked_psnr
 
@@ -73,6 +88,10 @@ def lift(
         with atomic_path(sheet) as tmp:
             Image.fromarray(result.contact_sheet).save(tmp)
         write_avatar(result.avatar, output)
+    if learned:  # animate, render and edit find the decoder by the hash the avatar records
+        from dlacli.nn.checkpoint import install_checkpoint, resolve_checkpoint
+
+        install_checkpoint(resolve_checkpoint(str(checkpoint)))
     typer.echo(str(output))
 
 

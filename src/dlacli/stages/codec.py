@@ -78,7 +78,7 @@ class IdentityDecoder(Decoder):
 # name -> factory(checkpoint, where) -> Decoder
 _DECODERS: dict[str, Callable[[str, str], Decoder]] = {"identity": IdentityDecoder}
 # name -> encoder function (views, config) -> LiftResult; filled lazily by stages.lift
-_ENCODERS: dict[str, str] = {"unproject": "dlacli.stages.lift:lift"}
+_ENCODERS: dict[str, str] = {"unproject": "dlacli.stages.lift:lift", "learned": "dlacli.stages.learned:lift_learned"}
 
 
 def register_decoder(name: str, factory: Callable[[str, str], Decoder]) -> None:
