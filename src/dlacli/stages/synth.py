@@ -3,22 +3,31 @@
 `synth(seed, out)` writes a view folder of a seeded subject (4 input views), its true body.json,
 and optionally ground-truth novel views and novel poses. Everything random comes from
 `numpy.random.default_rng` generators seeded by `seed`, so a seed gives the same bytes on every run.
+`synth_dataset(seeds, out, settings)` writes many subjects into a dataset folder with a manifest
+(formats/dataset.md), in parallel processes and resumably.
 
 Rendering: the body (anny "anny-full", faces under the garments and the helper geometry removed,
 eyes kept) plus the garments are one triangle mesh, rasterised with dlacli.render.raster at
 `SUPERSAMPLE` x the resolution; every covered sub-pixel gets a procedural colour evaluated at the
 surface point's *rest* position (or the garment's .obj UV), so the texture sticks to the cloth in
-every pose, then a two-sided headlight Lambert term; sub-pixels are box-filtered down. Alpha is
-the covered fraction; rgb is the straight (not premultiplied) colour, 0 where alpha is 0.
-Overlapping garment layers are ordered with a small per-layer z-buffer bias (see `_render`).
+every pose, then a shading term; sub-pixels are box-filtered down. Alpha is the covered fraction;
+rgb is the straight (not premultiplied) colour, 0 where alpha is 0. Overlapping garment layers are
+ordered with a small per-layer z-buffer bias (see `_render`).
+
+Appearance "albedo" (the default) shades with a two-sided headlight Lambert term, so a surface
+point's colour depends on neither the world's lights nor the pose. "lit" shades with lights fixed
+in the world: albedo x (ambient x AO + sum of max(0, n.l) colour) + Blinn-Phong specular, with
+normals of the posed mesh and ambient occlusion computed per pose (`ambient_occlusion`), so the
+colour changes with the pose and, through the specular term, with the camera.
 """
 
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -39,8 +48,24 @@ POSE_KINDS = ("arms_raised", "step", "turn", "reach")
 AMBIENT = 0.35
 LAYER_BIAS = 0.006  # metres of z-buffer bias per garment layer (skin 0, shoes 1, suit and hair 2)
 MATERIALS = ("skin", "eyes", "hair", "suit", "shoes")
-GARMENT_MATERIAL = {"female_casualsuit01": "suit", "male_casualsuit01": "suit", "shoes01": "shoes",
-                    "short02": "hair"}  # fmt: skip
+APPEARANCES = ("albedo", "lit")
+WARDROBES = ("default", "full")
+# "full" wardrobe: every shipped garment of its kind (dlacli.body.garments.GARMENT_KIND)
+SUITS_FEMALE = ("female_casualsuit01", "female_casualsuit02", "female_elegantsuit01")
+SUITS_MALE = ("male_casualsuit01", "male_casualsuit02", "male_casualsuit03", "male_casualsuit04",
+              "male_casualsuit05", "male_casualsuit06", "male_elegantsuit01")  # fmt: skip
+SHOES = ("shoes01", "shoes02")
+HAIRS = ("short02", "short01", "short03", "short04", "afro01", "bob01", "braid01", "long01", "ponytail01")
+PATTERNS_FULL = ("stripes", "checks", "noise", "dots", "plain")
+# "lit": Blinn-Phong specular strength and exponent per material; ambient occlusion sampling
+SPECULAR = {"skin": (0.12, 24.0), "eyes": (0.6, 150.0), "hair": (0.22, 36.0), "suit": (0.04, 10.0),
+            "shoes": (0.35, 60.0)}  # fmt: skip
+AO_DIRECTIONS = 32  # directions on the sphere (about half of them in each normal's hemisphere)
+AO_RES = 192  # depth-map pixels per side (about 1.2 cm per pixel on an adult)
+# dataset mode: random input yaw, slight elevation jitter (degrees); the heights (m) between which
+# a clip frame's body is kept (the cameras see ~+-1.24 m about TARGET at its distance)
+ELEVATION_JITTER = 4.0
+FRAME_Z = (-1.2, 0.98)
 
 Progress = Callable[[str], None]
 
@@ -122,12 +147,29 @@ def _palette(rng: np.random.Generator) -> dict[str, dict]:
     }
 
 
-def sample_subject(seed: int) -> SubjectSpec:
-    """A seeded adult: phenotype, relaxed pose (hands kept off the body), outfit and colours."""
+def _full_wardrobe(spec: SubjectSpec) -> None:
+    """Redraw the outfit from every shipped garment and widen the colours and patterns, from a
+    stream of its own (`default_rng([seed, 2])`), so the phenotype and pose stay the default's."""
+    rng = np.random.default_rng([spec.seed, 2])
+    own, other = (SUITS_FEMALE, SUITS_MALE) if spec.phenotype["gender"] >= 0.5 else (SUITS_MALE, SUITS_FEMALE)
+    suits = own if rng.uniform() < 0.85 else other
+    spec.outfit = (str(suits[rng.integers(len(suits))]), str(SHOES[rng.integers(len(SHOES))]),
+                   str(HAIRS[rng.integers(len(HAIRS))]))  # fmt: skip
+    pal = spec.palette
+    pal["suit"]["pattern"] = str(PATTERNS_FULL[rng.integers(len(PATTERNS_FULL))])
+    pal["suit"]["freq"] = float(rng.uniform(8.0, 40.0))
+    pal["shoes"]["base"] = rng.uniform(0.05, 0.9, 3)
+
+
+def sample_subject(seed: int, wardrobe: str = "default") -> SubjectSpec:
+    """A seeded adult: phenotype, relaxed pose (hands kept off the body), outfit and colours.
+    wardrobe "default": a casual suit by gender, shoes01, hair short02; "full": see `_full_wardrobe`."""
     from dlacli.body.model import get_body_model
 
     if not isinstance(seed, (int, np.integer)) or seed < 0:
         raise DlaInputError("--seed", f"must be a non-negative integer, got {seed!r}")
+    if wardrobe not in WARDROBES:
+        raise DlaInputError("--wardrobe", f"must be one of {', '.join(WARDROBES)}, got {wardrobe!r}")
     rng = np.random.default_rng(int(seed))
     pheno = {
         "gender": float(rng.uniform(0.0, 1.0)),  # anny: 0 male, 1 female
@@ -146,6 +188,8 @@ def sample_subject(seed: int) -> SubjectSpec:
     while lower > 4.0 and hand_clearance(spec) < 0.06:  # keep the hands off the body
         lower -= 4.0
         spec.rotations = relaxed_pose(np.random.default_rng(pose_seed), labels, lower)
+    if wardrobe == "full":
+        _full_wardrobe(spec)
     return spec
 
 
@@ -225,10 +269,10 @@ class DressedBody:
         faces, mats, uvs = [body_faces], [np.where(eye, 1, 0)], [np.zeros((len(body_faces), 3, 2))]
         bias = [np.zeros(gm.HM08_VERTICES)]
         offset = gm.HM08_VERTICES
-        for b in self.bound:
+        for name, b in zip(spec.outfit, self.bound):
             mesh = b.garment.mesh
             faces.append(mesh.faces + offset)
-            mats.append(np.full(len(mesh.faces), MATERIALS.index(GARMENT_MATERIAL[b.garment.name])))
+            mats.append(np.full(len(mesh.faces), MATERIALS.index(gm.GARMENT_KIND[name])))
             uvs.append(mesh.uv[mesh.face_uv])  # [F, 3, 2] corner UVs
             bias.append(np.full(b.garment.num_vertices, LAYER_BIAS * (1 + (b.garment.binding.z_depth > 10))))
             offset += b.garment.num_vertices
@@ -310,6 +354,11 @@ def shade_colors(body: DressedBody, material, rest_pos, uv, seed: int) -> np.nda
                 mix = (np.sin(2 * np.pi * c["freq"] * u) > 0.3).astype(np.float64)
             elif c["pattern"] == "checks":
                 mix = ((np.floor(u * c["freq"]) + np.floor(v * c["freq"])) % 2).astype(np.float64)
+            elif c["pattern"] == "dots":
+                fu, fv = u * c["freq"] % 1.0 - 0.5, v * c["freq"] % 1.0 - 0.5
+                mix = (fu * fu + fv * fv < 0.09).astype(np.float64)
+            elif c["pattern"] == "plain":
+                mix = np.zeros(u.shape[0])
             else:
                 mix = np.clip((value_noise(p * c["freq"], seed + 11) - 0.35) * 3.0, 0.0, 1.0)
             col = c["base"] * (1 - mix[:, None]) + c["second"] * mix[:, None]
@@ -318,17 +367,135 @@ def shade_colors(body: DressedBody, material, rest_pos, uv, seed: int) -> np.nda
     return np.clip(out, 0.0, 1.0)
 
 
-def render(body: DressedBody, verts: np.ndarray, cameras: Cameras, seed: int, chunk: int = 4) -> np.ndarray:
+# ------------------------------------------------------------------------------- lighting ("lit")
+
+
+@dataclass
+class Lighting:
+    """Lights fixed in the world for the "lit" appearance (anny's frame: +Z up, the body faces -Y)."""
+
+    ambient: float  # ambient intensity, scaled by the ambient occlusion
+    directions: np.ndarray  # [L, 3] unit vectors from the surface toward each (directional) light
+    colours: np.ndarray  # [L, 3] rgb intensity of each light
+
+    def as_dict(self) -> dict:
+        return {"ambient": round(float(self.ambient), 6),
+                "lights": [{"direction": [round(float(x), 6) for x in d], "colour": [round(float(x), 6) for x in c]}
+                           for d, c in zip(self.directions, self.colours)]}  # fmt: skip
+
+
+def _direction(azimuth: float, elevation: float) -> np.ndarray:
+    """Unit vector toward (azimuth, elevation) in degrees, the camera convention (azimuth 0 on -Y)."""
+    az, el = np.radians(azimuth), np.radians(elevation)
+    return np.array([np.cos(el) * np.sin(az), -np.cos(el) * np.cos(az), np.sin(el)])
+
+
+def sample_lighting(seed: int) -> Lighting:
+    """A seeded three-light rig (`default_rng([seed, 4])`): a key light 25-60 degrees up from a
+    random side, a dimmer fill light roughly opposite it and a rim light from the side or back."""
+    rng = np.random.default_rng([int(seed), 4])
+    key = float(rng.uniform(0.0, 360.0))
+    rigs = ((key, rng.uniform(25.0, 60.0), rng.uniform(0.55, 0.75)),
+            (key + 180.0 + rng.uniform(-45.0, 45.0), rng.uniform(5.0, 30.0), rng.uniform(0.2, 0.35)),
+            (key + rng.choice([-1.0, 1.0]) * rng.uniform(90.0, 150.0), rng.uniform(20.0, 60.0), rng.uniform(0.15, 0.3)))
+    dirs, cols = [], []
+    for az, el, power in rigs:
+        tint = rng.uniform(0.9, 1.1, 3)
+        dirs.append(_direction(az, el))
+        cols.append(power * tint / tint.mean())
+    return Lighting(float(rng.uniform(0.25, 0.35)), np.array(dirs), np.array(cols))
+
+
+def lit_terms(material, normal, to_eye, ao, lighting: Lighting, light_dirs=None) -> tuple[np.ndarray, np.ndarray]:
+    """The "lit" shading of N surface points: material [N] ids, normal [N, 3] and to_eye [N, 3]
+    unit vectors (any frame; light_dirs [L, 3] in the same frame, default the world's), ao [N] ->
+    (diffuse [N, 3]: the factor the albedo is multiplied by, specular [N, 3]: added). Two-sided:
+    a normal facing away from the eye is flipped."""
+    dirs = lighting.directions if light_dirs is None else np.asarray(light_dirs, np.float64)
+    n = np.where(np.sum(normal * to_eye, axis=1, keepdims=True) < 0.0, -normal, normal)
+    ndl = n @ dirs.T  # [N, L]
+    lit = ndl > 0.0
+    diffuse = lighting.ambient * ao[:, None] + np.maximum(ndl, 0.0) @ lighting.colours
+    half = dirs[None] + to_eye[:, None]  # [N, L, 3] Blinn-Phong half vectors
+    half /= np.maximum(np.linalg.norm(half, axis=-1, keepdims=True), 1e-12)
+    ndh = np.maximum(np.sum(n[:, None] * half, axis=-1), 0.0)  # [N, L]
+    table = np.array([SPECULAR[m] for m in MATERIALS])  # [M, 2]
+    strength, power = table[material, 0], table[material, 1]
+    spec = np.where(lit, strength[:, None] * ndh ** power[:, None], 0.0) @ lighting.colours
+    return diffuse, spec
+
+
+def sphere_directions(n: int) -> np.ndarray:
+    """[n, 3] unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * k
+    r = np.sqrt(1.0 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def ambient_occlusion(verts: np.ndarray, faces: np.ndarray, directions: int = AO_DIRECTIONS,
+                      res: int = AO_RES) -> np.ndarray:  # fmt: skip
+    """Per-vertex ambient occlusion of a posed mesh: verts [V, 3] or [T, V, 3], faces [F, 3] ->
+    [V] or [T, V] in [0, 1], the cosine-weighted fraction of `directions` (`sphere_directions`)
+    in each vertex normal's hemisphere along which no part of the mesh lies in front of it.
+    Visibility along a direction is read from a depth map of the mesh rendered from far away
+    along it (near-orthographic, res x res) with a slope-scaled bias of 1-5 depth-map pixels.
+    The hemisphere is the one the area-weighted vertex normal (the mesh's winding) points into."""
+    from dlacli.render.raster import rasterize_camera_space, vertex_normals
+
+    v_all = np.asarray(verts, np.float64)
+    if v_all.ndim == 2:
+        return ambient_occlusion(v_all[None], faces, directions, res)[0]
+    dirs = sphere_directions(directions)  # [K, 3]
+    # camera k looks along -dirs[k]: rows right, down, forward (OpenCV axes)
+    fwd = -dirs
+    helper = np.where(np.abs(fwd[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    right = np.cross(fwd, helper)
+    right /= np.linalg.norm(right, axis=1, keepdims=True)
+    down = np.cross(fwd, right)
+    rot = np.stack([right, down, fwd], axis=1)  # [K, 3, 3] world -> camera
+    used = np.unique(faces)
+    out = np.ones(v_all.shape[:2])
+    for t, v in enumerate(v_all):
+        centre = 0.5 * (v[used].min(0) + v[used].max(0))
+        radius = float(np.linalg.norm(v[used] - centre, axis=1).max()) * 1.02
+        dist = 50.0 * radius
+        f = 0.5 * res * (dist - radius) / radius
+        ks = np.tile(np.array([[f, 0.0, res / 2.0], [0.0, f, res / 2.0], [0.0, 0.0, 1.0]]), (directions, 1, 1))
+        cam = (v - centre) @ rot.transpose(0, 2, 1)  # [K, V, 3]
+        cam[..., 2] += dist
+        ras = rasterize_camera_space(cam, faces, ks, res, res)
+        px = np.floor(f * cam[..., :2] / cam[..., 2:3] + res / 2.0).astype(np.int64)  # [K, V, 2]
+        ix, iy = np.clip(px[..., 0], 0, res - 1), np.clip(px[..., 1], 0, res - 1)
+        surface = ras.depth[np.arange(directions)[:, None], iy, ix].astype(np.float64)  # [K, V]
+        n = vertex_normals(v, faces)  # [V, 3]
+        cos = dirs @ n.T  # [K, V]
+        texel = 2.0 * radius / res
+        tan = np.sqrt(np.maximum(1.0 - cos * cos, 0.0)) / np.maximum(np.abs(cos), 1e-3)
+        visible = cam[..., 2] <= surface + texel * (1.0 + np.minimum(tan, 4.0))
+        weight = np.maximum(cos, 0.0)
+        out[t] = (weight * visible).sum(0) / np.maximum(weight.sum(0), 1e-12)
+    return out
+
+
+def render(body: DressedBody, verts: np.ndarray, cameras: Cameras, seed: int, chunk: int = 4, *,
+           lighting: Lighting | None = None, ao: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
     """verts [V, 3] or [C, V, 3] -> RGBA [C, H, W, 4] float32 (straight alpha, see module doc),
-    `chunk` cameras at a time (bounds the memory of the supersampled z-buffers)."""
+    `chunk` cameras at a time (bounds the memory of the supersampled z-buffers). Appearance
+    "albedo" when `lighting` is None, else "lit" with the per-vertex ao [V] or [C, V]."""
+    if lighting is not None and ao is None:
+        raise ValueError("the lit appearance needs the ambient occlusion of the posed vertices")
     parts = []
     for s in range(0, len(cameras), chunk):
         cams = Cameras(cameras.viewmats[s:s + chunk], cameras.Ks[s:s + chunk], cameras.width, cameras.height)
-        parts.append(_render(body, verts if verts.ndim == 2 else verts[s:s + chunk], cams, seed))
+        sub_ao = None if ao is None else (ao if ao.ndim == 1 else ao[s:s + chunk])
+        parts.append(_render(body, verts if verts.ndim == 2 else verts[s:s + chunk], cams, seed, lighting, sub_ao))
     return np.concatenate(parts)
 
 
-def _render(body: DressedBody, verts: np.ndarray, cameras: Cameras, seed: int) -> np.ndarray:
+def _render(body: DressedBody, verts: np.ndarray, cameras: Cameras, seed: int,
+            lighting: Lighting | None = None, ao: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
     from dlacli.render.raster import rasterize_camera_space, vertex_normals, world_to_camera
 
     ss = SUPERSAMPLE
@@ -356,9 +523,17 @@ def _render(body: DressedBody, verts: np.ndarray, cameras: Cameras, seed: int) -
         n = np.einsum("nk,nkd->nd", bary, normals[k][corners])
         pt = np.einsum("nk,nkd->nd", bary, vcam[k][corners])
         norms = np.linalg.norm(n, axis=1) * np.linalg.norm(pt, axis=1)
-        lam = np.abs((n * pt).sum(1)) / np.maximum(norms, 1e-12)  # |cos| normal vs view ray
         rgb = np.zeros((h * w, 3))
-        rgb[cov] = albedo * (AMBIENT + (1.0 - AMBIENT) * lam)[:, None]
+        if lighting is None:  # "albedo": a two-sided headlight
+            lam = np.abs((n * pt).sum(1)) / np.maximum(norms, 1e-12)  # |cos| normal vs view ray
+            rgb[cov] = albedo * (AMBIENT + (1.0 - AMBIENT) * lam)[:, None]
+        else:  # "lit": camera-space normals, eye at the origin, the world's lights turned into the camera
+            unit = lambda a: a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-12)  # noqa: E731
+            occlusion = np.einsum("nk,nk->n", bary, (ao if ao.ndim == 1 else ao[k])[corners])
+            turn = cameras.viewmats[k, :3, :3].double().numpy()
+            diffuse, spec = lit_terms(body.face_material[f], unit(n), unit(-pt), occlusion, lighting,
+                                      lighting.directions @ turn.T)  # fmt: skip
+            rgb[cov] = np.clip(albedo * diffuse + spec, 0.0, 1.0)
         cover = cov.astype(np.float64).reshape(h, w)
         rgb = rgb.reshape(h, w, 3)
         pool = lambda a: a.reshape(cameras.height, ss, cameras.width, ss, -1).mean(axis=(1, 3))  # noqa: E731
@@ -412,59 +587,365 @@ SUBJECT_LAYOUT = ("transforms.json", "body.json", "images", "images/view_*.png",
                   "novel_poses/motion.npz")  # fmt: skip
 
 
-def synth(seed: int, out: str | os.PathLike, *, res: int = 512, novel_views: int = 12,
-          novel_poses: int = 8, progress: Progress | None = None) -> Path:  # fmt: skip
-    """Write the synthetic subject `seed` as the view folder `out` (atomic as a whole):
-    4 input views + body.json, novel_views/ (n ground-truth views of the same pose) and
-    novel_poses/ (frames with `time` into novel_poses/motion.npz) when n > 0."""
-    from dlacli.io.atomic import atomic_dir
-    from dlacli.io.motion import write_motion
-    from dlacli.io.views import write_views
-
+def _check_options(res, novel_views, novel_poses, appearance: str, wardrobe: str) -> None:
     checks = (("--res", res, 16), ("--novel-views", novel_views, 0), ("--novel-poses", novel_poses, 0))
     for name, value, lo in checks:
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < lo:
             raise DlaInputError(name, f"must be an integer >= {lo}, got {value!r}")
     if res > 4096:
         raise DlaInputError("--res", f"must be <= 4096, got {res}")
+    if appearance not in APPEARANCES:
+        raise DlaInputError("--appearance", f"must be one of {', '.join(APPEARANCES)}, got {appearance!r}")
+    if wardrobe not in WARDROBES:
+        raise DlaInputError("--wardrobe", f"must be one of {', '.join(WARDROBES)}, got {wardrobe!r}")
+
+
+def input_rig(seed: int, random_yaw: bool) -> tuple[np.ndarray, np.ndarray, float]:
+    """(azimuths [4], elevations [4], start yaw) of the input cameras, degrees: the fixed rig
+    (INPUT_AZIMUTHS at INPUT_ELEVATION), or with `random_yaw` (dataset mode) 4 cameras 90 degrees
+    apart from a random start yaw, each raised by up to +-ELEVATION_JITTER (`default_rng([seed, 3])`)."""
+    if not random_yaw:
+        return np.array(INPUT_AZIMUTHS), np.full(4, INPUT_ELEVATION), 0.0
+    rng = np.random.default_rng([int(seed), 3])
+    yaw = float(rng.uniform(0.0, 360.0))
+    return (yaw + np.array(INPUT_AZIMUTHS)) % 360.0, INPUT_ELEVATION + rng.uniform(-1, 1, 4) * ELEVATION_JITTER, yaw
+
+
+def target_motion(seed: int, spec: SubjectSpec, n: int, clips: Sequence[str] = ()) -> tuple[Motion, list[str]]:
+    """n target poses and their kinds: `novel_motion`'s; with `clips` (built-in motion names or
+    motion files, loaded and retargeted for the subject's phenotype as `dla animate` does), poses
+    0, 2, 4, ... are random frames of random clips (`default_rng([seed, 5])`) and poses 1, 3, ...
+    `novel_motion`'s kinds in their cycle. A clip frame keeps its root rotation and height, but
+    the root is put above the origin and moved down or up as far as needed to keep the (naked)
+    body between FRAME_Z[0] and FRAME_Z[1] metres, so the cameras see all of it."""
+    from dlacli.body.model import get_body_model
+    from dlacli.stages.motion_source import load_motion
+
+    if not clips or n == 0:
+        return novel_motion(seed, spec, n), [POSE_KINDS[t % len(POSE_KINDS)] for t in range(n)]
+    model = get_body_model()
+    labels = list(model.bone_labels)
+    rots = np.zeros((n, len(labels), 3), np.float32)
+    root_rot, root_pos = np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32)
+    kinds = [""] * n
+    novel = novel_motion(seed, spec, n // 2)
+    for j, t in enumerate(range(1, n, 2)):
+        rots[t], root_rot[t], root_pos[t] = novel.rotations[j], novel.root_rotation[j], novel.root_translation[j]
+        kinds[t] = POSE_KINDS[j % len(POSE_KINDS)]
+    rng = np.random.default_rng([int(seed), 5])
+    loaded: dict[int, tuple[Motion, np.ndarray]] = {}
+    for t in range(0, n, 2):
+        c = int(rng.integers(len(clips)))
+        if c not in loaded:
+            clip = load_motion(clips[c], phenotype=spec.phenotype)
+            loaded[c] = (clip, model.motion_rotations(clip))
+        clip, clip_rots = loaded[c]
+        i = int(rng.integers(clip.num_frames))
+        rots[t], root_rot[t] = clip_rots[i], clip.root_rotation[i]
+        root_pos[t] = [0.0, 0.0, float(clip.root_translation[i, 2])]
+        kinds[t] = f"{Path(clips[c]).name}@{i}"
+    # keep every clip frame's body between the FRAME_Z heights (a raised hand, a crouch)
+    sel = np.arange(0, n, 2)
+    z = model.forward(spec.phenotype, torch.from_numpy(rots[sel]), torch.from_numpy(root_rot[sel]),
+                      torch.from_numpy(root_pos[sel])).vertices[..., 2].numpy()  # fmt: skip
+    low, high = z.min(axis=1), z.max(axis=1)
+    shift = np.minimum(FRAME_Z[1] - high, 0.0)
+    shift = np.where(low + shift < FRAME_Z[0], np.minimum(FRAME_Z[0] - low, FRAME_Z[1] - high), shift)
+    root_pos[sel, 2] += shift.astype(np.float32)
+    return Motion(labels, rots, root_rot, root_pos, novel.fps), kinds
+
+
+def synth(seed: int, out: str | os.PathLike, *, res: int = 512, novel_views: int = 12, novel_poses: int = 8,
+          appearance: str = "albedo", wardrobe: str = "default", random_yaw: bool = False,
+          motions: Sequence[str] = (), progress: Progress | None = None) -> Path:  # fmt: skip
+    """Write the synthetic subject `seed` as the view folder `out` (atomic as a whole):
+    4 input views + body.json, novel_views/ (n ground-truth views of the same pose) and
+    novel_poses/ (frames with `time` into novel_poses/motion.npz) when n > 0.
+    appearance "albedo" | "lit", wardrobe "default" | "full" (module doc, `sample_subject`);
+    random_yaw: the dataset's input rig (`input_rig`); motions: clips for the target poses
+    (`target_motion`). The defaults write today's subject, byte for byte."""
+    from dlacli.io.atomic import atomic_dir
+    from dlacli.io.motion import write_motion
+    from dlacli.io.views import write_views
+
+    _check_options(res, novel_views, novel_poses, appearance, wardrobe)
     say = progress or (lambda msg: None)
     out = Path(out)
     say("sampling the subject")
-    spec = sample_subject(seed)
+    spec = sample_subject(seed, wardrobe)
     say("dressing the body")
     body = DressedBody(spec)
     info = {"seed": int(seed), "outfit": list(spec.outfit),
             "suit_pattern": spec.palette["suit"]["pattern"], "generator": "dla synth"}  # fmt: skip
+    lighting = sample_lighting(seed) if appearance == "lit" else None
+    if wardrobe != "default":
+        info["wardrobe"] = wardrobe
+    if lighting is not None:
+        info.update(appearance=appearance, lighting=lighting.as_dict())
     zero = torch.zeros(1, 3)
     verts = body.vertices(spec.rotations[None], zero, zero)[0]  # [V, 3] the input pose
+    ao = None if lighting is None else ambient_occlusion(verts, body.faces)
     truth = _body_params(spec, spec.rotations)
+    az0, el0, yaw = input_rig(seed, random_yaw)
     with atomic_dir(out) as tmp:
         say("rendering the 4 input views")
-        cams = synth_orbit_cameras(INPUT_AZIMUTHS, INPUT_ELEVATION, res)
-        rgba = render(body, verts, cams, seed)
-        extra = {"synth": {**info, "azimuths": list(INPUT_AZIMUTHS), "elevation": INPUT_ELEVATION}}
-        write_views(_view_set(rgba, cams, truth, [None] * 4, extra), tmp)
+        cams = synth_orbit_cameras(az0, el0, res)
+        rgba = render(body, verts, cams, seed, lighting=lighting, ao=ao)
+        rig = {"azimuths": list(INPUT_AZIMUTHS), "elevation": INPUT_ELEVATION}
+        if random_yaw:
+            rig = {"azimuths": az0.tolist(), "elevations": el0.tolist(), "start_yaw": yaw}
+        write_views(_view_set(rgba, cams, truth, [None] * 4, {"synth": {**info, **rig}}), tmp)
         if novel_views:
             say(f"rendering {novel_views} novel views")
             az, el = novel_view_angles(novel_views)
+            az = (az + yaw) % 360.0 if random_yaw else az
             cams = synth_orbit_cameras(az, el, res)
-            rgba = render(body, verts, cams, seed)
+            rgba = render(body, verts, cams, seed, lighting=lighting, ao=ao)
             extra = {"synth": {**info, "azimuths": az.tolist(), "elevations": el.tolist()}}
             write_views(_view_set(rgba, cams, truth, [None] * novel_views, extra), tmp / "novel_views")
         if novel_poses:
-            motion = novel_motion(seed, spec, novel_poses)
+            motion, kinds = target_motion(seed, spec, novel_poses, motions)
             say(f"rendering {novel_poses} novel poses x {len(POSE_AZIMUTHS)} cameras")
             posed = body.vertices(motion.rotations, torch.from_numpy(motion.root_rotation),
                                   torch.from_numpy(motion.root_translation))  # [T, V, 3]
-            cams1 = synth_orbit_cameras(POSE_AZIMUTHS, INPUT_ELEVATION, res)
+            pose_az = (np.array(POSE_AZIMUTHS) + yaw) % 360.0 if random_yaw else list(POSE_AZIMUTHS)
+            cams1 = synth_orbit_cameras(pose_az, INPUT_ELEVATION, res)
             k = len(POSE_AZIMUTHS)
             cams = Cameras(cams1.viewmats.repeat(novel_poses, 1, 1),
                            cams1.Ks.repeat(novel_poses, 1, 1), res, res)  # fmt: skip
-            rgba = render(body, np.repeat(posed, k, axis=0), cams, seed)
+            pose_ao = None if lighting is None else np.repeat(ambient_occlusion(posed, body.faces), k, axis=0)
+            rgba = render(body, np.repeat(posed, k, axis=0), cams, seed, lighting=lighting, ao=pose_ao)
             times = [t for t in range(novel_poses) for _ in range(k)]
-            kinds = [POSE_KINDS[t % len(POSE_KINDS)] for t in range(novel_poses)]
-            extra = {"synth": {**info, "azimuths": list(POSE_AZIMUTHS), "elevation": INPUT_ELEVATION},
+            extra = {"synth": {**info, "azimuths": np.asarray(pose_az).tolist(), "elevation": INPUT_ELEVATION},
                      "motion": "motion.npz", "pose_kinds": kinds}  # fmt: skip
             write_views(_view_set(rgba, cams, _body_params(spec, None), times, extra), tmp / "novel_poses")
             write_motion(motion, tmp / "novel_poses" / "motion.npz")
     return out
+
+
+# ------------------------------------------------------------------------------- dataset mode
+
+DATASET_FORMAT = "dla.dataset/1"
+MANIFEST = "manifest.json"
+MOTION_SUFFIXES = (".bvh", ".amc", ".npz")
+
+
+@dataclass(frozen=True)
+class DatasetSettings:
+    """What every subject of a dataset folder shares (formats/dataset.md); the seeds are not part of it."""
+
+    res: int = 256
+    novel_views: int = 8
+    novel_poses: int = 8
+    appearance: str = "lit"
+    wardrobe: str = "full"
+    motions: tuple[str, ...] = ()  # motion files for the target poses (the built-in motions are always used)
+
+    def clips(self) -> list[str]:
+        """The target-pose clips: the built-in motion names, then the motion files (absolute paths)."""
+        from dlacli.body.builtin_motions import BUILTINS
+
+        return list(BUILTINS) + [str(Path(m).resolve()) for m in self.motions]
+
+    def record(self) -> dict:
+        """The manifest's "settings" block (motion files by name and content hash, not by path)."""
+        import hashlib
+
+        import dlacli
+        from dlacli.body.builtin_motions import BUILTINS
+
+        files = [{"name": Path(m).name, "sha256": hashlib.sha256(Path(m).read_bytes()).hexdigest()}
+                 for m in self.motions]  # fmt: skip
+        return {"res": self.res, "input_views": 4, "novel_views": self.novel_views, "novel_poses": self.novel_poses,
+                "pose_cameras": len(POSE_AZIMUTHS), "appearance": self.appearance, "wardrobe": self.wardrobe,
+                "builtin_motions": list(BUILTINS), "motion_files": files, "input_rig": "random_yaw",
+                "generator": "dla synth", "dla_version": dlacli.__version__}  # fmt: skip
+
+
+def motion_files(paths: Sequence[str | os.PathLike]) -> tuple[str, ...]:
+    """Motion files from files and folders (a folder gives its .bvh, .amc and .npz files, sorted)."""
+    out: list[str] = []
+    for raw in paths:
+        path = Path(raw)
+        if path.is_dir():
+            found = sorted(p for p in path.iterdir() if p.suffix.lower() in MOTION_SUFFIXES and p.is_file())
+            if not found:
+                raise DlaInputError(path, f"holds no motion files ({', '.join(MOTION_SUFFIXES)})")
+            out.extend(str(p) for p in found)
+        elif path.is_file():
+            if path.suffix.lower() not in MOTION_SUFFIXES:
+                raise DlaInputError(path, f"is not a motion file ({', '.join(MOTION_SUFFIXES)})")
+            out.append(str(path))
+        else:
+            raise DlaInputError(path, "no such motion file or folder")
+    return tuple(out)
+
+
+def subject_name(seed: int) -> str:
+    return f"subject_{int(seed)}"
+
+
+def subject_complete(folder: Path, settings: DatasetSettings) -> bool:
+    """Whether `folder` holds every file a subject of `settings` has (synth writes it atomically,
+    so a folder that exists is whole unless someone changed it)."""
+    parts = {"": 4, "novel_views": settings.novel_views, "novel_poses": settings.novel_poses * len(POSE_AZIMUTHS)}
+    for sub, n in parts.items():
+        where = folder / sub
+        if n == 0:
+            if sub and where.exists():
+                return False
+            continue
+        if not ((where / "transforms.json").is_file() and (where / "body.json").is_file()):
+            return False
+        if len(list((where / "images").glob("view_*.png"))) != n:
+            return False
+    return not settings.novel_poses or (folder / "novel_poses" / "motion.npz").is_file()
+
+
+def _subject_entry(folder: Path, seconds: float | None) -> dict:
+    from dlacli.io.validate import load_json
+
+    info = load_json(folder / "transforms.json").get("dla", {}).get("synth", {})
+    size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
+    return {"seed": int(info.get("seed", -1)), "path": folder.name, "outfit": info.get("outfit"),
+            "suit_pattern": info.get("suit_pattern"), "appearance": info.get("appearance", "albedo"),
+            "wardrobe": info.get("wardrobe", "default"), "start_yaw": info.get("start_yaw"),
+            "seconds": None if seconds is None else round(float(seconds), 3), "bytes": int(size)}  # fmt: skip
+
+
+def _write_manifest(path: Path, settings: dict, entries: dict[int, dict]) -> dict:
+    from dlacli.io.atomic import atomic_path
+    from dlacli.io.validate import dump_json
+
+    subjects = [entries[s] for s in sorted(entries)]
+    secs = [e["seconds"] for e in subjects if e["seconds"] is not None]
+    manifest = {"format": DATASET_FORMAT, "settings": settings,
+                "seconds_per_subject": round(float(np.mean(secs)), 3) if secs else None,
+                "bytes_per_subject": int(np.mean([e["bytes"] for e in subjects])) if subjects else None,
+                "subjects": subjects}  # fmt: skip
+    with atomic_path(path) as tmp:
+        tmp.write_text(dump_json(manifest) + "\n", encoding="utf-8")
+    return manifest
+
+
+def read_manifest(path: str | os.PathLike) -> dict:
+    """A dataset's manifest.json, checked: format, settings and a subject list."""
+    from dlacli.io.validate import check_format, load_json
+
+    path = Path(path)
+    data = load_json(path)
+    if not isinstance(data, dict):
+        raise DlaInputError(path, "is not a JSON object")
+    check_format(data.get("format"), DATASET_FORMAT, path)
+    if not isinstance(data.get("settings"), dict):
+        raise DlaInputError(path, "missing the 'settings' object")
+    subjects = data.get("subjects")
+    if not isinstance(subjects, list) or not all(isinstance(e, dict) and isinstance(e.get("path"), str)
+                                                 and isinstance(e.get("seed"), int) for e in subjects):  # fmt: skip
+        raise DlaInputError(path, "'subjects' must be a list of objects with an integer 'seed' and a 'path'")
+    return data
+
+
+def _differences(old: dict, new: dict) -> str:
+    def show(key: str, value) -> str:
+        if key == "motion_files" and isinstance(value, list):
+            value = [f"{m.get('name')} ({str(m.get('sha256'))[:8]})" if isinstance(m, dict) else m for m in value]
+        return repr(value)
+
+    keys = [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+    return "; ".join(f"{k} {show(k, old.get(k))} there, {show(k, new.get(k))} now" for k in keys[:3])
+
+
+def _single_threaded() -> tuple[int, int]:
+    """Pin torch and numba to one thread (a dataset worker; results then do not depend on --jobs)."""
+    import numba
+
+    before = (torch.get_num_threads(), numba.get_num_threads())
+    torch.set_num_threads(1)
+    numba.set_num_threads(1)
+    return before
+
+
+def _make_subject(task: tuple[int, str, dict]) -> tuple[int, float, tuple[str | None, str] | None]:
+    """Worker: write one subject; -> (seed, seconds, (where, problem) of a DlaInputError or None:
+    DlaInputError does not survive pickling between processes)."""
+    seed, folder, kw = task
+    start = time.perf_counter()
+    try:
+        synth(seed, folder, random_yaw=True, **kw)
+    except DlaInputError as err:
+        return seed, time.perf_counter() - start, (err.where, err.problem)
+    return seed, time.perf_counter() - start, None
+
+
+def synth_dataset(seeds: Sequence[int], out: str | os.PathLike, settings: DatasetSettings, *, jobs: int = 1,
+                  progress: Progress | None = None) -> dict:  # fmt: skip
+    """Write subjects `seeds` into the dataset folder `out` (out/subject_<seed>/, out/manifest.json)
+    with `jobs` processes; subjects already complete are skipped, so a rerun resumes. A manifest
+    with other settings is refused. Returns the manifest."""
+    from dlacli.io.atomic import check_outputs
+
+    seeds = [int(s) for s in seeds]
+    if not seeds or any(s < 0 for s in seeds) or len(set(seeds)) != len(seeds):
+        raise DlaInputError("--seeds", "must be distinct non-negative integers")
+    if not isinstance(jobs, int) or jobs < 1:
+        raise DlaInputError("--jobs", f"must be an integer >= 1, got {jobs!r}")
+    _check_options(settings.res, settings.novel_views, settings.novel_poses, settings.appearance, settings.wardrobe)
+    say = progress or (lambda msg: None)
+    out = Path(out)
+    layout = [MANIFEST, "subject_*", *(f"subject_*/{p}" for p in SUBJECT_LAYOUT)]
+    check_outputs(folders=[(out, layout)])
+    record = settings.record()
+    path = out / MANIFEST
+    entries: dict[int, dict] = {}
+    if path.exists():
+        old = read_manifest(path)
+        if old["settings"] != record:
+            raise DlaInputError(path, f"was written with other settings ({_differences(old['settings'], record)}); "
+                                      "use the same options or another folder")  # fmt: skip
+        entries = {e["seed"]: e for e in old["subjects"] if (out / e["path"]).is_dir()}
+    elif out.exists() and any(out.iterdir()):
+        raise DlaInputError(out, f"is not empty and holds no {MANIFEST}: not a dla dataset folder")
+    out.mkdir(parents=True, exist_ok=True)
+    todo = []
+    for seed in seeds:
+        folder = out / subject_name(seed)
+        if subject_complete(folder, settings):
+            if seed not in entries:  # made by a run stopped before its manifest update
+                entries[seed] = _subject_entry(folder, None)
+        else:
+            entries.pop(seed, None)
+            todo.append(seed)
+    _write_manifest(path, record, entries)
+    say(f"{len(todo)} subjects to write, {len(seeds) - len(todo)} already complete")
+    kw = dict(res=settings.res, novel_views=settings.novel_views, novel_poses=settings.novel_poses,
+              appearance=settings.appearance, wardrobe=settings.wardrobe, motions=settings.clips())  # fmt: skip
+    tasks = [(seed, str(out / subject_name(seed)), kw) for seed in todo]
+    manifest = None
+
+    def finished(n: int, seed: int, seconds: float, error: tuple[str | None, str] | None) -> None:
+        nonlocal manifest
+        if error is not None:
+            raise DlaInputError(*error)
+        entries[seed] = _subject_entry(out / subject_name(seed), seconds)
+        manifest = _write_manifest(path, record, entries)
+        say(f"{subject_name(seed)}: {seconds:.1f} s, {entries[seed]['bytes'] / 1e6:.2f} MB ({n}/{len(todo)})")
+
+    if jobs == 1 or len(tasks) <= 1:
+        before = _single_threaded()
+        try:
+            for n, task in enumerate(tasks, start=1):
+                finished(n, *_make_subject(task))
+        finally:
+            import numba
+
+            torch.set_num_threads(before[0])
+            numba.set_num_threads(before[1])
+    else:
+        import multiprocessing
+
+        ctx = multiprocessing.get_context("spawn")
+        with ctx.Pool(min(jobs, len(tasks)), initializer=_single_threaded) as pool:
+            for n, result in enumerate(pool.imap_unordered(_make_subject, tasks), start=1):
+                finished(n, *result)
+    return manifest or read_manifest(path)

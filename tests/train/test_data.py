@@ -1,0 +1,186 @@
+"""dlacli.train.data: training examples from a synthetic dataset agree with their images, cameras
+and bodies, are deterministic for a seeded rng, and bad datasets are one-line errors."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from dlacli.errors import DlaInputError
+from dlacli.train.data import Item, TrainingData, split_subjects
+
+
+def _settings(root) -> dict:
+    return json.loads((root / "manifest.json").read_text())["settings"]
+
+
+def _project(cameras, points: torch.Tensor) -> np.ndarray:
+    """points [C, P, 3] world -> pixel (x, y) [C, P, 2] with a pinhole x = K (R p + t), in float64."""
+    vm = cameras.viewmats.double().numpy()
+    ks = cameras.Ks.double().numpy()
+    p = points.double().numpy()
+    cam = np.einsum("cij,cpj->cpi", vm[:, :3, :3], p) + vm[:, None, :3, 3]
+    uv = np.einsum("cij,cpj->cpi", ks, cam)
+    return uv[..., :2] / uv[..., 2:]
+
+
+def _inside_fraction(masks: torch.Tensor, pixels: np.ndarray) -> np.ndarray:
+    """[C] fraction of the points within one pixel of a pixel with mask > 0.5 (points outside the
+    image count as out): at 24-48 px a finger is thinner than a pixel and covers no sample."""
+    c, _, h, w = masks.shape
+    out = []
+    for k in range(c):
+        m = np.pad(masks[k, 0].numpy() > 0.5, 1)
+        near = np.zeros((h, w), bool)
+        for dy in range(3):
+            for dx in range(3):
+                near |= m[dy:dy + h, dx:dx + w]
+        x, y = np.floor(pixels[k, :, 0]).astype(int), np.floor(pixels[k, :, 1]).astype(int)
+        ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+        hit = np.zeros(x.shape, bool)
+        hit[ok] = near[y[ok], x[ok]]
+        out.append(hit.mean())
+    return np.array(out)
+
+
+def test_item_shapes_and_kinds(dataset):
+    res = _settings(dataset)["res"]
+    data = TrainingData(dataset, input_size=res // 2, target_size=res, targets=5)
+    assert len(data) == 2 and data.subjects == ["subject_21", "subject_22"]  # manifest order: by seed
+    item = data.item(0, np.random.default_rng(0))
+    assert isinstance(item, Item) and item.subject == "subject_21"
+    s, h, v = res // 2, res, item.rest_vertices.shape[0]
+    assert item.input_rgb.shape == (4, 3, s, s) and item.input_mask.shape == (4, 1, s, s)
+    assert item.target_rgb.shape == (5, 3, h, h) and item.target_mask.shape == (5, 1, h, h)
+    assert item.input_vertices.shape == (v, 3) and item.target_vertices.shape == (5, v, 3)
+    assert len(item.input_cameras) == 4 and item.input_cameras.width == s
+    assert len(item.target_cameras) == 5 and item.target_cameras.height == h
+    for t in (item.input_rgb, item.input_mask, item.target_rgb, item.target_vertices, item.rest_vertices):
+        assert t.dtype == torch.float32 and t.device.type == "cpu"
+    assert set(item.target_kind) <= {"view", "pose"}
+    # black background: no colour where there is no person
+    assert torch.all(item.input_rgb[item.input_mask.expand_as(item.input_rgb) == 0] == 0)
+    assert 0.0 <= float(item.target_rgb.min()) and float(item.target_rgb.max()) <= 1.0
+    # "view" targets show the input pose, "pose" targets another one
+    for k, kind in enumerate(item.target_kind):
+        moved = float((item.target_vertices[k] - item.input_vertices).abs().max())
+        assert (moved == 0.0) == (kind == "view"), (kind, moved)
+
+
+def test_target_bodies_project_inside_the_target_masks(dataset):
+    """Cameras, poses and images agree: the (naked) body of each target, projected with the
+    target's camera, lands inside the (dressed) person's mask; moved sideways it does not."""
+    res = _settings(dataset)["res"]
+    # native size, then a non-integer downscale (1.5x: 1 px is ~8 cm, so the bar is lower)
+    for size, most in ((res, 0.97), (32, 0.85)):
+        data = TrainingData(dataset, input_size=size, target_size=size, targets=12)
+        for index in range(len(data)):
+            item = data.item(index, np.random.default_rng(index))
+            inside = _inside_fraction(item.target_mask, _project(item.target_cameras, item.target_vertices))
+            assert np.all(inside > most), (size, index, inside)
+            posed = item.input_vertices.expand(4, -1, -1)
+            inputs = _inside_fraction(item.input_mask, _project(item.input_cameras, posed))
+            assert np.all(inputs > most), (size, index, inputs)
+            # the negative control: the bodies 0.4 m to each camera's right
+            right = item.target_cameras.viewmats[:, 0, :3]  # [T, 3] the camera x axis in the world
+            moved = item.target_vertices + 0.4 * right[:, None, :]
+            assert np.all(_inside_fraction(item.target_mask, _project(item.target_cameras, moved)) < 0.5)
+
+
+def _assert_same(a: Item, b: Item) -> None:
+    for name in a.__dataclass_fields__:
+        x, y = getattr(a, name), getattr(b, name)
+        if isinstance(x, torch.Tensor):
+            assert torch.equal(x, y), name
+        elif hasattr(x, "viewmats"):
+            assert torch.equal(x.viewmats, y.viewmats) and torch.equal(x.Ks, y.Ks), name
+        else:
+            assert x == y, name
+
+
+def test_deterministic_for_a_seeded_rng_with_or_without_cache(dataset):
+    data = TrainingData(dataset, input_size=24, target_size=24, targets=6)
+    a = data.batch([1, 0], np.random.default_rng(7))
+    b = data.batch([1, 0], np.random.default_rng(7))  # from the cache now
+    fresh = TrainingData(dataset, input_size=24, target_size=24, targets=6, cache=False)
+    c = fresh.batch([1, 0], np.random.default_rng(7))
+    for x, y, z in zip(a, b, c):
+        _assert_same(x, y)
+        _assert_same(x, z)
+    assert [i.subject for i in a] == ["subject_22", "subject_21"]
+    assert fresh.cached_bytes() == 0 and data.cached_bytes() > 0
+    # another rng state draws other targets (the pool holds 2 + 6 + 4 = 12 targets, 6 drawn)
+    draws = {tuple(data.item(0, np.random.default_rng(s)).target_cameras.viewmats[:, 0, 3].tolist()) for s in range(4)}
+    assert len(draws) > 1
+
+
+def test_cache_is_bounded(dataset):
+    data = TrainingData(dataset, input_size=24, target_size=24, targets=2, max_cached=1)
+    data.item(0, np.random.default_rng(0))
+    one = data.cached_bytes()
+    data.item(1, np.random.default_rng(0))
+    assert len(data._cache) == 1 and one > 0
+    # the stated memory per subject: 4 S^2 4 + N H^2 4 bytes of images + (1 + M) V 12 of vertices (+ rest)
+    v = data.item(0, np.random.default_rng(0)).rest_vertices.shape[0]
+    assert one == 4 * 24 * 24 * 4 + 12 * 24 * 24 * 4 + (1 + 2) * v * 12 + v * 12
+
+
+def test_area_resize_matches_a_block_mean_of_the_png(dataset):
+    """Halving the images equals the mean of 2 x 2 blocks of the premultiplied PNG (an oracle
+    computed from the file with numpy), up to 8-bit rounding."""
+    res = _settings(dataset)["res"]
+    item = TrainingData(dataset, input_size=res // 2, target_size=res, targets=1).item(0, np.random.default_rng(0))
+    png = np.asarray(Image.open(dataset / "subject_21" / "images" / "view_002.png")).astype(np.float64) / 255.0
+    pre = np.concatenate([png[..., :3] * png[..., 3:], png[..., 3:]], axis=-1)
+    half = pre.reshape(res // 2, 2, res // 2, 2, 4).mean(axis=(1, 3))
+    ours = torch.cat([item.input_rgb[2], item.input_mask[2]]).permute(1, 2, 0).double().numpy()
+    assert np.abs(ours - half).max() <= 0.5 / 255.0 + 1e-6
+
+
+def test_exclude_inputs_and_a_single_subject_folder(dataset):
+    data = TrainingData(dataset / "subject_22", input_size=24, target_size=24, targets=30, include_inputs=False)
+    assert data.subjects == ["subject_22"]
+    item = data.item(0, np.random.default_rng(1))  # 30 > 8 targets: drawn with replacement
+    assert item.target_rgb.shape[0] == 30
+    inputs = data.item(0, np.random.default_rng(1)).input_cameras.viewmats
+    for k in range(30):  # no target is an input camera
+        assert not any(torch.equal(item.target_cameras.viewmats[k], inputs[j]) for j in range(4))
+
+
+def test_split_subjects_by_seed(dataset):
+    assert split_subjects(dataset, 1) == (["subject_22"], ["subject_21"])
+    assert split_subjects(dataset, 0) == (["subject_21", "subject_22"], [])
+    with pytest.raises(DlaInputError, match="validation"):
+        split_subjects(dataset, 2)  # nothing would be left to train on
+    only = TrainingData(dataset, 24, 24, 1, subjects=split_subjects(dataset, 1)[0])
+    assert only.subjects == ["subject_22"]
+
+
+def test_bad_datasets_name_the_file(dataset, tmp_path):
+    with pytest.raises(DlaInputError, match="manifest.json: missing"):
+        TrainingData(tmp_path, 24, 24, 1)
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "manifest.json").write_text(json.dumps({"format": "dla.dataset/9", "settings": {}, "subjects": []}))
+    with pytest.raises(DlaInputError, match=r"bad/manifest.json: format 'dla.dataset/9' is not supported"):
+        TrainingData(bad, 24, 24, 1)
+    with pytest.raises(DlaInputError, match="has no subject 'subject_99'"):
+        TrainingData(dataset, 24, 24, 1, subjects=["subject_99"])
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset, copy)
+    shutil.rmtree(copy / "subject_21")
+    with pytest.raises(DlaInputError, match="subject_21: missing"):
+        TrainingData(copy, 24, 24, 1)
+    lost = copy / "subject_22" / "novel_poses" / "images" / "view_004.png"
+    lost.unlink()
+    data = TrainingData(copy / "subject_22", 24, 24, 1)
+    with pytest.raises(DlaInputError) as err:
+        data.item(0, np.random.default_rng(0))
+    assert str(lost) in str(err.value)
+    with pytest.raises(DlaInputError, match="smaller than the requested 96 px"):
+        TrainingData(dataset, 96, 24, 1).item(0, np.random.default_rng(0))
