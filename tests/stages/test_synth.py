@@ -478,3 +478,17 @@ def test_cli_mode_errors(tmp_path, capsys, args, problem):
     code, _, err = _dla(["synth", "-o", tmp_path / "x", "--res", "16", *args], capsys)
     assert code == 2 and problem in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "x").exists()
+
+
+def test_train_and_heldout_wardrobes_split_the_garments():
+    from dlacli.stages.synth import HELD_OUT, sample_subject
+
+    for seed in range(40):
+        full = sample_subject(seed, "full")
+        train = sample_subject(seed, "train")
+        held = sample_subject(seed, "heldout")
+        assert not set(train.outfit) & set(HELD_OUT)
+        suit, shoes, hair = held.outfit
+        assert suit in HELD_OUT and hair in HELD_OUT and shoes not in HELD_OUT
+        assert train.phenotype == full.phenotype == held.phenotype
+        np.testing.assert_array_equal(train.rotations, full.rotations)

@@ -41,7 +41,7 @@ def synth(
     novel_views: Optional[int] = typer.Option(None, "--novel-views", min=0, max=1024, help="Ground-truth views of the input pose, 0: none (default 12; 8 with --seeds)."),
     novel_poses: int = typer.Option(8, "--novel-poses", min=0, max=1024, help="Ground-truth poses, 3 cameras each (0: none)."),
     appearance: Optional[str] = typer.Option(None, "--appearance", help="albedo: headlight shading, the same colour in every pose (default); lit: lights fixed in the world, ambient occlusion per pose, specular highlights (default with --seeds)."),
-    wardrobe: Optional[str] = typer.Option(None, "--wardrobe", help="default: a casual suit by gender, shoes01 and short hair (default); full: every shipped suit, shoe and hair style, wider patterns and colours (default with --seeds)."),
+    wardrobe: Optional[str] = typer.Option(None, "--wardrobe", help="default: a casual suit by gender, shoes01 and short hair (default); full: every shipped suit, shoe and hair style, wider patterns and colours (default with --seeds); train / heldout: full without / with only the held-out suits and hair (docs/synth.md)."),
     motions: Optional[List[Path]] = typer.Option(None, "--motions", help="Dataset mode: motion files or folders of them (CMU .bvh, .amc with its .asf beside it, motion.npz) whose random frames are target poses, besides the built-in motions; repeatable."),
     jobs: int = typer.Option(1, "--jobs", min=1, max=256, help="Dataset mode: worker processes (one thread each)."),
 ) -> None:

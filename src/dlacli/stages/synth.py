@@ -49,7 +49,7 @@ AMBIENT = 0.35
 LAYER_BIAS = 0.006  # metres of z-buffer bias per garment layer (skin 0, shoes 1, suit and hair 2)
 MATERIALS = ("skin", "eyes", "hair", "suit", "shoes")
 APPEARANCES = ("albedo", "lit")
-WARDROBES = ("default", "full")
+WARDROBES = ("default", "full", "train", "heldout")
 # "full" wardrobe: every shipped garment of its kind (dlacli.body.garments.GARMENT_KIND)
 SUITS_FEMALE = ("female_casualsuit01", "female_casualsuit02", "female_elegantsuit01")
 SUITS_MALE = ("male_casualsuit01", "male_casualsuit02", "male_casualsuit03", "male_casualsuit04",
@@ -57,6 +57,9 @@ SUITS_MALE = ("male_casualsuit01", "male_casualsuit02", "male_casualsuit03", "ma
 SHOES = ("shoes01", "shoes02")
 HAIRS = ("short02", "short01", "short03", "short04", "afro01", "bob01", "braid01", "long01", "ponytail01")
 PATTERNS_FULL = ("stripes", "checks", "noise", "dots", "plain")
+# "train" / "heldout": the full wardrobe split so that benchmark subjects can wear garments no
+# training subject wore: "train" never draws these, "heldout" draws its suit and hair only from them
+HELD_OUT = ("female_elegantsuit01", "male_casualsuit06", "braid01", "short04")
 # "lit": Blinn-Phong specular strength and exponent per material; ambient occlusion sampling
 SPECULAR = {"skin": (0.12, 24.0), "eyes": (0.6, 150.0), "hair": (0.22, 36.0), "suit": (0.04, 10.0),
             "shoes": (0.35, 60.0)}  # fmt: skip
@@ -147,14 +150,23 @@ def _palette(rng: np.random.Generator) -> dict[str, dict]:
     }
 
 
-def _full_wardrobe(spec: SubjectSpec) -> None:
+def _full_wardrobe(spec: SubjectSpec, wardrobe: str = "full") -> None:
     """Redraw the outfit from every shipped garment and widen the colours and patterns, from a
-    stream of its own (`default_rng([seed, 2])`), so the phenotype and pose stay the default's."""
+    stream of its own (`default_rng([seed, 2])`), so the phenotype and pose stay the default's.
+    wardrobe "train" leaves out the HELD_OUT garments, "heldout" takes suit and hair from them."""
+    def pool(names):
+        if wardrobe == "train":
+            return tuple(n for n in names if n not in HELD_OUT)
+        if wardrobe == "heldout":
+            return tuple(n for n in names if n in HELD_OUT)
+        return names
+
     rng = np.random.default_rng([spec.seed, 2])
     own, other = (SUITS_FEMALE, SUITS_MALE) if spec.phenotype["gender"] >= 0.5 else (SUITS_MALE, SUITS_FEMALE)
-    suits = own if rng.uniform() < 0.85 else other
+    suits = pool(own if rng.uniform() < 0.85 else other)
+    hairs = pool(HAIRS)
     spec.outfit = (str(suits[rng.integers(len(suits))]), str(SHOES[rng.integers(len(SHOES))]),
-                   str(HAIRS[rng.integers(len(HAIRS))]))  # fmt: skip
+                   str(hairs[rng.integers(len(hairs))]))  # fmt: skip
     pal = spec.palette
     pal["suit"]["pattern"] = str(PATTERNS_FULL[rng.integers(len(PATTERNS_FULL))])
     pal["suit"]["freq"] = float(rng.uniform(8.0, 40.0))
@@ -188,8 +200,8 @@ def sample_subject(seed: int, wardrobe: str = "default") -> SubjectSpec:
     while lower > 4.0 and hand_clearance(spec) < 0.06:  # keep the hands off the body
         lower -= 4.0
         spec.rotations = relaxed_pose(np.random.default_rng(pose_seed), labels, lower)
-    if wardrobe == "full":
-        _full_wardrobe(spec)
+    if wardrobe != "default":
+        _full_wardrobe(spec, wardrobe)
     return spec
 
 
