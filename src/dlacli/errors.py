@@ -16,3 +16,6 @@ class DlaInputError(Exception):
         self.where = str(where) if where is not None else None
         self.problem = problem
         super().__init__(f"{self.where}: {problem}" if self.where else problem)
+
+    def __reduce__(self):  # picklable (raised in worker processes, e.g. `dla synth --jobs`)
+        return (DlaInputError, (self.where, self.problem))

@@ -38,9 +38,9 @@ def _root(
 
 def _register() -> None:
     """Commands in the order a user meets them: the stages, then tools."""
-    from dlacli.cli import animate, bench, body, dream, edit, export, info, interp, lift, motion, render, synth, view
+    from dlacli.cli import animate, bench, body, dream, edit, export, info, interp, lift, motion, render, synth, train, view
 
-    for module in (dream, lift, animate, render, view, export, edit, interp, synth, motion, body, info, bench):
+    for module in (dream, lift, animate, render, view, export, edit, interp, synth, train, motion, body, info, bench):
         module.register(app)
 
 

@@ -79,7 +79,7 @@ PRESETS: dict[str, GPDConfig] = {
                       spade_hidden=16, delta_channels=16),  # fmt: skip
     "small": GPDConfig(latent_channels=64, latent_resolution=32, out_resolution=128, channels=(128, 96, 64),
                        spade_hidden=32, delta_channels=32),  # fmt: skip
-    # 12,149,660 parameters (paper: 12 M)
+    # 12,148,764 parameters (paper: 12 M)
     "paper": GPDConfig(),
 }
 
@@ -111,7 +111,10 @@ class SPADE(nn.Module):
 class SPADEResBlock(nn.Module):
     def __init__(self, channels: int, segments: int, hidden: int):
         super().__init__()
-        self.norm0, self.conv0 = SPADE(channels, segments, hidden), _conv(channels, channels)
+        # conv0 feeds norm1's instance norm, which removes any per-channel bias: it has none (a
+        # bias there gets a zero gradient, and Adam turns the rounding noise into updates)
+        self.norm0 = SPADE(channels, segments, hidden)
+        self.conv0 = nn.Conv2d(channels, channels, 3, padding=1, bias=False)
         self.norm1, self.conv1 = SPADE(channels, segments, hidden), _conv(channels, channels)
 
     def forward(self, x: Tensor, seg: Tensor) -> Tensor:
