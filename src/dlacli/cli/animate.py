@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from dlacli.cli.options import finite, naming
+from dlacli.cli.options import auto_note, finite, gaussian_count, naming
 
 # pose_avatar holds positions, rotations and scales of every frame (40 bytes a Gaussian-frame):
 # 2^27 of them is ~5 GB, e.g. 131,072 Gaussians x 1,024 frames.
@@ -21,7 +21,7 @@ def animate(
     preview: Optional[Path] = typer.Option(None, "--preview", help="Also write a preview .mp4 splatted from a camera that follows the body."),
     schema: str = typer.Option("points", "--schema", help="points (UsdGeom.Points: coloured in Blender), instancer (UsdGeom.PointInstancer: oriented, anisotropic), particlefield (UsdVol.ParticleField3DGaussianSplat, for splat renderers) or both (points + particlefield)."),
     tolerance: float = typer.Option(1.0, "--tolerance", min=0.0, max=100.0, callback=finite, metavar="MM", help="Compact the time samples: leave out what USD's interpolation reproduces within this many millimetres (orientations and sizes: formats/usd.md); 0 writes every frame exactly."),
-    gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=4_194_304, help="Gaussians per frame, half sampled uniformly in UV, half on the surface (default: the count the avatar was lifted with, else 131,072)."),
+    gaussians: Optional[str] = typer.Option(None, "--gaussians", callback=gaussian_count, metavar="N|auto", help="Gaussians per frame, half sampled uniformly in UV, half on the surface (default: the count the avatar was lifted with, else 131,072); 'auto': the count lift --gaussians auto recorded, scaled to the person's size in --preview-size turntable cameras, else the fewest whose sampling noise costs under 0.2 dB (docs/benchmarks.md, 'The Gaussian budget')."),
     checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="The learned decoder's checkpoint folder, when it is not in the checkpoints cache (~/.cache/dla/checkpoints) under the hash the avatar records."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, max=2**32 - 1, help="Seed of the sample points (default: the avatar's own)."),
     fps: Optional[float] = typer.Option(None, "--fps", min=0.1, max=1000.0, callback=finite, help="Resample the motion to this frame rate (default: the motion's own)."),
@@ -48,6 +48,15 @@ def animate(
     check_outputs(files=[output, preview], inputs=[avatar, checkpoint, *split_spec(motion)])
     av = read_avatar(avatar)
     mot = load_motion(motion, fps=fps, phenotype=av.body.phenotype, allow_missing_joints=allow_missing_joints)
+    if gaussians == "auto":
+        from dlacli.stages.budget import AUTO_VIEWS, auto_gaussians
+        from dlacli.stages.render import turntable_cameras
+
+        with naming(avatar=avatar, pose=avatar, phenotype=avatar):
+            choice = auto_gaussians(av, turntable_cameras(av, AUTO_VIEWS, preview_size), seed=seed,
+                                    checkpoint=None if checkpoint is None else str(checkpoint))  # fmt: skip
+        gaussians = choice.count
+        typer.echo(auto_note(choice), err=True)
     with naming(avatar=avatar):
         gaussians, seed = sample_settings(av, gaussians, seed)
     if mot.num_frames * gaussians > MAX_GAUSSIAN_FRAMES:

@@ -32,3 +32,25 @@ def naming(**files) -> Iterator[None]:
             raise
         problem = err.problem if err.where in ("views", "avatar") else f"{err.where}: {err.problem}"
         raise DlaInputError(target, problem) from None
+
+
+MAX_GAUSSIANS = 4_194_304  # dlacli.stages.render.MAX_GAUSSIANS, written out (the CLI must not import torch)
+
+
+def gaussian_count(value: str | None) -> int | str | None:
+    """--gaussians: an integer in [2, MAX_GAUSSIANS], or "auto" (dlacli.stages.budget)."""
+    if value is None or value.strip().lower() == "auto":
+        return None if value is None else "auto"
+    try:
+        n = int(value)
+    except ValueError:
+        raise typer.BadParameter(f"expected an integer or 'auto', got {value[:40]!r}") from None
+    if not 2 <= n <= MAX_GAUSSIANS:
+        raise typer.BadParameter(f"{n} is not in the range 2<=x<={MAX_GAUSSIANS}")
+    return n
+
+
+def auto_note(choice) -> str:
+    """The line `--gaussians auto` prints on stderr (a `dlacli.stages.budget.BudgetChoice`)."""
+    how = "from the avatar's lift-time budget" if choice.rule == "recorded" else "by sampling noise (no budget recorded)"
+    return f"note: --gaussians auto: {choice.count:,} Gaussians for a person {choice.subject_px:.0f} px tall, {how}"

@@ -7,11 +7,9 @@ from typing import Optional
 
 import typer
 
-from dlacli.cli.options import finite, naming
+from dlacli.cli.options import auto_note, finite, gaussian_count, naming
 
 MAX_PIXELS = 1 << 30  # all images of one render together (--video keeps them in memory, 4 GiB as RGBA8)
-
-
 def render(
     avatar: Path = typer.Argument(..., metavar="AVATAR", help="avatar.npz"),
     output: Path = typer.Option(..., "--output", "-o", help="Folder for f{frame:04d}_c{camera:03d}.png images."),
@@ -21,7 +19,7 @@ def render(
     size: int = typer.Option(512, "--size", min=16, max=4096, help="Image size for --turntable."),
     video: Optional[Path] = typer.Option(None, "--video", help="Also write the images in order as an .mp4."),
     fps: float = typer.Option(24.0, "--fps", min=1.0, max=1000.0, callback=finite, help="Frame rate of --video."),
-    gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=4_194_304, help="Gaussians sampled from the avatar (default: the count it was lifted with, else 131,072)."),
+    gaussians: Optional[str] = typer.Option(None, "--gaussians", callback=gaussian_count, metavar="N|auto", help="Gaussians sampled from the avatar (default: the count it was lifted with, else 131,072); 'auto': the count lift --gaussians auto recorded, scaled to the person's size in these cameras, else the fewest whose sampling noise costs under 0.2 dB (docs/benchmarks.md, 'The Gaussian budget')."),
     checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="The learned decoder's checkpoint folder, when it is not in the checkpoints cache (~/.cache/dla/checkpoints) under the hash the avatar records."),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, max=2**32 - 1, help="Seed of the sample points (default: the avatar's own)."),
     allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
@@ -62,6 +60,13 @@ def render(
     if len(times) * cams.width * cams.height > MAX_PIXELS:
         raise DlaInputError("--cameras" if cameras is not None else "--turntable",
                             f"{len(times)} images of {cams.width}x{cams.height} are more than dla renders at once ({MAX_PIXELS / 1e9:.1f} gigapixels)")  # fmt: skip
+    if gaussians == "auto":
+        from dlacli.stages.budget import auto_cameras, auto_gaussians
+
+        with naming(**about_avatar):
+            choice = auto_gaussians(av, auto_cameras(cams), seed=seed, checkpoint=None if checkpoint is None else str(checkpoint))
+        gaussians = choice.count
+        typer.echo(auto_note(choice), err=True)
     frames = []
     with naming(**about_avatar), output_group(), atomic_dir(output) as tmp, progress_bar("rendering", len(times)) as update:
         for shot in render_avatar(av, cams, times, mot, gaussians, seed, where=str(avatar), progress=update,

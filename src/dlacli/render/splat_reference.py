@@ -153,7 +153,7 @@ def pairs_render(
     inside both the Gaussian's member tiles and the box where alpha can reach 1/255
     (|dx| <= sqrt(2 log(255 o) cov_xx), same for y, + a small margin). Pairs are sorted by
     (pixel, depth); transmittance is a segmented cumulative sum of log(1 - alpha) in float64.
-    Autograd does the backward. Used as the pure-torch baseline in bench/bench_splat.py.
+    Autograd does the backward. Used as the pure-torch baseline of `dla bench speed --suite splat`.
     """
     from dlacli.render.splat import project_gaussians  # same projection as the CPU kernel path
 

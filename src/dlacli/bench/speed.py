@@ -1,0 +1,556 @@
+"""Speed suites (`dla bench speed`): medians of what each part of the toolkit costs, as "speed" rows.
+
+Suites (SUITES):
+- startup: `dla --version` and `dla info <body.json>`, each a fresh interpreter, and whether
+  torch got imported;
+- splat: render_gaussians forward (no_grad) and forward + backward of rgb + alpha + depth sums,
+  per Gaussian count and image size, each case in a fresh process (its first forward includes
+  loading numba's cache; peak_mb is the resident-set growth of one forward + backward, sampled
+  every 0.5 ms). Paths: "numba" (the CPU kernels), "torch" (the pure-torch pairs renderer of
+  dlacli.render.splat_reference, autograd backward), "dense" (reference_render, O(pixels x N),
+  small cases only), "gsplat" (CUDA only; skipped with a note otherwise), and with `baseline` a
+  second copy of the package ("numba_baseline", alternated with "numba" for `rounds` rounds);
+  with `cold`, one first call with an empty numba cache (the JIT compile itself).
+  The scene: N random Gaussians in a 0.5 x 0.3 x 1.8 m box seen from 3 m (50 degree field of
+  view), scales log-uniform in [3, 30] mm, opacities uniform in [0.1, 1], random rotations and
+  SH colours;
+- body: the body model's first build in this process, posing 1 and 30 frames, tangent frames,
+  skinning, and pose + skin per frame (what animate does per frame);
+- lift: synth of one subject, and lift at each number of refinement steps;
+- animate: pose_avatar of a walk (per frame) and its USD write (animate's defaults);
+- usd: write_usd throughput on a synthetic walk-like motion, per schema and tolerance;
+- render: frames per second of an animated avatar (animate's preview renderer) and turntable
+  images of its own pose.
+Times are medians over `repeats` calls after one warm-up call, unless a row says repeats = 1
+(stages too slow to repeat). Speed is measured here, never asserted in tests.
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+SUITES = ("startup", "splat", "body", "lift", "animate", "usd", "render")
+SPLAT_CASES = ((2_048, 128), (20_000, 256), (20_000, 512), (65_536, 256), (65_536, 512), (131_072, 256), (131_072, 512))
+DENSE_MAX_PAIRS = 2_048 * 128 * 128  # Gaussians x pixels up to which the dense path runs
+USD_LIMBS = 16
+
+
+@dataclass
+class SpeedConfig:
+    splat_cases: tuple[tuple[int, int], ...] = SPLAT_CASES
+    splat_paths: tuple[str, ...] = ("numba", "torch", "dense")  # gsplat joins on CUDA
+    repeats: int = 5
+    torch_budget_s: float = 150.0  # a torch / dense case whose runs would take longer is skipped
+    sh_degree: int = 0
+    baseline: str | None = None  # another src folder holding a dlacli package, for splat ratios
+    cold: bool = False  # splat: also time one first call with an empty numba cache (the JIT compile)
+    rounds: int = 1
+    gaussians: int = 131_072  # body, animate, render
+    frames: int = 30  # animate, render, usd
+    res: int = 512  # lift subject, render size
+    lift_steps: tuple[int, ...] = (0, 50)
+    seed: int = 1001  # the lift subject (a seed no test uses)
+    startup_runs: int = 10
+    usd_gaussians: int = 131_072
+    usd_schemas: tuple[str, ...] = ("points", "instancer")
+    usd_tolerances_mm: tuple[float, ...] = (0.0, 1.0)
+    _cache: dict = field(default_factory=dict, repr=False)
+
+
+def quick_config() -> SpeedConfig:
+    """A smoke-test size of every suite (seconds on two cores)."""
+    return SpeedConfig(splat_cases=((2_048, 64), (8_192, 128)), repeats=2, gaussians=8_192, frames=4, res=96,
+                       lift_steps=(0, 2), startup_runs=2, usd_gaussians=4_096, usd_tolerances_mm=(0.0,))  # fmt: skip
+
+
+def _median_min(fn: Callable[[], object], repeats: int, sync: Callable[[], None] = lambda: None) -> tuple[float, float]:
+    """(median, min) seconds of `repeats` calls after one warm-up call."""
+    fn()
+    sync()
+    times = []
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        fn()
+        sync()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), min(times)
+
+
+# ------------------------------------------------------------------------------------ startup
+
+_PROBE = (
+    "import sys\n"
+    "from dlacli.cli.app import main\n"
+    "try:\n"
+    "    main(sys.argv[1:])\n"
+    "except SystemExit:\n"
+    "    pass\n"
+    "print('torch-loaded=' + str('torch' in sys.modules), file=sys.stderr)\n"
+)
+
+
+def _startup(cfg: SpeedConfig, row) -> list[dict]:
+    from dlacli.io.body import write_body
+    from dlacli.types import BodyParams
+
+    tmp = tempfile.mkdtemp(prefix="dla-startup-")
+    body = Path(tmp) / "body.json"
+    write_body(BodyParams(pose={"neck01": [0.1, 0.0, 0.0]}), body)
+    commands = {"version": ["--version"], "info_body_json": ["info", str(body)]}
+    out = []
+
+    def once(argv):
+        t0 = time.perf_counter()
+        done = subprocess.run([sys.executable, "-c", _PROBE, *argv], capture_output=True, text=True, check=False)
+        if "torch-loaded=" not in done.stderr:
+            raise RuntimeError(f"startup probe failed for {argv}: {done.stderr.strip()[-300:]}")
+        return time.perf_counter() - t0, "torch-loaded=True" in done.stderr
+
+    once(["--version"])  # warm the file-system cache and the .pyc files
+    for case, argv in commands.items():
+        runs = [once(argv) for _ in range(max(1, cfg.startup_runs))]
+        times = [t for t, _ in runs]
+        out.append(row("startup", case, "cli", {}, statistics.median(times), len(times), min_seconds=min(times),
+                       torch_loaded=any(loaded for _, loaded in runs)))  # fmt: skip
+    import shutil
+
+    shutil.rmtree(tmp, ignore_errors=True)
+    return out
+
+
+# ------------------------------------------------------------------------------------ splat
+# _splat_scene and _splat_case run in a fresh interpreter (their source is sent with `python -c`),
+# so that a baseline copy of the package can be measured the same way: they import only
+# dlacli.types and dlacli.render, whose APIs the baseline shares.
+
+
+def _splat_scene(n: int, res: int, sh_degree: int, seed: int = 0):
+    import math
+
+    import numpy as np
+    import torch
+
+    from dlacli.types import Cameras, Gaussians
+
+    g = torch.Generator().manual_seed(seed)
+    box = torch.tensor([0.5, 0.3, 1.8])
+    means = (torch.rand(n, 3, generator=g) - 0.5) * box
+    quats = torch.nn.functional.normalize(torch.randn(n, 4, generator=g), dim=-1)
+    scales = torch.exp(torch.empty(n, 3).uniform_(math.log(0.003), math.log(0.03), generator=g))
+    opac = torch.empty(n).uniform_(0.1, 1.0, generator=g)
+    sh = torch.randn(n, (sh_degree + 1) ** 2, 3, generator=g) * 0.3
+    f = 0.5 * res / math.tan(math.radians(25.0))
+    c2w = np.eye(4)  # OpenGL axes: camera +X = world +X, +Y = world +Z, looks along world +Y
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = [1, 0, 0], [0, 0, 1], [0, -1, 0], [0, -3, 0]
+    return Gaussians(means, quats, scales, opac, sh), Cameras.from_c2w_opengl(c2w[None], f, f, res / 2, res / 2, res, res)
+
+
+def _splat_case(path: str, n: int, res: int, repeats: int, sh_degree: int, budget_s: float) -> dict:
+    import os
+    import statistics
+    import threading
+    import time
+
+    import torch
+
+    from dlacli.render.splat import render_gaussians
+
+    g, cams = _splat_scene(n, res, sh_degree)  # noqa: F821 - sent along with this function
+    cuda = path == "gsplat"
+    if cuda:
+        g, cams = g.to("cuda"), cams.to("cuda")
+    params = [g.means, g.quats, g.scales, g.opacities, g.sh]
+    for p in params:
+        p.requires_grad_(True)
+    rec = {"threads": torch.get_num_threads(), "loadavg_1min": round(os.getloadavg()[0], 2)}
+    sync = torch.cuda.synchronize if cuda else (lambda: None)
+    if path == "torch":
+        from dlacli.render.splat_reference import pairs_render as render
+    elif path == "dense":
+        from dlacli.render.splat_reference import reference_render
+
+        def render(gs, cs):
+            return reference_render(gs, cs, chunk=max(1, min(res * res, int(2e7 // max(n, 1)))))
+    else:
+        render = render_gaussians
+
+    def fwd():
+        with torch.no_grad():
+            return render(g, cams)
+
+    def fwd_bwd():
+        o = render(g, cams)
+        (o.rgb.sum() + o.alpha.sum() + o.depth.sum()).backward()
+        for p in params:
+            p.grad = None
+
+    def timed(fn):
+        times = []
+        for _ in range(max(1, repeats)):
+            t0 = time.perf_counter()
+            fn()
+            sync()
+            times.append(time.perf_counter() - t0)
+        return statistics.median(times), min(times)
+
+    t0 = time.perf_counter()
+    out = fwd()
+    sync()
+    rec["first_seconds"] = time.perf_counter() - t0
+    rec["coverage"] = float((out.alpha > 0.5).float().mean())
+    if path in ("torch", "dense") and rec["first_seconds"] * 4 * (1 + repeats) > budget_s:
+        rec["skipped"] = f"first forward took {rec['first_seconds']:.1f} s; its runs would pass the {budget_s:.0f} s budget"
+        return rec
+    rec["fwd"] = timed(fwd)
+    fwd_bwd()
+    sync()
+    rec["fwd_bwd"] = timed(fwd_bwd)
+    if cuda:
+        torch.cuda.reset_peak_memory_stats()
+        base = torch.cuda.memory_allocated()
+        fwd_bwd()
+        sync()
+        rec["peak_mb"] = (torch.cuda.max_memory_allocated() - base) / 2**20
+    elif os.path.exists("/proc/self/statm"):
+        page = os.sysconf("SC_PAGE_SIZE")
+
+        def rss():
+            with open("/proc/self/statm") as f:
+                return int(f.read().split()[1]) * page
+
+        base, peak, stop = rss(), [0], threading.Event()
+
+        def poll():
+            while not stop.is_set():
+                peak[0] = max(peak[0], rss())
+                time.sleep(0.0005)
+
+        th = threading.Thread(target=poll, daemon=True)
+        th.start()
+        fwd_bwd()
+        stop.set()
+        th.join()
+        rec["peak_mb"] = (max(peak[0], rss()) - base) / 2**20
+    return rec
+
+
+def _run_splat_case(path: str, n: int, res: int, cfg: SpeedConfig, pythonpath: str | None = None,
+                    numba_cache: str | None = None) -> dict:  # fmt: skip
+    src = "\n\n".join(inspect.getsource(f) for f in (_splat_scene, _splat_case))
+    src += "\n\nimport json, sys\nprint(json.dumps(_splat_case(*json.loads(sys.argv[1]))))\n"
+    env = dict(os.environ, OMP_WAIT_POLICY=os.environ.get("OMP_WAIT_POLICY", "PASSIVE"),
+               MALLOC_MMAP_THRESHOLD_="131072")  # big blocks from / back to the OS: the sampled RSS follows them  # fmt: skip
+    if numba_cache:
+        env["NUMBA_CACHE_DIR"] = numba_cache
+    if pythonpath:
+        env["PYTHONPATH"] = os.pathsep.join([pythonpath, *[p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]])
+    args = json.dumps([path if path != "numba_baseline" else "numba", n, res, cfg.repeats, cfg.sh_degree, cfg.torch_budget_s])
+    done = subprocess.run([sys.executable, "-c", src, args], capture_output=True, text=True, env=env, check=False)
+    if done.returncode != 0:
+        return {"skipped": "failed: " + (done.stderr.strip().splitlines() or ["no output"])[-1][:200]}
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _gsplat_note() -> str | None:
+    """None when gsplat can run here, else why not."""
+    import importlib.util
+
+    import torch
+
+    if not torch.cuda.is_available():
+        return "no CUDA device"
+    if importlib.util.find_spec("gsplat") is None:
+        return "gsplat is not installed (extra 'gpu')"
+    return None
+
+
+def _splat(cfg: SpeedConfig, row, log) -> list[dict]:
+    paths = list(cfg.splat_paths)
+    note = _gsplat_note()
+    if note is None and "gsplat" not in paths:
+        paths.append("gsplat")
+    out = []
+    if note is not None:
+        log(f"splat: gsplat skipped ({note})")
+        out.append(row("splat", "fwd", "gsplat", {}, None, 0, skipped=note))
+    if cfg.cold:
+        with tempfile.TemporaryDirectory() as cache:
+            rec = _run_splat_case("numba", 2_048, 64, replace(cfg, repeats=1), numba_cache=cache)
+        if "first_seconds" in rec:
+            out.append(row("splat", "cold_first_call", "numba", {"n": 2_048, "res": 64}, rec["first_seconds"], 1))
+            log(f"splat: first call with an empty numba cache {rec['first_seconds']:.1f} s")
+    for n, res in cfg.splat_cases:
+        case_cfg = {"n": n, "res": res, "sh_degree": cfg.sh_degree}
+        todo = []
+        for path in paths:
+            if path == "dense" and n * res * res > DENSE_MAX_PAIRS:
+                continue
+            if path == "numba" and cfg.baseline:
+                for r in range(max(1, cfg.rounds)):
+                    todo += [("numba", r), ("numba_baseline", r)] if r % 2 == 0 else [("numba_baseline", r), ("numba", r)]
+            else:
+                todo.append((path, 0))
+        for path, rnd in todo:
+            rec = _run_splat_case(path, n, res, cfg, cfg.baseline if path == "numba_baseline" else None)
+            c = {**case_cfg, **({"round": rnd} if cfg.baseline and path.startswith("numba") else {})}
+            if "skipped" in rec and "fwd" not in rec:
+                out.append(row("splat", "fwd", path, c, None, 0, skipped=rec["skipped"], first_seconds=rec.get("first_seconds")))
+                log(f"splat {path} n={n} res={res}: skipped ({rec['skipped']})")
+                continue
+            out.append(row("splat", "fwd", path, c, rec["fwd"][0], cfg.repeats, min_seconds=rec["fwd"][1],
+                           first_seconds=rec["first_seconds"]))  # fmt: skip
+            out.append(row("splat", "fwd_bwd", path, c, rec["fwd_bwd"][0], cfg.repeats, min_seconds=rec["fwd_bwd"][1],
+                           peak_mb=rec.get("peak_mb")))  # fmt: skip
+            log(f"splat {path} n={n} res={res}: fwd {rec['fwd'][0] * 1e3:.1f} ms, fwd+bwd {rec['fwd_bwd'][0] * 1e3:.1f} ms")
+    return out
+
+
+# ------------------------------------------------------------------------------------ body
+
+
+def _body(cfg: SpeedConfig, row, log) -> list[dict]:
+    import numpy as np
+    import torch
+
+    from dlacli.body.model import get_body_model
+    from dlacli.body.skinning import skin_gaussians
+    from dlacli.body.uv import tangent_frames
+    from dlacli.stages import gaussian_map as gm
+
+    t0 = time.perf_counter()
+    body = get_body_model()
+    out = [row("body", "model_build", "cpu", {}, time.perf_counter() - t0, 1)]
+    rng = np.random.default_rng(0)
+
+    def pose(t: int):
+        rot = torch.from_numpy((rng.normal(size=(t, body.num_bones, 3)) * 0.2).astype(np.float32))
+        return rot, torch.zeros(t, 3), torch.zeros(t, 3)
+
+    n = cfg.gaussians
+    samples = gm.make_samples(n, 0)
+    fmap = torch.zeros(gm.CHANNELS, 64, 64)
+    fmap[7] = 1.0
+    with torch.no_grad():
+        for t in (1, 30):
+            p = pose(t)
+            med, lo = _median_min(lambda p=p: body.forward({}, *p), cfg.repeats)
+            out.append(row("body", "forward", "cpu", {"frames": t}, med, cfg.repeats, min_seconds=lo, items=t))
+        p1 = pose(1)
+        verts = body.forward({}, *p1).vertices
+        frames = tangent_frames(verts, samples.face_id, samples.bary)
+        zeros, ones = torch.zeros(n, 3), torch.ones(n, 3)
+        dquat = torch.tensor([1.0, 0.0, 0.0, 0.0]).expand(n, 4)
+        cases = {
+            "tangent_frames": lambda: tangent_frames(verts, samples.face_id, samples.bary),
+            "skin": lambda: skin_gaussians(*frames, zeros, dquat, ones),
+            "pose_and_skin": lambda: gm.skinned_params(fmap, samples, gm.sample_frames(body.forward({}, *p1).vertices, samples)),
+        }  # fmt: skip
+        for case, fn in cases.items():
+            med, lo = _median_min(fn, cfg.repeats)
+            out.append(row("body", case, "cpu", {"gaussians": n}, med, cfg.repeats, min_seconds=lo, items=1))
+            log(f"body {case} ({n} Gaussians): {med * 1e3:.1f} ms per frame")
+    return out
+
+
+# ------------------------------------------------------------------------------------ stages
+
+
+def _subject_and_avatar(cfg: SpeedConfig, log):
+    """(view folder, its ViewSet, an unprojected avatar at cfg.gaussians), made once per run."""
+    if "avatar" not in cfg._cache:
+        from dlacli.io.views import read_views
+        from dlacli.stages.lift import LiftConfig, lift
+        from dlacli.stages.synth import synth
+
+        tmp = tempfile.mkdtemp(prefix="dla-speed-")
+        cfg._cache["tmp"] = tmp
+        t0 = time.perf_counter()
+        folder = synth(cfg.seed, Path(tmp) / "subject", res=cfg.res, novel_views=0, novel_poses=0)
+        cfg._cache["synth_s"] = time.perf_counter() - t0
+        views = read_views(folder)
+        cfg._cache["views"] = views
+        cfg._cache["avatar"] = lift(views, LiftConfig(steps=0, gaussians=cfg.gaussians)).avatar
+    return cfg._cache["views"], cfg._cache["avatar"]
+
+
+def _walk(frames: int):
+    import numpy as np
+
+    from dlacli.body.builtin_motions import builtin_motion
+    from dlacli.types import Motion
+
+    walk = builtin_motion("walk")
+    idx = np.arange(frames) % walk.num_frames
+    return Motion(walk.bone_labels, walk.rotations[idx], walk.root_rotation[idx], walk.root_translation[idx], walk.fps)
+
+
+def _lift(cfg: SpeedConfig, row, log) -> list[dict]:
+    from dlacli.stages.lift import LiftConfig, lift
+
+    views, _ = _subject_and_avatar(cfg, log)
+    out = [row("lift", "synth", "cpu", {"res": cfg.res, "seed": cfg.seed}, cfg._cache["synth_s"], 1)]
+    for steps in cfg.lift_steps:
+        t0 = time.perf_counter()
+        lift(views, LiftConfig(steps=steps, gaussians=cfg.gaussians))
+        sec = time.perf_counter() - t0
+        out.append(row("lift", "lift", "cpu", {"res": cfg.res, "steps": steps, "gaussians": cfg.gaussians}, sec, 1))
+        log(f"lift {steps} steps at {cfg.res} px: {sec:.1f} s")
+    return out
+
+
+def _animate(cfg: SpeedConfig, row, log) -> list[dict]:
+    from dlacli.stages.animate import pose_avatar, write_animation
+
+    _, avatar = _subject_and_avatar(cfg, log)
+    clip = _walk(cfg.frames)
+    c = {"gaussians": cfg.gaussians, "frames": cfg.frames}
+    t0 = time.perf_counter()
+    anim = pose_avatar(avatar, clip, cfg.gaussians)
+    pose_s = time.perf_counter() - t0
+    path = Path(cfg._cache["tmp"]) / "anim.usdc"
+    t0 = time.perf_counter()
+    write_animation(anim, path, "points", 0.001)
+    usd_s = time.perf_counter() - t0
+    cfg._cache["anim"] = anim
+    log(f"animate {cfg.frames} frames x {cfg.gaussians} Gaussians: pose {pose_s / cfg.frames * 1e3:.1f} ms/frame, USD {usd_s:.2f} s")
+    return [row("animate", "pose", "cpu", c, pose_s / cfg.frames, 1, items=cfg.frames),
+            row("animate", "usd_write", "cpu", {**c, "schema": "points", "tolerance_mm": 1.0}, usd_s, 1,
+                size_mib=path.stat().st_size / 2**20, items=cfg.frames)]  # fmt: skip
+
+
+def walk_like(t: int, n: int, fps: float = 30.0, seed: int = 0):
+    """A synthetic walk-like motion of n Gaussians over t frames: 16 "limbs" swing +-30 degrees at
+    1 Hz about their own pivots while the body moves forward at 1.3 m/s and bobs 2 cm at 2 Hz (random
+    per-frame positions would be a worst case no compaction helps) -> positions [T, N, 3], quats
+    [T, N, 4] (w, x, y, z), scales [N, 3], rgb [N, 3], opacities [N], float32."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    limb = rng.integers(0, USD_LIMBS, n)
+    pivot = rng.uniform([-0.3, -0.1, -0.9], [0.3, 0.1, 0.6], (USD_LIMBS, 3))
+    base = pivot[limb] + rng.normal(0, 0.08, (n, 3))
+    phase = rng.uniform(0, 2 * np.pi, USD_LIMBS)
+    secs = np.arange(t) / fps
+    angle = np.radians(30) * np.sin(2 * np.pi * secs[:, None] + phase)  # [T, LIMBS] about +X
+    c, s = np.cos(angle)[:, limb], np.sin(angle)[:, limb]
+    rel = base - pivot[limb]
+    positions = np.stack([np.broadcast_to(rel[:, 0], c.shape), c * rel[:, 1] - s * rel[:, 2], s * rel[:, 1] + c * rel[:, 2]], -1)
+    positions += pivot[limb]
+    positions[..., 1] -= 1.3 * secs[:, None]
+    positions[..., 2] += 0.02 * np.sin(4 * np.pi * secs)[:, None]
+    quats = np.stack([np.cos(angle / 2)[:, limb], np.sin(angle / 2)[:, limb], np.zeros_like(c), np.zeros_like(c)], -1)
+    scales = rng.uniform(0.001, 0.005, size=(n, 3))
+    rgb, opacities = rng.uniform(size=(n, 3)), rng.uniform(0.5, 1, size=n)
+    return [a.astype(np.float32) for a in (positions, quats, scales, rgb, opacities)]
+
+
+def _usd(cfg: SpeedConfig, row, log) -> list[dict]:
+    from dlacli.io.usd import write_usd
+
+    n, t = cfg.usd_gaussians, cfg.frames
+    positions, quats, scales, rgb, opacities = walk_like(t, n)
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "anim.usdc"
+        write_usd(path, positions[:1, :8], quats[:1, :8], scales[:8], rgb[:8], opacities[:8], 30.0)  # import pxr first
+        for schema in cfg.usd_schemas:
+            for tol in cfg.usd_tolerances_mm:
+                def write(schema=schema, tol=tol):
+                    write_usd(path, positions, quats, scales, rgb, opacities, 30.0, schema=schema, tolerance=tol / 1000)
+
+                repeats = max(1, min(cfg.repeats, 3))
+                med, lo = _median_min(write, repeats)
+                size = path.stat().st_size / 2**20
+                out.append(row("usd", "write", "cpu", {"gaussians": n, "frames": t, "schema": schema, "tolerance_mm": tol},
+                               med, repeats, min_seconds=lo, size_mib=size, items=n * t))  # fmt: skip
+                log(f"usd {schema} tolerance {tol} mm: {med:.2f} s, {size:.1f} MiB ({n * t / med / 1e6:.1f} M Gaussian-frames/s)")
+    return out
+
+
+def _render(cfg: SpeedConfig, row, log) -> list[dict]:
+    from dlacli.stages.animate import animation_preview_frames, pose_avatar
+    from dlacli.stages.render import render_avatar, turntable_cameras
+
+    _, avatar = _subject_and_avatar(cfg, log)
+    anim = cfg._cache.get("anim") or pose_avatar(avatar, _walk(cfg.frames), cfg.gaussians)
+    c = {"gaussians": cfg.gaussians, "size": cfg.res}
+    next(iter(animation_preview_frames(anim, cfg.res)))  # warm-up
+    t0 = time.perf_counter()
+    k = sum(1 for _ in animation_preview_frames(anim, cfg.res))
+    per_frame = (time.perf_counter() - t0) / k
+    cams = turntable_cameras(avatar, 8, cfg.res)
+    t0 = time.perf_counter()
+    list(render_avatar(avatar, cams, [None] * 8, n_gaussians=cfg.gaussians))
+    per_image = (time.perf_counter() - t0) / 8
+    log(f"render {cfg.gaussians} Gaussians at {cfg.res} px: animation {1 / per_frame:.1f} fps, turntable {per_image * 1e3:.0f} ms/image")
+    return [row("render", "animation_frame", "cpu", {**c, "frames": k}, per_frame, k, items=1),
+            row("render", "turntable_image", "cpu", {**c, "cameras": 8}, per_image, 8, items=1)]  # fmt: skip
+
+
+# ------------------------------------------------------------------------------------ driver
+
+
+def run(suites: list[str] | tuple[str, ...] = SUITES, cfg: SpeedConfig | None = None,
+        log: Callable[[str], None] = print) -> list[dict]:  # fmt: skip
+    """The suites' speed rows (dlacli.bench.results "speed"), one `run` id for all."""
+    from dlacli.bench.results import default_device, speed_row
+
+    cfg = cfg or SpeedConfig()
+    unknown = [s for s in suites if s not in SUITES]
+    if unknown:
+        from dlacli.errors import DlaInputError
+
+        raise DlaInputError("--suite", f"unknown suite {unknown[0]!r} (one of {', '.join(SUITES)})")
+    run_id = time.strftime("%Y%m%dT%H%M%S") + f"-{os.getpid()}"
+    device = default_device()
+
+    def row(suite, case, method, config, seconds, repeats, **optional):
+        return speed_row(suite, case, method, config, seconds, repeats, run_id, device, **optional)
+
+    fns = {"startup": lambda: _startup(cfg, row), "splat": lambda: _splat(cfg, row, log), "body": lambda: _body(cfg, row, log),
+           "lift": lambda: _lift(cfg, row, log), "animate": lambda: _animate(cfg, row, log),
+           "usd": lambda: _usd(cfg, row, log), "render": lambda: _render(cfg, row, log)}  # fmt: skip
+    rows: list[dict] = []
+    try:
+        for suite in SUITES:
+            if suite in suites:
+                rows += fns[suite]()
+    finally:
+        if "tmp" in cfg._cache:
+            import shutil
+
+            shutil.rmtree(cfg._cache.pop("tmp"), ignore_errors=True)
+        cfg._cache.clear()
+    return rows
+
+
+def ratios(rows: list[dict], reference: str, suite: str = "splat") -> list[dict]:
+    """Same-run ratios: for every (run, case, config without "round") of `suite`, the median over
+    rounds of seconds(reference) / seconds(method) per method (> 1: the method is faster)."""
+    groups: dict[tuple, dict[str, list[float]]] = {}
+    for r in rows:
+        if r.get("kind") != "speed" or r["suite"] != suite or r["seconds"] is None:
+            continue
+        cfg = {k: v for k, v in r["config"].items() if k != "round"}
+        key = (r["run"], r["case"], json.dumps(cfg, sort_keys=True))
+        groups.setdefault(key, {}).setdefault(r["method"], []).append(r["seconds"])
+    out = []
+    for (run_id, case, cfg), by in sorted(groups.items()):
+        if reference not in by:
+            continue
+        ref = statistics.median(by[reference])
+        for method, secs in sorted(by.items()):
+            if method != reference:
+                out.append({"run": run_id, "case": case, "config": json.loads(cfg), "method": method,
+                            "reference": reference, "ratio": ref / statistics.median(secs)})  # fmt: skip
+    return out

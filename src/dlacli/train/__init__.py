@@ -1,0 +1,1 @@
+"""Training the learned method (DESIGN.md §1): synthetic datasets, the loop, DDP via torchrun."""

@@ -1,0 +1,179 @@
+"""The Gaussian budget (dlacli.stages.budget): the chooser on toy quality curves, the additive-error
+model, carrying a recorded count to other cameras, and `--gaussians auto` on a lifted avatar."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from dlacli.stages.budget import (LADDER, auto_gaussians, choose_for_views, choose_gaussians, measure_budget,
+                                  predicted_psnr, recorded_budget, sampling_noise, scaled_count, subject_pixels)  # fmt: skip
+
+N = 4096  # the count the test avatar is lifted with
+COUNTS = (256, 1024, 4096)
+
+
+def _oracle_choice(scores: dict[int, float], tol: float) -> int:
+    """Written differently from choose_gaussians: walk the counts upwards and stop at the first
+    one that no score beats by more than tol."""
+    usable = {n: s for n, s in scores.items() if not (isinstance(s, float) and (math.isnan(s) or s == -math.inf))}
+    for n in sorted(usable):
+        if all(usable[n] >= s - tol for s in usable.values()):
+            return n
+    raise AssertionError("unreachable")
+
+
+def test_choose_gaussians_on_toy_quality_curves():
+    # saturating: best 22.0, 0.2 dB below it is 21.8, first count at or above: 16,384
+    curve = {4096: 20.0, 8192: 21.5, 16384: 21.85, 32768: 21.95, 65536: 22.0}
+    assert choose_gaussians(curve) == 16384
+    assert choose_gaussians(curve, tolerance_db=0.0) == 65536
+    assert choose_gaussians(curve, tolerance_db=5.0) == 4096
+    # a peak in the middle (too many Gaussians blur): the best is 32,768, nothing smaller is close
+    assert choose_gaussians({4096: 18.0, 16384: 19.0, 32768: 20.0, 131072: 19.9}) == 32768
+    # the boundary is inclusive (values exact in binary): 21.75 = 22.0 - 0.25
+    assert choose_gaussians({1: 21.75, 2: 22.0}, tolerance_db=0.25) == 1
+    # failed renders never win; a perfect score is only matched by another
+    assert choose_gaussians({4096: float("nan"), 8192: -math.inf, 16384: 20.0}) == 16384
+    assert choose_gaussians({4096: 40.0, 8192: math.inf}) == 8192
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        counts = sorted(rng.choice(2 ** np.arange(1, 20), size=rng.integers(1, 8), replace=False).tolist())
+        scores = {int(n): float(v) for n, v in zip(counts, rng.normal(20.0, 1.0, len(counts)))}
+        tol = float(rng.uniform(0.0, 1.0))
+        assert choose_gaussians(scores, tol) == _oracle_choice(scores, tol)
+    for bad in ({}, {4096: float("nan")}):
+        with pytest.raises(ValueError):
+            choose_gaussians(bad)
+    with pytest.raises(ValueError):
+        choose_gaussians(curve, tolerance_db=-0.1)
+
+
+def test_additive_error_model():
+    p = 21.0
+    e = 10 ** (-p / 10)
+    # no sampling noise: exactly the reference's score; noise of (10^(0.02) - 1) e costs 0.2 dB
+    s_02 = (10**0.02 - 1) * e
+    got = predicted_psnr({1: 0.0, 2: s_02, 3: 10 * e}, p)
+    assert got[1] == pytest.approx(p, abs=1e-12)
+    assert got[2] == pytest.approx(p - 0.2, abs=1e-9)
+    assert got[3] == pytest.approx(p - 10 * math.log10(11), abs=1e-9)
+    # choosing on predicted scores = the smallest count whose noise exceeds the least noise by at
+    # most (10^(tol/10) - 1) (e + least noise): the rule the module doc states
+    noise = {4096: 4e-3, 8192: 1.2e-3, 16384: 6e-4, 32768: 4e-4, 65536: 3e-4}
+    limit = (10**0.02 - 1) * (e + min(noise.values()))
+    expected = min(n for n, s in noise.items() if s - min(noise.values()) <= limit)
+    assert choose_gaussians(predicted_psnr(noise, p)) == expected == 16384
+
+
+def test_scaled_count_follows_the_area_the_person_covers():
+    assert scaled_count(16384, 100.0, 100.0) == 16384
+    assert scaled_count(16384, 100.0, 200.0) == 65536  # twice as tall: 4x the area
+    assert scaled_count(16384, 100.0, 150.0) == 65536  # 36,864 rounded up to the ladder
+    assert scaled_count(16384, 100.0, 50.0) == 4096
+    assert scaled_count(16384, 100.0, 10.0) == LADDER[0]
+    assert scaled_count(131072, 100.0, 400.0) == LADDER[-1]  # more than the ladder holds
+    with pytest.raises(ValueError):
+        scaled_count(16384, 0.0, 10.0)
+
+
+@pytest.fixture(scope="module")
+def lifted(subject):
+    from dlacli.io.views import read_views
+    from dlacli.stages.lift import LiftConfig, lift
+
+    views = read_views(subject)
+    return lift(views, LiftConfig(steps=0, gaussians=N)).avatar, views
+
+
+def test_measure_budget_is_masked_psnr_of_the_renders(lifted):
+    from dlacli.bench.metrics import masked_psnr
+    from dlacli.stages.render import render_avatar
+
+    avatar, views = lifted
+    scores = measure_budget(avatar, views, COUNTS)
+    assert list(scores) == list(COUNTS)
+    gt = views.images * views.masks[..., None]
+    for n in COUNTS:
+        shots = sorted(render_avatar(avatar, views.cameras, views.times, n_gaussians=n), key=lambda s: s.camera)
+        want = masked_psnr(np.stack([s.rgba[..., :3] for s in shots]), gt, views.masks)
+        assert scores[n] == pytest.approx(want, abs=1e-9)
+
+
+def test_sampling_noise_is_half_the_difference_of_two_seeds(lifted):
+    from dlacli.stages.render import render_avatar
+
+    avatar, views = lifted
+    noise = sampling_noise(avatar, views.cameras, (256, 1024))
+    for n, s in noise.items():
+        a, b = (np.stack([x.rgba for x in sorted(render_avatar(avatar, views.cameras, views.times, n_gaussians=n, seed=k),
+                                                 key=lambda x: x.camera)]) for k in (0, 1))  # fmt: skip
+        sel = np.maximum(a[..., 3], b[..., 3]) > 0.5
+        assert s == pytest.approx(0.5 * np.mean((a[..., :3][sel].astype(np.float64) - b[..., :3][sel]) ** 2), rel=1e-9)
+        assert s > 0  # two different sample sets do not draw the same image
+
+
+def test_lift_auto_records_its_choice_and_animate_auto_carries_it(lifted, tmp_path):
+    from dlacli.io.avatar import read_avatar, write_avatar
+    from dlacli.stages.render import sample_settings
+    from dlacli.types import Cameras
+
+    avatar, views = lifted
+    chosen, choice = choose_for_views(avatar, views, COUNTS)
+    assert choice.count == choose_gaussians(measure_budget(avatar, views, COUNTS))
+    write_avatar(chosen, tmp_path / "a.npz")  # the record is JSON (no inf / NaN)
+    back = read_avatar(tmp_path / "a.npz")
+    assert sample_settings(back) == (choice.count, 0)
+    rec = recorded_budget(back)
+    assert rec["count"] == choice.count and rec["render_size"] == views.masks.shape[1]
+    assert rec["subject_px"] == pytest.approx(subject_pixels(avatar, views.cameras))
+    # the input cameras: the same count; half the focal length (the person half as tall): a quarter
+    assert auto_gaussians(back, views.cameras, COUNTS).count == choice.count
+    ks = views.cameras.Ks.clone()
+    ks[:, :2, :2] *= 0.5
+    half = Cameras(views.cameras.viewmats, ks, views.cameras.width, views.cameras.height)
+    assert subject_pixels(avatar, half) == pytest.approx(0.5 * rec["subject_px"], rel=1e-6)
+    got = auto_gaussians(back, half, COUNTS)
+    assert got.rule == "recorded" and got.count == scaled_count(choice.count, 2.0, 1.0, COUNTS)
+    # without a record: self-consistency, the choice on the predicted scores of its noise
+    plain = auto_gaussians(avatar, views.cameras, COUNTS)
+    assert plain.rule == "self-consistency"
+    assert plain.count == choose_gaussians(predicted_psnr(plain.noise))
+
+
+def _main(argv, capsys):
+    from dlacli.cli.app import main
+
+    with pytest.raises(SystemExit) as info:
+        main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return info.value.code, out, err
+
+
+def test_cli_gaussians_auto(lifted, tmp_path, capsys):
+    from PIL import Image
+
+    from dlacli.io.avatar import write_avatar
+
+    avatar, views = lifted
+    chosen, choice = choose_for_views(avatar, views, COUNTS)
+    write_avatar(chosen, tmp_path / "a.npz")
+    code, _, err = _main(["render", tmp_path / "a.npz", "--turntable", 2, "--size", 32, "--gaussians", "auto", "-o", tmp_path / "r"], capsys)
+    assert code == 0, err
+    assert "--gaussians auto" in err and "lift-time budget" in err
+    assert len(list((tmp_path / "r").glob("f*_c*.png"))) == 2
+    assert Image.open(tmp_path / "r" / "f0000_c000.png").size == (32, 32)
+    code, _, err = _main(["animate", tmp_path / "a.npz", "wave", "-o", tmp_path / "w.usda", "--gaussians", "AUTO",
+                          "--preview-size", 32, "--fps", 2], capsys)  # fmt: skip
+    assert code == 0, err
+    count = int(err.split("--gaussians auto: ")[1].split(" ")[0].replace(",", ""))
+    assert count in LADDER
+    from dlacli.cli import options as cli_options
+    from dlacli.stages import render as stage_render
+
+    assert cli_options.MAX_GAUSSIANS == stage_render.MAX_GAUSSIANS  # written out in the CLI (no torch there)
+    for bad in ("1", "lots", str(stage_render.MAX_GAUSSIANS + 1)):
+        code, _, err = _main(["render", tmp_path / "a.npz", "--turntable", 1, "--gaussians", bad, "-o", tmp_path / "x"], capsys)
+        assert code == 2 and err.startswith("error: --gaussians:") and len(err.strip().splitlines()) == 1, err
