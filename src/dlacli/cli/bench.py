@@ -1,4 +1,4 @@
-"""`dla bench`: accuracy and speed suites (results on stdout; JSON with --json)."""
+"""`dla bench`: accuracy, stability, Gaussian-budget and speed suites (tables on stdout; rows with --json / --jsonl)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 
 bench_app = typer.Typer(
-    help="Benchmarks: accuracy against cost on synthetic subjects.",
+    help="Benchmarks: accuracy against cost, stability, the Gaussian budget and speed, on synthetic subjects.",
     no_args_is_help=True,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
@@ -29,6 +29,64 @@ def _ints(text: str, name: str, hi: int) -> list[int]:
     if len(values) > 64 or not all(0 <= v <= hi for v in values):
         raise DlaInputError(name, f"expected at most 64 integers in [0, {hi}]")
     return values
+
+
+def _names(text: str, name: str, known) -> list[str]:
+    from dlacli.errors import DlaInputError
+
+    if len(text) > 10_000:
+        raise DlaInputError(name, "is too long")
+    values = [x.strip() for x in text.split(",") if x.strip()]
+    if not values:
+        raise DlaInputError(name, "is empty")
+    unknown = [v for v in values if v not in known]
+    if unknown:
+        raise DlaInputError(name, f"unknown name {unknown[0]!r} (one of {', '.join(known)})")
+    return list(dict.fromkeys(values))
+
+
+def _cases(text: str) -> tuple[tuple[int, int], ...]:
+    """"N:RES,N:RES" -> ((N, RES), ...)."""
+    from dlacli.errors import DlaInputError
+
+    out = []
+    for part in text[:10_000].split(","):
+        if not part.strip():
+            continue
+        try:
+            n, res = (int(x) for x in part.split(":"))
+        except ValueError:
+            raise DlaInputError("--splat-cases", f"expected N:RES pairs, got {part.strip()[:40]!r}") from None
+        if not (1 <= n <= 4_194_304 and 16 <= res <= 4096):
+            raise DlaInputError("--splat-cases", f"{part.strip()}: N must be in [1, 4194304] and RES in [16, 4096]")
+        out.append((n, res))
+    if not out or len(out) > 64:
+        raise DlaInputError("--splat-cases", "expected 1 to 64 N:RES pairs")
+    return tuple(out)
+
+
+def _jsonl(path: Optional[Path]) -> Optional[Path]:
+    from dlacli.errors import DlaInputError
+    from dlacli.io.atomic import check_outputs
+
+    if path is not None:
+        if path.suffix.lower() != ".jsonl" or path.is_dir():
+            raise DlaInputError(path, "the results file is a .jsonl file")
+        check_outputs(files=[path])
+    return path
+
+
+def _save_rows(jsonl: Optional[Path], rows: list[dict]) -> None:
+    if jsonl is not None:
+        from dlacli.bench.results import append_rows
+
+        append_rows(jsonl, rows)
+
+
+def _stderr(line: str) -> None:
+    import sys
+
+    print(line, file=sys.stderr, flush=True)
 
 
 @bench_app.command("pipeline")
@@ -60,6 +118,41 @@ def pipeline(
     else:
         typer.echo(markdown_table(result))
         typer.echo(f"animate {result['animate_frames']} frames (pose + USD): {result['animate_s_median']:.1f} s median")
+
+
+@bench_app.command("accuracy")
+def accuracy(
+    seeds: str = typer.Option("9001,9002", "--seeds", help="Synthetic subjects reserved for benchmarking (no test or training uses 9000-9999)."),
+    methods: str = typer.Option("unproject,refine:50", "--methods", help="Comma-separated: unproject, refine:STEPS[@SIZE] (SIZE = render size of refinement), learned:CKPT[:STEPS] (a dla train checkpoint, STEPS refinement of Z)."),
+    res: int = typer.Option(512, "--res", min=32, max=4096, help="Image size (the paper's protocol: 512, black background)."),
+    appearance: str = typer.Option("lit", "--appearance", help="Subjects' appearance: lit (pose- and view-dependent shading) or albedo."),
+    wardrobe: str = typer.Option("heldout", "--wardrobe", help="Subjects' garments: heldout (none a training subject wore), full, default."),
+    as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of a table."),
+    jsonl: Optional[Path] = typer.Option(None, "--jsonl", help="Also append the rows as dla.bench/1 JSON lines to this file (`dla bench report` reads it)."),
+) -> None:
+    """Accuracy against cost of every method: lift in a fresh process (wall time, peak memory),
+    then PSNR (whole image and inside the mask), SSIM and alpha IoU on novel views, novel poses
+    and novel view & pose. LPIPS is absent: it needs AlexNet weights dla does not ship."""
+    from dlacli.bench.accuracy import parse_methods, run
+    from dlacli.bench.results import report_markdown
+    from dlacli.stages.synth import APPEARANCES, WARDROBES
+
+    specs = parse_methods(methods)
+    _names(appearance, "--appearance", APPEARANCES)
+    _names(wardrobe, "--wardrobe", WARDROBES)
+    for spec in specs:
+        if "checkpoint" in spec.config and not Path(spec.config["checkpoint"]).exists():
+            from dlacli.errors import DlaInputError
+
+            raise DlaInputError("--methods", f"{spec.label}: no such checkpoint folder")
+    jsonl = _jsonl(jsonl)
+    rows = run(_ints(seeds, "--seeds", 2**32 - 1), specs, res=res, appearance=appearance, wardrobe=wardrobe, log=_stderr)
+    _save_rows(jsonl, rows)
+    if as_json:
+        for row in rows:
+            typer.echo(json.dumps(row, sort_keys=True))
+    else:
+        typer.echo(report_markdown(rows, None))
 
 
 @bench_app.command("regions")
@@ -110,28 +203,162 @@ def regions(
             Image.fromarray(np.concatenate(pictures, axis=0)).save(tmp)
 
 
+@bench_app.command("speed")
+def speed(
+    suite: str = typer.Option("startup,splat,body,lift,animate,usd,render", "--suite", help="Suites to run, comma-separated: startup, splat, body, lift, animate, usd, render."),
+    quick: bool = typer.Option(False, "--quick", help="Tiny sizes of every suite (a smoke run, seconds)."),
+    repeats: Optional[int] = typer.Option(None, "--repeats", min=1, max=1000, help="Timed calls per case (default 5; --quick 2)."),
+    gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=4_194_304, help="Gaussians of the body, animate and render suites (default 131,072)."),
+    res: Optional[int] = typer.Option(None, "--res", min=32, max=4096, help="Image size of the lift subject and the render suite (default 512)."),
+    frames: Optional[int] = typer.Option(None, "--frames", min=1, max=10_000, help="Frames of the animate, usd and render suites (default 30)."),
+    lift_steps: Optional[str] = typer.Option(None, "--lift-steps", help="lift: refinement steps to time, comma-separated (default 0,50)."),
+    splat_cases: Optional[str] = typer.Option(None, "--splat-cases", metavar="N:RES,...", help="splat: Gaussian counts and image sizes, e.g. 20000:256,131072:512 (default: 2048:128 and 20k/65k/131k at 256 and 512)."),
+    no_torch: bool = typer.Option(False, "--no-torch", help="splat: skip the slow pure-torch and dense paths."),
+    baseline: Optional[Path] = typer.Option(None, "--baseline", help="splat: also time another copy of the package (a src folder holding dlacli), alternated with this one; the report shows baseline / current."),
+    cold: bool = typer.Option(False, "--cold", help="splat: also time a first call with an empty numba cache (the JIT compile)."),
+    rounds: int = typer.Option(1, "--rounds", min=1, max=100, help="With --baseline: alternate the two versions this many times per case."),
+    as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of tables."),
+    jsonl: Optional[Path] = typer.Option(None, "--jsonl", help="Also append the rows as dla.bench/1 JSON lines to this file (`dla bench report` reads it)."),
+) -> None:
+    """Speed: splatting forward and forward+backward per Gaussian count and image size (numba vs
+    the pure-torch renderer; gsplat on CUDA), pose + skin per frame, lift and animate stage times,
+    USD write throughput, animation frames per second, CLI start-up. Medians; never a test."""
+    from dataclasses import replace
+
+    from dlacli.bench.results import speed_markdown
+    from dlacli.bench.speed import SUITES, SpeedConfig, quick_config, run
+    from dlacli.errors import DlaInputError
+
+    suites = _names(suite, "--suite", SUITES)
+    jsonl = _jsonl(jsonl)
+    if baseline is not None and not (baseline / "dlacli" / "__init__.py").is_file():
+        raise DlaInputError(baseline, "is not a src folder holding a dlacli package (no dlacli/__init__.py)")
+    cfg = quick_config() if quick else SpeedConfig()
+    changes = {k: v for k, v in (("repeats", repeats), ("gaussians", gaussians), ("res", res), ("frames", frames)) if v is not None}
+    if lift_steps is not None:
+        changes["lift_steps"] = tuple(_ints(lift_steps, "--lift-steps", 100_000))
+    if splat_cases is not None:
+        changes["splat_cases"] = _cases(splat_cases)
+    if no_torch:
+        changes["splat_paths"] = ("numba",)
+    if cold:
+        changes["cold"] = True
+    if baseline is not None:
+        changes.update(baseline=str(baseline.resolve()), rounds=rounds)
+    rows = run(suites, replace(cfg, **changes), log=_stderr)
+    _save_rows(jsonl, rows)
+    if as_json:
+        for row in rows:
+            typer.echo(json.dumps(row, sort_keys=True))
+    else:
+        typer.echo("\n".join(speed_markdown(rows, intro=False)).rstrip())
+
+
+@bench_app.command("stability")
+def stability(
+    seeds: str = typer.Option("1001", "--seeds", help="Synthetic subjects (use seeds no test uses)."),
+    methods: str = typer.Option("unproject,refine", "--methods", help="Methods to compare (dlacli.bench.stability.METHODS): unproject, refine, and learned with --checkpoint."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, max=100_000, help="Refinement steps of the 'refine' method (default 50)."),
+    checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="A dla train checkpoint: adds the method 'learned' (U-Net + encoder + GPD, no refinement)."),
+    perturbations: Optional[str] = typer.Option(None, "--perturbations", help="Comma-separated subset (default all): pose_noise, shape_noise, colour_shift, misregister_px, misregister_deg, fewer_views, extreme_pose, self_contact, small_in_frame, large_in_frame."),
+    levels: Optional[int] = typer.Option(None, "--levels", min=2, max=100, help="At most this many levels per perturbation, the clean one and the worst included (default all)."),
+    res: int = typer.Option(256, "--res", min=32, max=4096, help="Image size of the subjects."),
+    as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of tables."),
+    jsonl: Optional[Path] = typer.Option(None, "--jsonl", help="Also append the runs as dla.bench/1 JSON lines to this file (`dla bench report` reads it)."),
+) -> None:
+    """Degradation curves: each method lifts perturbed inputs (noisy body pose and shape,
+    colour-shifted and misregistered views, fewer views, extreme poses and self-contact, the
+    person small or large in frame); masked PSNR on novel views and poses per level, the level
+    where it has dropped 2 dB, and every NaN, exception or empty avatar."""
+    from dlacli.bench.results import stability_markdown
+    from dlacli.bench.stability import METHODS, PERTURBATIONS, method_config, register_learned, run
+
+    if checkpoint is not None:
+        register_learned(str(checkpoint))
+    names = _names(methods, "--methods", list(METHODS))
+    perts = _names(perturbations, "--perturbations", list(PERTURBATIONS)) if perturbations else None
+    jsonl = _jsonl(jsonl)
+    configs = {m: method_config(m, {"steps": steps} if steps is not None else None) for m in names}
+    rows = run(_ints(seeds, "--seeds", 2**32 - 1), configs, perts, res=res, levels=levels, log=_stderr)
+    _save_rows(jsonl, rows)
+    if as_json:
+        for row in rows:
+            typer.echo(json.dumps(row, sort_keys=True))
+    else:
+        typer.echo("\n".join(stability_markdown(rows, intro=False)).rstrip())
+
+
+@bench_app.command("budget")
+def budget(
+    seeds: str = typer.Option("1001", "--seeds", help="Synthetic subjects (use seeds no test uses)."),
+    counts: str = typer.Option("4096,8192,16384,32768,65536,131072,262144", "--counts", help="Gaussian counts to compare."),
+    uv: str = typer.Option("128,256,512", "--uv", help="UV resolutions of the Gaussian map (lift --resolution) to compare."),
+    size: int = typer.Option(512, "--size", min=32, max=4096, help="The target render size: the subjects' views are rendered and scored at it."),
+    method: str = typer.Option("unproject", "--method", help="The method making the avatars (dlacli.bench.stability.METHODS): unproject, refine."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, max=100_000, help="Refinement steps of the 'refine' method (default 50)."),
+    usd_frames: int = typer.Option(8, "--usd-frames", min=0, max=1000, help="Frames of the walk written as USD per count (0: no USD sizes)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of tables."),
+    jsonl: Optional[Path] = typer.Option(None, "--jsonl", help="Also append the runs as dla.bench/1 JSON lines to this file (`dla bench report` reads it)."),
+) -> None:
+    """The Gaussian budget: masked PSNR against the number of Gaussians and the UV resolution at a
+    render size, with render time and USD size per count, and what `--gaussians auto` picks."""
+    from dlacli.bench.budget import run
+    from dlacli.bench.results import budget_markdown
+    from dlacli.bench.stability import METHODS, method_config
+
+    (name,) = _names(method, "--method", list(METHODS))
+    ns = _ints(counts, "--counts", 4_194_304)
+    if min(ns) < 2:
+        from dlacli.errors import DlaInputError
+
+        raise DlaInputError("--counts", "every count must be at least 2")
+    jsonl = _jsonl(jsonl)
+    cfg = method_config(name, {"steps": steps} if steps is not None else None)
+    rows = run(_ints(seeds, "--seeds", 2**32 - 1), ns, _ints(uv, "--uv", 2048), render_size=size, method=name,
+               config=cfg, usd_frames=usd_frames, log=_stderr)  # fmt: skip
+    _save_rows(jsonl, rows)
+    if as_json:
+        for row in rows:
+            typer.echo(json.dumps(row, sort_keys=True))
+    else:
+        typer.echo("\n".join(budget_markdown(rows, intro=False)).rstrip())
+
+
 @bench_app.command("report")
 def report(
-    results: Path = typer.Argument(..., metavar="RESULTS", help="dla.bench/1 JSON lines (`dla bench pipeline --jsonl`)."),
-    output: Path = typer.Option(Path("docs/benchmarks.md"), "--output", "-o", help="The markdown page; its chart is written beside it as <name>.png."),
+    results: Path = typer.Argument(..., metavar="RESULTS", help="dla.bench/1 JSON lines (`dla bench pipeline / stability / budget / speed --jsonl`)."),
+    output: Path = typer.Option(Path("docs/benchmarks.md"), "--output", "-o", help="The markdown page; its charts are written beside it: <name>.png (time against accuracy), <name>_stability.png, <name>_budget.png."),
 ) -> None:
     """Regenerate the benchmark page (tables per split, the Pareto frontier, the time-vs-accuracy
-    chart) from result rows, so the page never drifts from the numbers."""
-    from dlacli.bench.results import draw_chart, read_rows, report_markdown
+    chart; the stability curves, the Gaussian budget and the speed tables when the rows hold
+    them) from result rows, so the page never drifts from the numbers."""
+    from dlacli.bench.results import (draw_budget_chart, draw_chart, draw_stability_chart, kind, read_rows,
+                                      report_markdown)  # fmt: skip
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_path, check_outputs, output_group
 
     if output.suffix.lower() != ".md":
         raise DlaInputError(output, "the page is a .md file")
     chart = output.with_suffix(".png")
-    check_outputs(files=[output, chart], inputs=[results])
+    stab_chart = output.with_name(output.stem + "_stability.png")
+    budget_chart = output.with_name(output.stem + "_budget.png")
+    check_outputs(files=[output, chart, stab_chart, budget_chart], inputs=[results])
     rows = read_rows(results)
     if not rows:
         raise DlaInputError(results, "holds no result rows")
+    kinds = {kind(r) for r in rows}
     with output_group():
-        draw_chart(rows, chart)
+        if "accuracy" in kinds:
+            draw_chart(rows, chart)
+        if "stability" in kinds:
+            draw_stability_chart(rows, stab_chart)
+        if "budget" in kinds:
+            draw_budget_chart(rows, budget_chart)
+        page = report_markdown(rows, chart.name if "accuracy" in kinds else None,
+                               stability_chart=stab_chart.name if "stability" in kinds else None,
+                               budget_chart=budget_chart.name if "budget" in kinds else None)  # fmt: skip
         with atomic_path(output) as tmp:
-            tmp.write_text(report_markdown(rows, chart.name) + "\n", encoding="utf-8")
+            tmp.write_text(page + "\n", encoding="utf-8")
     typer.echo(str(output))
 
 

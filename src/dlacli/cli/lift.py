@@ -8,6 +8,8 @@ from typing import Optional
 
 import typer
 
+from dlacli.cli.options import gaussian_count
+
 # `dlacli.stages.lift.LiftConfig`'s defaults, written out so that loading the CLI (`dla --version`,
 # `dla info`) does not import the stage and torch; tests/test_layers.py checks that they agree.
 _DEFAULTS = SimpleNamespace(steps=50, resolution=256, gaussians=131_072)
@@ -21,7 +23,7 @@ def lift(
     method: str = typer.Option("unproject", "--method", help="Encoder into the latent Z: 'unproject' (mesh unprojection, no weights) or 'learned' (U-Net + cross-attention encoder + GPD from --checkpoint)."),
     checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="With --method learned: the network checkpoint folder (`dla train`'s RUN/ckpt-N/generator) or its hash in the checkpoints cache."),
     resolution: int = typer.Option(_DEFAULTS.resolution, "--resolution", min=16, max=2048, help="UV resolution of the Gaussian map Z."),
-    gaussians: int = typer.Option(_DEFAULTS.gaussians, "--gaussians", min=2, max=4_194_304, help="Gaussians sampled from Z while refining."),
+    gaussians: str = typer.Option(str(_DEFAULTS.gaussians), "--gaussians", callback=gaussian_count, metavar="N|auto", help="Gaussians sampled from Z while refining; 'auto': refine with 131,072, then record the fewest (4,096 ... 262,144) whose re-renders of the input views score within 0.2 dB masked PSNR of the best (docs/benchmarks.md, 'The Gaussian budget')."),
     seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1, help="Seed of the Gaussian sample points."),
     allow_outside: bool = typer.Option(False, "--allow-outside", help="Read images that transforms.json names outside the view folder (absolute paths, '..', links out)."),
 ) -> None:
@@ -65,7 +67,8 @@ def lift(
     n_views = len(read_transforms(views)["file_paths"])
     if n_views > MAX_VIEWS:
         raise DlaInputError(views, f"has {n_views} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
-    cfg = LiftConfig(steps=steps, resolution=resolution, gaussians=gaussians, seed=seed)
+    auto = gaussians == "auto"
+    cfg = LiftConfig(steps=steps, resolution=resolution, gaussians=_DEFAULTS.gaussians if auto else gaussians, seed=seed)
     view_set = read_views(views, allow_outside=allow_outside)
     novel = read_views(novel_dir, require_body=False, allow_outside=allow_outside) if novel_dir is not None else None
     body = views / "body.json" if views.is_dir() else views.with_name("body.json")
@@ -77,6 +80,13 @@ def lift(
             result = lift_learned(view_set, str(checkpoint), steps=steps, progress=report, novel=novel)
         else:
             result = run_lift(view_set, cfg, progress=report, novel=novel)
+    if auto:
+        from dlacli.stages.budget import choose_for_views
+
+        with naming(views=views, pose=body, phenotype=body):
+            result.avatar, choice = choose_for_views(result.avatar, view_set)
+        typer.echo(f"note: --gaussians auto: {choice.count:,} Gaussians (input views, masked PSNR "
+                   f"{choice.scores[choice.count]:.2f} dB, best {max(choice.scores.values()):.2f})", err=True)  # fmt: skip
     if result.novel_view is not None:
         from dlacli.bench.metrics import masked_psnr
 

@@ -1,0 +1,61 @@
+"""`dla bench accuracy` (bench/accuracy.py): method specs, the three splits, and one small run."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dlacli.errors import DlaInputError
+
+
+def test_method_specs():
+    from dlacli.bench.accuracy import parse_methods
+
+    specs = parse_methods("unproject, refine:50, refine:150@256, learned:/runs/a/generator, learned:/r:b/g:20")
+    assert [(s.name, s.config) for s in specs] == [
+        ("unproject", {"steps": 0}),
+        ("unproject+refine", {"steps": 50}),
+        ("unproject+refine", {"steps": 150, "render_size": 256}),
+        ("learned", {"checkpoint": "/runs/a/generator", "steps": 0}),
+        ("learned+refine", {"checkpoint": "/r:b/g", "steps": 20}),
+    ]
+    for bad in ("", "refine", "refine:x", "refine:0", "learned", "magic"):
+        with pytest.raises(DlaInputError, match="--methods"):
+            parse_methods(bad)
+
+
+def test_pose_frames_split_by_camera():
+    from types import SimpleNamespace
+
+    from dlacli.bench.accuracy import split_indices
+
+    views = SimpleNamespace(extra={"synth": {"azimuths": [0.0, 120.0, 240.0]}}, __len__=None)
+    views = type("V", (), {"extra": views.extra, "__len__": lambda self: 6})()
+    got = split_indices(views)
+    np.testing.assert_array_equal(got["novel_poses"], [0, 3])
+    np.testing.assert_array_equal(got["novel_view_pose"], [1, 2, 4, 5])
+
+
+def test_a_small_run_scores_every_split(tmp_path):
+    from dlacli.bench.accuracy import SPLITS, parse_methods, run, score_avatar
+    from dlacli.bench.results import check_row
+
+    rows = run([9101], parse_methods("unproject"), res=64, novel_views=2, novel_poses=1, log=lambda s: None)
+    assert [r["split"] for r in rows] == list(SPLITS)
+    for r in rows:
+        check_row(r)
+        assert r["method"] == "unproject" and r["subject"] == 9101 and r["config"]["wardrobe"] == "heldout"
+        assert r["seconds"] > 0 and r["peak_mb"] > 50  # a fresh process with torch loaded
+        m = r["metrics"]
+        assert 5 < m["psnr_masked"] < 60 and 0 < m["iou"] <= 1 and 0 < m["ssim"] <= 1
+    # the scores are those of the avatar lifted and rendered here, directly (to 1e-3 dB / 1e-4:
+    # the child process's lift agrees with this one's to float32 accumulation order, not bit for bit)
+    from dlacli.io.views import read_views
+    from dlacli.stages.lift import LiftConfig, lift
+    from dlacli.stages.synth import synth
+
+    folder = synth(9101, tmp_path / "s", res=64, novel_views=2, novel_poses=1, appearance="lit", wardrobe="heldout")
+    direct = score_avatar(lift(read_views(folder), LiftConfig(steps=0)).avatar, folder)
+    for r in rows:
+        for k, v in direct[r["split"]].items():
+            assert abs(r["metrics"][k] - v) <= (1e-3 if k.startswith("psnr") else 1e-4), (r["split"], k)
