@@ -134,7 +134,16 @@ def test_run_folder_pictures_and_record(data64, tmp_path):
     assert all({"perceptual", "gan", "kl", "delta", "disc"} <= set(h) for h in full)
 
 
-def test_cli_refuses_bad_runs_in_one_line(data64, tmp_path):
+def _main(argv, capsys):
+    from dlacli.cli.app import main
+
+    with pytest.raises(SystemExit) as info:
+        main(["train", *map(str, argv)])
+    out, err = capsys.readouterr()
+    return info.value.code, out, err
+
+
+def test_cli_refuses_bad_runs_in_one_line(data64, tmp_path, capsys):
     (tmp_path / "busy").mkdir()
     (tmp_path / "busy" / "x").write_text("x")
     cases = [
@@ -145,14 +154,14 @@ def test_cli_refuses_bad_runs_in_one_line(data64, tmp_path):
         (["--data", data64, "-o", tmp_path / "r4", "--resume"], "train.json"),
     ]
     for args, where in cases:
-        r = _train_cli(*args, "--steps-low", 1, "--steps-full", 0, "--full-size", SIZE)
-        assert r.returncode == 2, (args, r.stderr)
-        lines = r.stderr.strip().splitlines()
-        assert len(lines) == 1 and lines[0].startswith("error: ") and where in lines[0], r.stderr
+        code, _, err = _main([*args, "--steps-low", 1, "--steps-full", 0, "--full-size", SIZE], capsys)
+        assert code == 2, (args, err)
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: ") and where in lines[0], err
     assert not (tmp_path / "r1").exists() and not (tmp_path / "r2").exists()
     # resuming with other settings is refused, naming them
-    ok = _train_cli("--data", data64, "-o", tmp_path / "r5", "--steps-low", 1, "--steps-full", 0, "--low-size", SIZE, "--full-size", SIZE)
-    assert ok.returncode == 0, ok.stderr
-    r = _train_cli("--data", data64, "-o", tmp_path / "r5", "--steps-low", 2, "--steps-full", 0, "--low-size", SIZE, "--full-size", SIZE,
-                   "--resume")  # fmt: skip
-    assert r.returncode == 2 and "steps_low" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    run = ["--data", data64, "-o", tmp_path / "r5", "--steps-full", 0, "--low-size", SIZE, "--full-size", SIZE]
+    code, out, err = _main([*run, "--steps-low", 1], capsys)
+    assert code == 0 and out.strip() == str(tmp_path / "r5" / "ckpt-000001" / "generator"), err
+    code, _, err = _main([*run, "--steps-low", 2, "--resume"], capsys)
+    assert code == 2 and "steps_low" in err and len(err.strip().splitlines()) == 1, err
