@@ -76,11 +76,17 @@ def _jsonl(path: Optional[Path]) -> Optional[Path]:
     return path
 
 
-def _save_rows(jsonl: Optional[Path], rows: list[dict]) -> None:
+def _emit(rows: list[dict], jsonl: Optional[Path], as_json: bool, table) -> None:
+    """Append the rows to --jsonl, then print them as JSON lines or as `table(rows)` (markdown)."""
     if jsonl is not None:
         from dlacli.bench.results import append_rows
 
         append_rows(jsonl, rows)
+    if as_json:
+        for row in rows:
+            typer.echo(json.dumps(row, sort_keys=True))
+    else:
+        typer.echo(table(rows))
 
 
 def _stderr(line: str) -> None:
@@ -147,12 +153,7 @@ def accuracy(
             raise DlaInputError("--methods", f"{spec.label}: no such checkpoint folder")
     jsonl = _jsonl(jsonl)
     rows = run(_ints(seeds, "--seeds", 2**32 - 1), specs, res=res, appearance=appearance, wardrobe=wardrobe, log=_stderr)
-    _save_rows(jsonl, rows)
-    if as_json:
-        for row in rows:
-            typer.echo(json.dumps(row, sort_keys=True))
-    else:
-        typer.echo(report_markdown(rows, None))
+    _emit(rows, jsonl, as_json, lambda r: report_markdown(r, None))
 
 
 @bench_app.command("regions")
@@ -246,12 +247,7 @@ def speed(
     if baseline is not None:
         changes.update(baseline=str(baseline.resolve()), rounds=rounds)
     rows = run(suites, replace(cfg, **changes), log=_stderr)
-    _save_rows(jsonl, rows)
-    if as_json:
-        for row in rows:
-            typer.echo(json.dumps(row, sort_keys=True))
-    else:
-        typer.echo("\n".join(speed_markdown(rows, intro=False)).rstrip())
+    _emit(rows, jsonl, as_json, lambda r: "\n".join(speed_markdown(r, intro=False)).rstrip())
 
 
 @bench_app.command("stability")
@@ -280,12 +276,7 @@ def stability(
     jsonl = _jsonl(jsonl)
     configs = {m: method_config(m, {"steps": steps} if steps is not None else None) for m in names}
     rows = run(_ints(seeds, "--seeds", 2**32 - 1), configs, perts, res=res, levels=levels, log=_stderr)
-    _save_rows(jsonl, rows)
-    if as_json:
-        for row in rows:
-            typer.echo(json.dumps(row, sort_keys=True))
-    else:
-        typer.echo("\n".join(stability_markdown(rows, intro=False)).rstrip())
+    _emit(rows, jsonl, as_json, lambda r: "\n".join(stability_markdown(r, intro=False)).rstrip())
 
 
 @bench_app.command("budget")
@@ -316,12 +307,7 @@ def budget(
     cfg = method_config(name, {"steps": steps} if steps is not None else None)
     rows = run(_ints(seeds, "--seeds", 2**32 - 1), ns, _ints(uv, "--uv", 2048), render_size=size, method=name,
                config=cfg, usd_frames=usd_frames, log=_stderr)  # fmt: skip
-    _save_rows(jsonl, rows)
-    if as_json:
-        for row in rows:
-            typer.echo(json.dumps(row, sort_keys=True))
-    else:
-        typer.echo("\n".join(budget_markdown(rows, intro=False)).rstrip())
+    _emit(rows, jsonl, as_json, lambda r: "\n".join(budget_markdown(r, intro=False)).rstrip())
 
 
 @bench_app.command("report")
