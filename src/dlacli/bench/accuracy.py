@@ -163,8 +163,9 @@ def run(seeds: list[int], methods: list[MethodSpec], res: int = 512, appearance:
                 avatar = read_avatar(path)
                 result = score_avatar(avatar, folder)
                 config = {**spec.config, "res": res, "appearance": appearance, "wardrobe": wardrobe}
-                if "checkpoint" in config:
-                    config["checkpoint"] = avatar.checkpoint[:16]  # the weights, not a local path
+                if "checkpoint" in config:  # the weights by hash, not by local path; what they are
+                    lift = avatar.extra.get("lift", {})
+                    config.update(checkpoint=avatar.checkpoint[:16], preset=lift.get("preset"), variant=lift.get("variant"))
                 for split in SPLITS:
                     rows.append(make_row(spec.name, config, split, seconds, peak, result[split], subject=seed))
                 log(f"seed {seed} {spec.label}: lift {seconds:.1f} s, {peak:.0f} MB; " + "; ".join(

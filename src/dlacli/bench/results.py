@@ -220,9 +220,13 @@ def read_rows(path: str | os.PathLike) -> list[dict]:
     return rows
 
 
+PROTOCOL_KEYS = ("res", "appearance", "wardrobe", "checkpoint")  # what the subjects were / the weights' hash
+
+
 def label(row: dict) -> str:
-    """A method and its setting, for tables and legends: "unproject+refine steps=50"."""
-    cfg = " ".join(f"{k}={v}" for k, v in sorted(row["config"].items()))
+    """A method and its setting, for tables and legends: "unproject+refine steps=50" (the
+    protocol's keys, the same for every row of a run, and the checkpoint's hash are left out)."""
+    cfg = " ".join(f"{k}={v}" for k, v in sorted(row["config"].items()) if k not in PROTOCOL_KEYS)
     return f"{row['method']} {cfg}".strip()
 
 
@@ -231,10 +235,12 @@ def points(rows: list[dict], split: str, metric: str = "psnr_masked") -> list[di
     groups: dict[str, list[dict]] = {}
     for row in rows:
         if row["split"] == split:
-            groups.setdefault(label(row), []).append(row)
-    return [{"label": name, "method": rs[0]["method"], "seconds": statistics.median(r["seconds"] for r in rs),
-             "value": statistics.fmean(r["metrics"][metric] for r in rs), "subjects": len(rs)}
-            for name, rs in sorted(groups.items())]  # fmt: skip
+            key = json.dumps([row["method"], row["config"]], sort_keys=True)  # the full config, not the label
+            groups.setdefault(key, []).append(row)
+    pts = [{"label": label(rs[0]), "method": rs[0]["method"], "seconds": statistics.median(r["seconds"] for r in rs),
+            "value": statistics.fmean(r["metrics"][metric] for r in rs), "subjects": len(rs)}
+           for rs in groups.values()]  # fmt: skip
+    return sorted(pts, key=lambda p: p["label"])
 
 
 def pareto_front(pts: list[dict]) -> list[dict]:
