@@ -397,7 +397,7 @@ def test_dataset_same_files_for_any_jobs(datasets, tmp_path):
 
 
 def test_dataset_manifest(datasets):
-    from dlacli.stages.synth import read_manifest
+    from dlacli.stages.synth_dataset import read_manifest
 
     (a, _), clip = datasets[0][1], datasets[1]
     m = read_manifest(a / "manifest.json")

@@ -72,7 +72,7 @@ def synth(
 
 
 def _dataset(seeds, output, res, novel_views, novel_poses, appearance, wardrobe, motions, jobs) -> None:
-    from dlacli.stages.synth import DatasetSettings, motion_files, synth_dataset
+    from dlacli.stages.synth_dataset import DatasetSettings, motion_files, synth_dataset
 
     settings = DatasetSettings(res=256 if res is None else res, novel_views=8 if novel_views is None else novel_views,
                                novel_poses=novel_poses, appearance=appearance or "lit", wardrobe=wardrobe or "full",
