@@ -235,10 +235,20 @@ def synth_dataset(seeds: Sequence[int], out: str | os.PathLike, settings: Datase
             torch.set_num_threads(before[0])
             numba.set_num_threads(before[1])
     else:
+        import concurrent.futures as cf
         import multiprocessing
 
+        # an executor, not multiprocessing.Pool: a worker that dies (killed, out of memory) breaks
+        # the pool with an error instead of being replaced while its subject waits forever
         ctx = multiprocessing.get_context("spawn")
-        with ctx.Pool(min(jobs, len(tasks)), initializer=_single_threaded) as pool:
-            for n, result in enumerate(pool.imap_unordered(_make_subject, tasks), start=1):
-                finished(n, *result)
+        with cf.ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=ctx, initializer=_single_threaded) as pool:
+            futures = [pool.submit(_make_subject, task) for task in tasks]
+            try:
+                for n, fut in enumerate(cf.as_completed(futures), start=1):
+                    finished(n, *fut.result())
+            except cf.process.BrokenProcessPool:
+                raise RuntimeError("dla synth: a worker process died (out of memory?); rerun to resume") from None
+            finally:  # on any error, do not wait for the subjects not started yet
+                for fut in futures:
+                    fut.cancel()
     return manifest or read_manifest(path)
