@@ -40,7 +40,12 @@ def test_a_small_run_scores_every_split(tmp_path):
     from dlacli.bench.accuracy import SPLITS, parse_methods, run, score_avatar
     from dlacli.bench.results import check_row
 
+    from dlacli.bench.accuracy import peak_rss_mb
+
+    ballast = np.ones(2 * 2**30 // 8)  # 2 GiB touched here: the child's peak must not include it
     rows = run([9101], parse_methods("unproject"), res=64, novel_views=2, novel_poses=1, log=lambda s: None)
+    assert all(r["peak_mb"] < peak_rss_mb() - 1024 for r in rows), [r["peak_mb"] for r in rows]
+    del ballast
     assert [r["split"] for r in rows] == list(SPLITS)
     for r in rows:
         check_row(r)

@@ -96,7 +96,21 @@ def _child(spec: MethodSpec, folder: str, out: str, threads: int) -> tuple[float
     avatar = lift_with(spec, views)
     seconds = time.perf_counter() - t0
     write_avatar(avatar, out)
-    return seconds, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # kB -> MB (Linux)
+    return seconds, peak_rss_mb()
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident set in MB: VmHWM of /proc/self/status (the memory map's own
+    high-water mark, which starts afresh at exec), else getrusage (on Linux that maximum is kept
+    across exec, so a spawned child would report its parent's peak)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0  # kB
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def timed_lift(spec: MethodSpec, folder: Path, out: Path) -> tuple[float, float]:
@@ -152,6 +166,11 @@ def run(seeds: list[int], methods: list[MethodSpec], res: int = 512, appearance:
     from dlacli.io.avatar import read_avatar
     from dlacli.stages.synth import synth
 
+    from dlacli.nn.checkpoint import install_checkpoint, resolve_checkpoint
+
+    for spec in methods:  # the renders find a learned avatar's decoder by its hash, as after `dla lift`
+        if "checkpoint" in spec.config:
+            install_checkpoint(resolve_checkpoint(spec.config["checkpoint"]))
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
