@@ -129,7 +129,7 @@ def _startup(cfg: SpeedConfig, row) -> list[dict]:
 
 
 # ------------------------------------------------------------------------------------ splat
-# _splat_scene and _splat_case run in a fresh interpreter (their source is sent with `python -c`),
+# _median_min, _splat_scene and _splat_case run in a fresh interpreter (their source is sent with `python -c`),
 # so that a baseline copy of the package can be measured the same way: they import only
 # dlacli.types and dlacli.render, whose APIs the baseline shares.
 
@@ -194,15 +194,6 @@ def _splat_case(path: str, n: int, res: int, repeats: int, sh_degree: int, budge
         for p in params:
             p.grad = None
 
-    def timed(fn):
-        times = []
-        for _ in range(max(1, repeats)):
-            t0 = time.perf_counter()
-            fn()
-            sync()
-            times.append(time.perf_counter() - t0)
-        return statistics.median(times), min(times)
-
     t0 = time.perf_counter()
     out = fwd()
     sync()
@@ -211,10 +202,8 @@ def _splat_case(path: str, n: int, res: int, repeats: int, sh_degree: int, budge
     if path in ("torch", "dense") and rec["first_seconds"] * 4 * (1 + repeats) > budget_s:
         rec["skipped"] = f"first forward took {rec['first_seconds']:.1f} s; its runs would pass the {budget_s:.0f} s budget"
         return rec
-    rec["fwd"] = timed(fwd)
-    fwd_bwd()
-    sync()
-    rec["fwd_bwd"] = timed(fwd_bwd)
+    rec["fwd"] = _median_min(fwd, repeats, sync)  # (one more warm-up call, then the timed ones)
+    rec["fwd_bwd"] = _median_min(fwd_bwd, repeats, sync)
     if cuda:
         torch.cuda.reset_peak_memory_stats()
         base = torch.cuda.memory_allocated()
@@ -246,7 +235,8 @@ def _splat_case(path: str, n: int, res: int, repeats: int, sh_degree: int, budge
 
 def _run_splat_case(path: str, n: int, res: int, cfg: SpeedConfig, pythonpath: str | None = None,
                     numba_cache: str | None = None) -> dict:  # fmt: skip
-    src = "\n\n".join(inspect.getsource(f) for f in (_splat_scene, _splat_case))
+    src = "from __future__ import annotations\nimport statistics\nimport time\n\n" + "\n\n".join(
+        inspect.getsource(f) for f in (_median_min, _splat_scene, _splat_case))
     src += "\n\nimport json, sys\nprint(json.dumps(_splat_case(*json.loads(sys.argv[1]))))\n"
     env = dict(os.environ, OMP_WAIT_POLICY=os.environ.get("OMP_WAIT_POLICY", "PASSIVE"),
                MALLOC_MMAP_THRESHOLD_="131072")  # big blocks from / back to the OS: the sampled RSS follows them  # fmt: skip
