@@ -43,13 +43,13 @@ def test_a_small_run_scores_every_split(tmp_path):
     from dlacli.bench.accuracy import peak_rss_mb
 
     ballast = np.ones(2 * 2**30 // 8)  # 2 GiB touched here: the child's peak must not include it
-    rows = run([9101], parse_methods("unproject"), res=64, novel_views=2, novel_poses=1, log=lambda s: None)
+    rows = run([8101], parse_methods("unproject"), res=64, novel_views=2, novel_poses=1, log=lambda s: None)
     assert all(r["peak_mb"] < peak_rss_mb() - 1024 for r in rows), [r["peak_mb"] for r in rows]
     del ballast
     assert [r["split"] for r in rows] == list(SPLITS)
     for r in rows:
         check_row(r)
-        assert r["method"] == "unproject" and r["subject"] == 9101 and r["config"]["wardrobe"] == "heldout"
+        assert r["method"] == "unproject" and r["subject"] == 8101 and r["config"]["wardrobe"] == "heldout"
         assert r["seconds"] > 0 and r["peak_mb"] > 50  # a fresh process with torch loaded
         m = r["metrics"]
         assert 5 < m["psnr_masked"] < 60 and 0 < m["iou"] <= 1 and 0 < m["ssim"] <= 1
@@ -59,7 +59,7 @@ def test_a_small_run_scores_every_split(tmp_path):
     from dlacli.stages.lift import LiftConfig, lift
     from dlacli.stages.synth import synth
 
-    folder = synth(9101, tmp_path / "s", res=64, novel_views=2, novel_poses=1, appearance="lit", wardrobe="heldout")
+    folder = synth(8101, tmp_path / "s", res=64, novel_views=2, novel_poses=1, appearance="lit", wardrobe="heldout")
     direct = score_avatar(lift(read_views(folder), LiftConfig(steps=0)).avatar, folder)
     for r in rows:
         for k, v in direct[r["split"]].items():
