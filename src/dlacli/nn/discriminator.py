@@ -10,13 +10,12 @@ uses 4 (142x142 patches) to reach the paper's 7 M parameters. The losses are LSG
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
 
-from dlacli.errors import DlaInputError
+from dlacli.nn import named_preset
 
 KERNEL, PADDING, SLOPE = 4, 1, 0.2
 
@@ -47,9 +46,7 @@ PRESETS: dict[str, DiscriminatorConfig] = {
 
 def preset(name: str) -> DiscriminatorConfig:
     """A copy of the named discriminator preset ("tiny", "small", "paper")."""
-    if name not in PRESETS:
-        raise DlaInputError("--preset", f"unknown discriminator preset {name!r}; choose one of {', '.join(PRESETS)}")
-    return dataclasses.replace(PRESETS[name])
+    return named_preset(PRESETS, name, "discriminator")
 
 
 class PatchDiscriminator(nn.Module):

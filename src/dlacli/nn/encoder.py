@@ -16,7 +16,6 @@ Inputs, per item b: params [N, 14] (means 3, opacity logit 1, log scales 3, quat
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -24,7 +23,7 @@ import torch
 import torch.nn.functional as nnf
 from torch import Tensor, nn
 
-from dlacli.errors import DlaInputError
+from dlacli.nn import named_preset
 
 QUERIES = ("body", "learned")
 
@@ -68,9 +67,8 @@ PRESETS: dict[str, EncoderConfig] = {
 
 
 def preset(name: str) -> EncoderConfig:
-    if name not in PRESETS:
-        raise DlaInputError("--preset", f"unknown encoder preset {name!r}; choose from {', '.join(PRESETS)}")
-    return dataclasses.replace(PRESETS[name])
+    """A copy of the named encoder preset ("tiny", "small", "paper")."""
+    return named_preset(PRESETS, name, "encoder")
 
 
 # ------------------------------------------------------------------------------------ functions

@@ -18,14 +18,13 @@ ablation B). The segmentation is a non-persistent buffer, so checkpoints hold we
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as nnf
 from torch import Tensor, nn
 
-from dlacli.errors import DlaInputError
+from dlacli.nn import named_preset
 
 # F's channel layout, copied from dlacli.stages.gaussian_map (its module docstring; nn cannot import stages)
 CHANNELS = 14
@@ -85,9 +84,8 @@ PRESETS: dict[str, GPDConfig] = {
 
 
 def preset(name: str) -> GPDConfig:
-    if name not in PRESETS:
-        raise DlaInputError("--preset", f"unknown GPD preset {name!r}; choose from {', '.join(PRESETS)}")
-    return dataclasses.replace(PRESETS[name])
+    """A copy of the named GPD preset ("tiny", "small", "paper")."""
+    return named_preset(PRESETS, name, "GPD")
 
 
 def _conv(cin: int, cout: int, kernel: int = 3) -> nn.Conv2d:

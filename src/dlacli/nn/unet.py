@@ -23,7 +23,6 @@ The Gaussians of an item are ordered view-major, then row-major: index n = (v * 
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -32,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from dlacli.errors import DlaInputError
+from dlacli.nn import named_preset
 
 GAUSSIAN_CHANNELS = 14
 POSITION_SCALE = 0.1  # metres per unit of raw position offset
@@ -108,9 +107,7 @@ PRESETS: dict[str, UNetConfig] = {
 
 def preset(name: str) -> UNetConfig:
     """A copy of the named U-Net preset ("tiny", "small", "paper")."""
-    if name not in PRESETS:
-        raise DlaInputError("--preset", f"unknown U-Net preset {name!r}; choose one of {', '.join(PRESETS)}")
-    return dataclasses.replace(PRESETS[name])
+    return named_preset(PRESETS, name, "U-Net")
 
 
 # --------------------------------------------------------------------------------------------
