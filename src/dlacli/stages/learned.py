@@ -100,13 +100,14 @@ def output_rays(cameras: Cameras, side: int) -> tuple[torch.Tensor, torch.Tensor
     return pixel_rays(scaled_cameras(cameras.to(dtype=torch.float32), side))
 
 
-def conditioning(vertices: torch.Tensor, rest_vertices, eye, resolution: int) -> torch.Tensor:
+def conditioning(vertices: torch.Tensor, rest_vertices, eye, resolution: int, pose=None) -> torch.Tensor:
     """[12, R, R] what the GPD's pose/view branch sees of one target: the posed body's relative
-    vertex positions (3) and normals (3) and the camera's Plücker rays (6) in UV space."""
+    vertex positions (3) and normals (3) and the camera's Plücker rays (6) in UV space. `pose`:
+    the body's codec.PoseConditioning when already computed (several cameras, one body)."""
     from dlacli.stages.codec import pose_conditioning, uv_rays
 
     v = torch.as_tensor(vertices, dtype=torch.float32)
-    pose = pose_conditioning(v, np.asarray(rest_vertices), resolution)
+    pose = pose if pose is not None else pose_conditioning(v, np.asarray(rest_vertices), resolution)
     rays = uv_rays(v, torch.as_tensor(eye, dtype=torch.float32), resolution)
     return torch.cat([pose.relative_positions, pose.normals, rays], dim=0)
 
@@ -254,14 +255,17 @@ def render_targets(net: LearnedAvatarNet, z: torch.Tensor, vertices: torch.Tenso
     from dlacli.geometry import camera_centers
     from dlacli.render.splat import render_gaussians
 
+    from dlacli.stages.codec import pose_conditioning
+
     eyes = camera_centers(cameras.viewmats.float())
     rgbs, alphas = [], []
     trunk = net.gpd.trunk(z[None])
     f_c = net.gpd.canonical(z[None], trunk=trunk)
+    pose = pose_conditioning(vertices.float(), np.asarray(rest), net.resolution) if net.conditioned else None
     for c in range(len(cameras)):
         fmap = f_c
         if net.conditioned:
-            cond = conditioning(vertices, rest, eyes[c], net.resolution)[None]
+            cond = conditioning(vertices, rest, eyes[c], net.resolution, pose)[None]
             fmap = f_c + net.gpd.delta(z[None], cond, trunk=trunk)
         g = net.gaussians(fmap, vertices[None]).item(0)
         cam = Cameras(cameras.viewmats[c:c + 1], cameras.Ks[c:c + 1], cameras.width, cameras.height)
