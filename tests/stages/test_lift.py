@@ -80,7 +80,9 @@ def test_cli_writes_avatar_ply_and_contact_sheet(subject, tmp_path):
     r = _dla("lift", subject, "-o", out, "--steps", "1", "--gaussians", "4096", "--ply", tmp_path / "g.ply")
     assert r.returncode == 0, r.stderr
     avatar = read_avatar(out)
-    assert avatar.z.shape == (14, 256, 256) and avatar.encoder == "unproject" and avatar.decoder == "identity"
+    # synth's albedo appearance is headlit: colour depends on the view, so the view-cosine decoder
+    assert avatar.z.shape == (15, 256, 256) and avatar.encoder == "unproject" and avatar.decoder == "view-cosine"
+    assert sum("decoder view-cosine" in line for line in r.stderr.splitlines()) == 1, r.stderr
     assert len(read_ply(tmp_path / "g.ply")) > 1000
     from PIL import Image
 

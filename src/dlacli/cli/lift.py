@@ -25,6 +25,7 @@ def lift(
     resolution: int = typer.Option(_DEFAULTS.resolution, "--resolution", min=16, max=2048, help="UV resolution of the Gaussian map Z."),
     gaussians: str = typer.Option(str(_DEFAULTS.gaussians), "--gaussians", callback=gaussian_count, metavar="N|auto", help="Gaussians sampled from Z while refining; 'auto': refine with 131,072, then record the fewest (4,096 ... 262,144) whose re-renders of the input views score within 0.2 dB masked PSNR of the best (docs/benchmarks.md, 'The Gaussian budget')."),
     seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1, help="Seed of the Gaussian sample points."),
+    view_colour: bool = typer.Option(True, "--view-colour/--no-view-colour", help="Measure how the views' colours fall off with the viewing angle and, where they do (|k| >= 0.05), model it (decoder 'view-cosine', docs/lift.md); --no-view-colour: colour never depends on the view."),
     allow_outside: bool = typer.Option(False, "--allow-outside", help="Read images that transforms.json names outside the view folder (absolute paths, '..', links out)."),
 ) -> None:
     """Lift a view folder into an animatable avatar (avatar.npz).
@@ -68,7 +69,8 @@ def lift(
     if n_views > MAX_VIEWS:
         raise DlaInputError(views, f"has {n_views} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
     auto = gaussians == "auto"
-    cfg = LiftConfig(steps=steps, resolution=resolution, gaussians=_DEFAULTS.gaussians if auto else gaussians, seed=seed)
+    cfg = LiftConfig(steps=steps, resolution=resolution, gaussians=_DEFAULTS.gaussians if auto else gaussians, seed=seed,
+                     view_colour=view_colour)  # fmt: skip
     view_set = read_views(views, allow_outside=allow_outside)
     novel = read_views(novel_dir, require_body=False, allow_outside=allow_outside) if novel_dir is not None else None
     body = views / "body.json" if views.is_dir() else views.with_name("body.json")
@@ -87,6 +89,10 @@ def lift(
             result.avatar, choice = choose_for_views(result.avatar, view_set)
         typer.echo(f"note: --gaussians auto: {choice.count:,} Gaussians (input views, masked PSNR "
                    f"{choice.scores[choice.count]:.2f} dB, best {max(choice.scores.values()):.2f})", err=True)  # fmt: skip
+    falloff = result.avatar.extra.get("lift", {}).get("view_falloff")
+    if falloff:
+        typer.echo(f"note: {views}: colour falls off with the viewing angle, k = {falloff:.2f} "
+                   "(colour x (1 - k + k cos)): decoder view-cosine", err=True)  # fmt: skip
     if result.novel_view is not None:
         from dlacli.bench.metrics import masked_psnr
 

@@ -75,8 +75,49 @@ class IdentityDecoder(Decoder):
         return z
 
 
+class ViewCosineDecoder(IdentityDecoder):
+    """The identity decoder plus view-dependent colour with one falloff per texel:
+    z [15, R, R] = F_c (the 14 channels of F, colour as seen head-on) and, in channel 14, the
+    falloff k. Seen from a camera, a texel's colour is rgb (1 - k + k cos), cos = the angle
+    between the posed body's normal there and the direction to the camera, clamped to [0, 1]:
+    F_delta holds rgb k (cos - 1) in the colour channels and zeros elsewhere. k = 0 is the
+    identity decoder; k > 0 darkens surfaces seen obliquely (a light near the camera, a rough
+    material's falloff), k < 0 brightens them. `dla lift` measures k from the views
+    (stages/lift.py `view_falloff`) and writes this decoder only when it is not ~0."""
+
+    name = "view-cosine"
+    pose_conditioned = True  # the posed normals
+    view_conditioned = True  # the rays
+    linear = True  # F_c = z[:14]; F_delta is not linear in z (rgb times k)
+    FALLOFF = 14  # z's channel of k
+
+    def canonical(self, z: torch.Tensor) -> torch.Tensor:
+        from dlacli.stages.gaussian_map import CHANNELS
+
+        if z.shape[0] != CHANNELS + 1:
+            raise DlaInputError(self.where, f"view-cosine decoder needs z with {CHANNELS + 1} channels, got {tuple(z.shape)}")
+        return z[:CHANNELS]
+
+    def delta(self, z: torch.Tensor, pose: PoseConditioning | None, rays: torch.Tensor | None) -> torch.Tensor | None:
+        from dlacli.stages.gaussian_map import CHANNELS, RGB
+
+        if pose is None or rays is None:
+            return None
+        cos = view_cosine(pose.normals.to(z), rays.to(z))  # [R, R]
+        out = torch.zeros((CHANNELS, *z.shape[1:]), dtype=z.dtype, device=z.device)
+        out[RGB] = z[RGB] * (z[self.FALLOFF] * (cos - 1.0))
+        return out
+
+
+def view_cosine(normals: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:
+    """cos of the angle between unit normals [3, ...] and the direction back along rays [6, ...]
+    (Plücker, unit direction first) toward the camera, clamped to [0, 1] -> [...]."""
+    d = rays[:3] / rays[:3].norm(dim=0).clamp_min(1e-12)
+    return (-(normals * d).sum(dim=0)).clamp(0.0, 1.0)
+
+
 # name -> factory(checkpoint, where) -> Decoder
-_DECODERS: dict[str, Callable[[str, str], Decoder]] = {"identity": IdentityDecoder}
+_DECODERS: dict[str, Callable[[str, str], Decoder]] = {"identity": IdentityDecoder, "view-cosine": ViewCosineDecoder}
 # name -> encoder function (views, config) -> LiftResult; filled lazily by stages.lift
 _ENCODERS: dict[str, str] = {"unproject": "dlacli.stages.lift:lift", "learned": "dlacli.stages.learned:lift_learned"}
 

@@ -30,17 +30,20 @@ from scipy.spatial import cKDTree
 from dlacli.errors import DlaInputError
 from dlacli.geometry import project_points as _project  # points [..., 3] -> (pixels [..., 2], z [...])
 from dlacli.stages import gaussian_map as gm
-from dlacli.types import Avatar, Cameras, Gaussians, ViewSet
+from dlacli.types import Avatar, Cameras, Gaussians, ViewSet, rgb_to_sh0
 
 MAX_VIEWS = 64  # every view is rendered at every refinement step: memory and time grow with them
 ENCODER = "unproject"
 DECODER = "identity"
+VIEW_DECODER = "view-cosine"  # when the views' colours depend on the view (`view_falloff`)
 CLOTH_MARGIN = 0.003  # metres in front of the body surface where the body is seen (tight clothing)
 HULL_STEPS = 128  # ray-marching samples through the body's bounding sphere
 HULL_BISECT = 6
 MAX_OFFSET = 0.08  # metres: farther Gaussians are not attached to a texel (loose clothing stays)
 VIEW_SHARPNESS = 4.0  # texel colour weight ~ cos(view angle) ** VIEW_SHARPNESS
 VISIBLE_DEPTH = 0.03  # metres: a texel point up to this far behind the body's depth still counts as seen
+FALLOFF_RANGE = (-0.5, 0.95)  # the view falloffs k `view_falloff` considers (1 - k + k cos > 0 for cos >= 0)
+MIN_FALLOFF = 0.05  # |k| below this: the avatar keeps the identity decoder (colour does not depend on the view)
 
 
 @dataclass
@@ -54,6 +57,7 @@ class LiftConfig:
     w_mask: float = 1.0
     w_ssim: float = 0.2
     seed: int = 0
+    view_colour: bool = True  # measure the views' view-dependent falloff (`view_falloff`) and model it
 
 
 # ------------------------------------------------------------------------------ a. unstructured
@@ -260,16 +264,9 @@ def body_depth_maps(vertices: np.ndarray, views: ViewSet) -> np.ndarray:
     return rasterize(vertices, get_body_model().faces, views.cameras).depth
 
 
-def bake_colours(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_depth: np.ndarray | None = None) -> np.ndarray:
-    """F [14, R, R] with its colour channels baked from the views: each texel's point on the body
-    in the input pose (T + R dx, its own offset) is projected into every view; a view counts where
-    the point is inside the image and its mask, faces the camera (cos > 0.05) and is not hidden by
-    the body (camera depth at most VISIBLE_DEPTH behind the body's depth at that pixel); the
-    texel takes the bilinear colour of those views weighted by cos ** VIEW_SHARPNESS x mask.
-    Texels no view sees keep their colour. Gathering at the texel's own point keeps colour and
-    geometry aligned to the pixel, where scattering pixel Gaussians to their nearest texel (step b)
-    leaves holes and shifts of up to a texel. `body_depth` [V, H, W]: the body's depth in the views
-    (`body_depth_maps`), when the caller has it already."""
+def _texel_points(fmap: np.ndarray, vertices: np.ndarray):
+    """Each covered texel's point on the body in the input pose (T + R dx, its own offset) and
+    the body normal there: (valid [R, R], points [M, 3], normals [M, 3])."""
     from dlacli.body.uv import FRAME_RESOLUTION, texel_frames, uv_raster
 
     res = fmap.shape[-1]
@@ -277,12 +274,15 @@ def bake_colours(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_de
     t_map, r_map, _ = texel_frames(torch.from_numpy(np.asarray(vertices, dtype=np.float64)), res, FRAME_RESOLUTION)
     pos, rot = t_map.numpy()[valid], r_map.numpy()[valid]  # [M, 3], [M, 3, 3]
     points = pos + np.einsum("mij,mj->mi", rot, fmap[gm.OFFSET][:, valid].T.astype(np.float64))
-    normals = rot[:, :, 2]
-    if body_depth is None:
-        body_depth = body_depth_maps(vertices, views)
+    return valid, points, rot[:, :, 2]
+
+
+def _observations(points: np.ndarray, normals: np.ndarray, views: ViewSet, body_depth: np.ndarray):
+    """Per view, what it shows of texel points [M, 3] with normals [M, 3]: (rgb [M, 3] straight
+    colour, mask [M], cos [M] toward the camera, seen [M] bool). A view sees a point that falls
+    inside its image and mask (> 0.5), faces it (cos > 0.05) and is not hidden by the body (camera
+    depth at most VISIBLE_DEPTH behind the body's depth there)."""
     h, w = views.masks.shape[1:]
-    acc = np.zeros((len(points), 3))
-    wsum = np.zeros(len(points))
     for v in range(len(views)):
         w2c = views.cameras.viewmats[v].double().numpy()
         px, z = _project(points, w2c, views.cameras.Ks[v].double().numpy())
@@ -295,13 +295,69 @@ def bake_colours(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_de
         row = np.clip(np.floor(px[:, 1]).astype(np.int64), 0, h - 1)
         inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h) & (z > 0)
         seen = inside & (z <= body_depth[v][row, col] + VISIBLE_DEPTH) & (cosine > 0.05) & (mask > 0.5)
+        yield sampled[:, :3] / np.maximum(mask, 1e-6)[:, None], mask, cosine, seen
+
+
+def shading(falloff: float, cosine: np.ndarray) -> np.ndarray:
+    """The view-dependent colour factor 1 - k + k cos (cos clamped to [0, 1]; the view-cosine
+    decoder, stages/codec.py)."""
+    return 1.0 - falloff + falloff * np.clip(cosine, 0.0, 1.0)
+
+
+def view_falloff(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_depth: np.ndarray | None = None) -> float:
+    """How much the views' colours depend on the angle they see the surface at: the falloff k of
+    colour = albedo (1 - k + k cos) that best explains the texels two views see at different
+    angles (cos differing by > 0.2, both > 0.35, well inside both masks; at more grazing angles
+    a point misplaced by a pixel lands on a more frontal patch, which biases k low). Each such pair gives
+    log(L_i / L_j) = log(shading(k, cos_i) / shading(k, cos_j)) for the luminances L; k is the
+    value in FALLOFF_RANGE (steps of 0.01) with the least median absolute residual, robust to
+    the pairs a geometry error misregisters. 0 when fewer than 200 pairs exist (too few texels
+    seen twice to tell)."""
+    if body_depth is None:
+        body_depth = body_depth_maps(vertices, views)
+    _, points, normals = _texel_points(fmap, vertices)
+    obs = [(rgb.mean(axis=1), cos, seen & (mask > 0.95)) for rgb, mask, cos, seen in _observations(points, normals, views, body_depth)]
+    ratios, ci, cj = [], [], []
+    for i in range(len(obs)):
+        for j in range(i + 1, len(obs)):
+            (li, cos_i, si), (lj, cos_j, sj) = obs[i], obs[j]
+            pair = si & sj & (cos_i > 0.35) & (cos_j > 0.35) & (np.abs(cos_i - cos_j) > 0.2) & (li > 0.04) & (lj > 0.04)
+            ratios.append(np.log(li[pair] / lj[pair]))
+            ci.append(cos_i[pair])
+            cj.append(cos_j[pair])
+    ratio, ci, cj = (np.concatenate(a) if a else np.zeros(0) for a in (ratios, ci, cj))
+    if ratio.size < 200:
+        return 0.0
+    ks = np.round(np.arange(FALLOFF_RANGE[0], FALLOFF_RANGE[1] + 1e-9, 0.01), 2)
+    cost = [np.median(np.abs(ratio - np.log(shading(k, ci) / shading(k, cj)))) for k in ks]
+    return float(ks[int(np.argmin(cost))])
+
+
+def bake_colours(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_depth: np.ndarray | None = None,
+                 falloff: float = 0.0) -> np.ndarray:  # fmt: skip
+    """F [14, R, R] with its colour channels baked from the views: each texel's point on the body
+    in the input pose (T + R dx, its own offset) is projected into every view that sees it
+    (`_observations`); the texel takes the bilinear colour of those views weighted by
+    cos ** VIEW_SHARPNESS x mask, each divided by the view's shading (`shading(falloff, cos)`,
+    so the texel holds the colour seen head-on). Texels no view sees keep their colour. Gathering
+    at the texel's own point keeps colour and geometry aligned to the pixel, where scattering
+    pixel Gaussians to their nearest texel (step b) leaves holes and shifts of up to a texel.
+    `body_depth` [V, H, W]: the body's depth in the views (`body_depth_maps`), when the caller
+    has it already."""
+    if body_depth is None:
+        body_depth = body_depth_maps(vertices, views)
+    valid, points, normals = _texel_points(fmap, vertices)
+    res = fmap.shape[-1]
+    acc = np.zeros((len(points), 3))
+    wsum = np.zeros(len(points))
+    for rgb, mask, cosine, seen in _observations(points, normals, views, body_depth):
         weight = np.where(seen, np.clip(cosine, 0.05, 1.0) ** VIEW_SHARPNESS * mask, 0.0)
-        acc += weight[:, None] * sampled[:, :3] / np.maximum(mask, 1e-6)[:, None]
+        acc += weight[:, None] * rgb / shading(falloff, cosine)[:, None]
         wsum += weight
     out = fmap.copy()
     rgb = out[gm.RGB][:, valid].T.astype(np.float64)  # [M, 3]
     got = wsum > 0
-    rgb[got] = acc[got] / wsum[got, None]
+    rgb[got] = np.clip(acc[got] / wsum[got, None], 0.0, 1.0)
     full = np.zeros((3, res, res))
     full[:, valid] = rgb.T
     out[gm.RGB] = _fill_outside_charts(full, valid)
@@ -346,18 +402,57 @@ def _mean(x: torch.Tensor, rows: int = 1024) -> torch.Tensor:
     return flat.view(rows, -1).sum(dim=1).sum() / x.numel()
 
 
+def view_colours(fmap: np.ndarray, falloff: float, vertices: np.ndarray, cameras: Cameras, samples: gm.Samples) -> torch.Tensor | None:
+    """The samples' colours [C, N, 3] as each camera sees F [14, R, R] with a view falloff k on
+    the body in one pose (vertices [V, 3]): what the view-cosine decoder (stages/codec.py) makes
+    of them, so lift refines and shows what `dla render` draws. None for k = 0."""
+    if not falloff:
+        return None
+    from dlacli.body.uv import normal_map
+    from dlacli.geometry import camera_centers
+    from dlacli.stages.codec import PoseConditioning, ViewCosineDecoder, uv_rays
+
+    res = fmap.shape[-1]
+    verts = torch.from_numpy(np.asarray(vertices, dtype=np.float32))
+    z = torch.cat([torch.from_numpy(fmap).float(), torch.full((1, res, res), float(falloff))])
+    pose = PoseConditioning(torch.zeros(3, res, res), normal_map(verts, res).permute(2, 0, 1).float())
+    decoder = ViewCosineDecoder()
+    out = []
+    for eye in camera_centers(cameras.viewmats):
+        f = decoder.canonical(z) + decoder.delta(z, pose, uv_rays(verts, eye, res))
+        out.append(gm.lookup(f[gm.RGB], samples.uv).clamp(0.0, 1.0))
+    return torch.stack(out)
+
+
+def _render(g: Gaussians, cams: Cameras, colours: torch.Tensor | None):
+    """Render g from cams -> (rgb [C, H, W, 3], alpha [C, H, W]); with per-camera colours
+    [C, N, 3], each camera sees the Gaussians in its own colours."""
+    from dlacli.render.splat import render_gaussians
+
+    if colours is None:
+        out = render_gaussians(g, cams)
+        return out.rgb, out.alpha
+    parts = []
+    for c in range(len(cams)):
+        one = Cameras(cams.viewmats[c : c + 1], cams.Ks[c : c + 1], cams.width, cams.height)
+        coloured = Gaussians(g.means, g.quats, g.scales, g.opacities, rgb_to_sh0(colours[c])[:, None, :])
+        parts.append(render_gaussians(coloured, one))
+    return torch.cat([p.rgb for p in parts]), torch.cat([p.alpha for p in parts])
+
+
 def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConfig, progress=None,
-           samples: gm.Samples | None = None) -> tuple[np.ndarray, list[float]]:  # fmt: skip
+           samples: gm.Samples | None = None, falloff: float = 0.0) -> tuple[np.ndarray, list[float]]:  # fmt: skip
     """Optimise the geometry of the Gaussian map F [14, R, R] (the channels `_CHANNEL_STEP` moves)
-    so that its Gaussians, placed on the body in the input pose (vertices [V, 3]), re-render the
-    input views: L1 + w_mask * mask L1 + w_ssim * (1 - SSIM), Adam for cfg.steps steps.
+    so that its Gaussians, placed on the body in the input pose (vertices [V, 3]) and coloured as
+    each view sees them (view falloff `falloff`, `view_colours`), re-render the input views:
+    L1 + w_mask * mask L1 + w_ssim * (1 - SSIM), Adam for cfg.steps steps.
     `progress(step, loss)` is called per step. Returns the refined map and the loss of every step."""
     from dlacli.nn.losses import ssim_map
-    from dlacli.render.splat import render_gaussians
 
     samples = samples or gm.make_samples(cfg.gaussians, cfg.seed)
     frames = gm.sample_frames(torch.from_numpy(np.asarray(vertices, dtype=np.float32))[None], samples)
     target_rgb, target_mask, cams = _resized_targets(views, cfg.render_size)
+    colours = view_colours(fmap, falloff, vertices, cams, samples)  # colours are held: once
     base = torch.from_numpy(fmap).float()
     delta = torch.zeros_like(base, requires_grad=True)
     step_scale = _CHANNEL_STEP.to(base)[:, None, None]
@@ -366,11 +461,11 @@ def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConf
     for step in range(cfg.steps):
         opt.zero_grad(set_to_none=True)
         (g,) = gm.gaussians_at_frames(base + delta * step_scale, samples, frames)
-        out = render_gaussians(g, cams)
-        loss = _mean((out.rgb - target_rgb).abs())
-        loss = loss + cfg.w_mask * _mean((out.alpha - target_mask).abs())
+        rgb, alpha = _render(g, cams, colours)
+        loss = _mean((rgb - target_rgb).abs())
+        loss = loss + cfg.w_mask * _mean((alpha - target_mask).abs())
         if cfg.w_ssim:
-            loss = loss + cfg.w_ssim * (1.0 - _mean(ssim_map(out.rgb, target_rgb)))
+            loss = loss + cfg.w_ssim * (1.0 - _mean(ssim_map(rgb, target_rgb)))
         loss.backward()
         opt.step()
         history.append(float(loss.detach()))
@@ -390,14 +485,13 @@ class LiftResult:
     novel_view: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # render, truth, mask of the first novel view
 
 
-def render_views(fmap: np.ndarray, vertices: np.ndarray, cameras: Cameras, samples: gm.Samples):
-    """Render the avatar F placed on one posed body (vertices [V, 3]) from cameras -> RenderOutput."""
-    from dlacli.render.splat import render_gaussians
-
+def render_views(fmap: np.ndarray, vertices: np.ndarray, cameras: Cameras, samples: gm.Samples, falloff: float = 0.0):
+    """Render the avatar F (view falloff k) placed on one posed body (vertices [V, 3]) from
+    cameras -> (rgb [C, H, W, 3], alpha [C, H, W])."""
     frames = gm.sample_frames(torch.from_numpy(np.asarray(vertices, dtype=np.float32))[None], samples)
     with torch.no_grad():
         (g,) = gm.gaussians_at_frames(torch.from_numpy(fmap).float(), samples, frames)
-        return render_gaussians(g, cameras)
+        return _render(g, cameras, view_colours(fmap, falloff, vertices, cameras, samples))
 
 
 def contact_sheet(inputs: np.ndarray, renders: np.ndarray, tile: int = 256) -> np.ndarray:
@@ -435,25 +529,31 @@ def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: Vi
         raise DlaInputError("views", f"has {len(views)} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
     vertices = get_body_model().forward_body(views.body).vertices[0].numpy()
     unstructured, _, eyes = unstructured_gaussians(views, vertices, cfg.grid)
-    depth = body_depth_maps(vertices, views)  # for both bakes
-    fmap = bake_colours(unproject_to_uv(unstructured, eyes, vertices, cfg.resolution), views, vertices, depth)
+    depth = body_depth_maps(vertices, views)  # for the bakes and the falloff
+    fmap = unproject_to_uv(unstructured, eyes, vertices, cfg.resolution)
+    falloff = view_falloff(fmap, views, vertices, depth) if cfg.view_colour else 0.0
+    falloff = falloff if abs(falloff) >= MIN_FALLOFF else 0.0
+    fmap = bake_colours(fmap, views, vertices, depth, falloff)
     samples = gm.make_samples(cfg.gaussians, cfg.seed)  # the Gaussians refined and shown
     history: list[float] = []
     if cfg.steps > 0:
-        fmap, history = refine(fmap, views, vertices, cfg, progress, samples)
-        fmap = bake_colours(fmap, views, vertices, depth)  # colours where the refined geometry puts them
+        fmap, history = refine(fmap, views, vertices, cfg, progress, samples, falloff)
+        fmap = bake_colours(fmap, views, vertices, depth, falloff)  # colours where the refined geometry puts them
     rgb, mask, cams = _resized_targets(views, 512)
-    out = render_views(fmap, vertices, cams, samples)
-    inputs, renders, novel_view = rgb.numpy(), out.rgb.numpy(), None
+    inputs, (renders, _) = rgb.numpy(), render_views(fmap, vertices, cams, samples, falloff)
+    renders, novel_view = renders.numpy(), None
     if novel is not None and len(novel):
         n_rgb, n_mask, n_cams = _resized_targets(novel, 512)
         first = Cameras(n_cams.viewmats[:1], n_cams.Ks[:1], n_cams.width, n_cams.height)
-        n_out = render_views(fmap, vertices, first, samples).rgb.numpy()
+        n_out = render_views(fmap, vertices, first, samples, falloff)[0].numpy()
         novel_view = (n_out[0], n_rgb[0].numpy(), n_mask[0].numpy())
         inputs, renders = np.concatenate([inputs, n_rgb[:1].numpy()]), np.concatenate([renders, n_out])
     sheet = contact_sheet(inputs, renders)
     extra = {"lift": {"steps": cfg.steps, "grid": cfg.grid, "gaussians": cfg.gaussians,
-                      "final_loss": history[-1] if history else None},
+                      "final_loss": history[-1] if history else None, "view_falloff": falloff},
              "samples": {"count": cfg.gaussians, "seed": cfg.seed}}  # what render/animate draw by default  # fmt: skip
-    avatar = Avatar(z=fmap, encoder=ENCODER, decoder=DECODER, body=views.body, uv_layout=UV_LAYOUT, extra=extra)
+    z, decoder = fmap, DECODER
+    if falloff:  # colour depends on the view: the view-cosine decoder, k in z's last channel
+        z, decoder = np.concatenate([fmap, np.full((1, *fmap.shape[1:]), falloff, np.float32)]), VIEW_DECODER
+    avatar = Avatar(z=z, encoder=ENCODER, decoder=decoder, body=views.body, uv_layout=UV_LAYOUT, extra=extra)
     return LiftResult(avatar, unstructured, sheet, novel_view)
