@@ -188,6 +188,17 @@ def test_dream_views_stay_within_the_body_and_clothing(folder):
     assert len(excess) == 4 and max(excess) < 0.02
 
 
+def test_lift_keeps_template_views_view_independent(folder):
+    """The template copies the photo's colours to the other views without shading them, so lift
+    must find no view falloff in them (stages/lift.py `view_falloff`) and keep the identity
+    decoder. (Dreams of the four photos in ../shared/data/images measured k = -0.04 ... 0.02.)"""
+    from dlacli.io.views import read_views
+    from dlacli.stages.lift import LiftConfig, lift
+
+    avatar = lift(read_views(folder), LiftConfig(steps=0, gaussians=4096)).avatar
+    assert avatar.decoder == "identity" and avatar.extra["lift"]["view_falloff"] == 0.0
+
+
 def test_back_colours_are_the_mirrored_front():
     """Where front and back layers are the same part the back takes the front colour; where they
     differ (face over the back of the head) it is filled from the same part's known pixels."""
