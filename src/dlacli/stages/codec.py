@@ -105,8 +105,14 @@ class ViewCosineDecoder(IdentityDecoder):
             return None
         cos = view_cosine(pose.normals.to(z), rays.to(z))  # [R, R]
         out = torch.zeros((CHANNELS, *z.shape[1:]), dtype=z.dtype, device=z.device)
-        out[RGB] = z[RGB] * (z[self.FALLOFF] * (cos - 1.0))
+        out[RGB] = z[RGB] * (shading(z[self.FALLOFF], cos) - 1.0)
         return out
+
+
+def shading(falloff, cosine):
+    """The view-cosine decoder's colour factor 1 - k + k cos, cos clamped to [0, 1] (numpy arrays
+    or torch tensors; stages/lift.py bakes and measures k with the same law)."""
+    return 1.0 - falloff + falloff * cosine.clip(0.0, 1.0)
 
 
 def view_cosine(normals: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:

@@ -30,6 +30,7 @@ from scipy.spatial import cKDTree
 from dlacli.errors import DlaInputError
 from dlacli.geometry import project_points as _project  # points [..., 3] -> (pixels [..., 2], z [...])
 from dlacli.stages import gaussian_map as gm
+from dlacli.stages.codec import shading
 from dlacli.types import Avatar, Cameras, Gaussians, ViewSet, rgb_to_sh0
 
 MAX_VIEWS = 64  # every view is rendered at every refinement step: memory and time grow with them
@@ -296,12 +297,6 @@ def _observations(points: np.ndarray, normals: np.ndarray, views: ViewSet, body_
         inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h) & (z > 0)
         seen = inside & (z <= body_depth[v][row, col] + VISIBLE_DEPTH) & (cosine > 0.05) & (mask > 0.5)
         yield sampled[:, :3] / np.maximum(mask, 1e-6)[:, None], mask, cosine, seen
-
-
-def shading(falloff: float, cosine: np.ndarray) -> np.ndarray:
-    """The view-dependent colour factor 1 - k + k cos (cos clamped to [0, 1]; the view-cosine
-    decoder, stages/codec.py)."""
-    return 1.0 - falloff + falloff * np.clip(cosine, 0.0, 1.0)
 
 
 def view_falloff(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_depth: np.ndarray | None = None) -> float:
