@@ -109,6 +109,21 @@ class ViewCosineDecoder(IdentityDecoder):
         return out
 
 
+def same_space(a: Avatar, b: Avatar) -> tuple[Avatar, Avatar]:
+    """`a` and `b` in one latent space where one embeds in the other: an identity avatar is a
+    view-cosine one with falloff 0, so with one of each the identity one gains the falloff
+    channel (zeros). Anything else is returned as it is (edits' `check_compatible` judges)."""
+    from dataclasses import replace
+
+    def promote(x: Avatar) -> Avatar:
+        k = np.zeros((1, *x.z.shape[1:]), np.float32)
+        return replace(x, z=np.concatenate([x.z.astype(np.float32), k]), decoder=ViewCosineDecoder.name, canonical=None)
+
+    if {a.decoder, b.decoder} == {ViewCosineDecoder.name, IdentityDecoder.name} and not a.checkpoint and not b.checkpoint:
+        return (promote(a), b) if a.decoder == IdentityDecoder.name else (a, promote(b))
+    return a, b
+
+
 def shading(falloff, cosine):
     """The view-cosine decoder's colour factor 1 - k + k cos, cos clamped to [0, 1] (numpy arrays
     or torch tensors; stages/lift.py bakes and measures k with the same law)."""

@@ -29,25 +29,6 @@ def check_compatible(a: Avatar, b: Avatar, where_a: str = "A", where_b: str = "B
         raise DlaInputError(where_b, f"z has shape {b.z.shape}, {where_a}'s has {a.z.shape}")
 
 
-def same_space(a: Avatar, b: Avatar) -> tuple[Avatar, Avatar]:
-    """`a` and `b` in one latent space where one embeds in the other: an identity avatar is a
-    view-cosine one with falloff 0 (stages/codec.py), so with one of each the identity one gains
-    the falloff channel (zeros). Anything else is returned as it is (`check_compatible` judges)."""
-    from dataclasses import replace
-
-    from dlacli.stages.codec import ViewCosineDecoder
-
-    view, plain = ViewCosineDecoder.name, "identity"
-
-    def promote(x: Avatar) -> Avatar:
-        k = np.zeros((1, *x.z.shape[1:]), np.float32)
-        return replace(x, z=np.concatenate([x.z.astype(np.float32), k]), decoder=view, canonical=None)
-
-    if {a.decoder, b.decoder} == {view, plain} and not a.checkpoint and not b.checkpoint:
-        return (promote(a), b) if a.decoder == plain else (a, promote(b))
-    return a, b
-
-
 def feathered_weight(mask: np.ndarray, feather: float) -> np.ndarray:
     """[H, W] float32 blend weight: 1 inside `mask` [H, W] bool, falling linearly to 0 over
     `feather` texels outside it (texels farther than `feather` from the region keep weight 0)."""
@@ -88,7 +69,7 @@ def swap_region(
     that is linear in z (identity), whose maps swap exactly like z when both avatars have one of
     the same size.
     """
-    from dlacli.stages.codec import is_linear
+    from dlacli.stages.codec import is_linear, same_space
 
     a, b = same_space(a, b)
     check_compatible(a, b, where_a, where_b)
@@ -151,7 +132,7 @@ def interpolate(a: Avatar, b: Avatar, t: float, where_a: str = "A", where_b: str
     [0, 1] extrapolates. Between them the blend is re-decoded from z: the canonical cache is
     dropped, except for a decoder linear in z (identity), where it blends like z.
     """
-    from dlacli.stages.codec import is_linear
+    from dlacli.stages.codec import is_linear, same_space
 
     a, b = same_space(a, b)
     check_compatible(a, b, where_a, where_b)
