@@ -282,7 +282,7 @@ def lift_learned(views: ViewSet, checkpoint: str, steps: int = 0, lr: float = 0.
     render_size) -> stages.lift.LiftResult (avatar, the U-Net's pixel Gaussians, contact sheet)."""
     from dlacli.body.model import get_body_model
     from dlacli.body.uv import UV_LAYOUT
-    from dlacli.stages.lift import MAX_VIEWS, LiftResult, _resized_targets, contact_sheet
+    from dlacli.stages.lift import MAX_VIEWS, LiftResult, _resized_targets, sheet_and_novel_view
     from dlacli.types import Avatar
 
     if views.body is None:
@@ -318,15 +318,7 @@ def lift_learned(views: ViewSet, checkpoint: str, steps: int = 0, lr: float = 0.
     seconds = time.perf_counter() - t0
     with torch.no_grad():
         f_c = net.canonical(z)
-        s_rgb, _, s_cams = _resized_targets(views, 512)
-        renders, _ = render_targets(net, z, verts, rest, s_cams)
-        inputs, shown, novel_view = s_rgb.numpy(), renders.numpy(), None
-        if novel is not None and len(novel):
-            n_rgb, n_mask, n_cams = _resized_targets(novel, 512)
-            first = Cameras(n_cams.viewmats[:1], n_cams.Ks[:1], n_cams.width, n_cams.height)
-            n_out, _ = render_targets(net, z, verts, rest, first)
-            novel_view = (n_out[0].numpy(), n_rgb[0].numpy(), n_mask[0].numpy())
-            inputs, shown = np.concatenate([inputs, n_rgb[:1].numpy()]), np.concatenate([shown, n_out.numpy()])
+        sheet, novel_view = sheet_and_novel_view(views, novel, lambda c: render_targets(net, z, verts, rest, c)[0].numpy())
     unstructured = Gaussians.from_rgb(g.means[0], g.quats[0], g.scales[0], g.opacities[0], g.rgb[0])
     extra = {"lift": {"steps": steps, "final_loss": history[-1] if history else None, "seconds": seconds,
                       "preset": net.config.preset, "variant": net.config.variant},
@@ -334,4 +326,4 @@ def lift_learned(views: ViewSet, checkpoint: str, steps: int = 0, lr: float = 0.
     avatar = Avatar(z=z.numpy().astype(np.float32), encoder=ENCODER, decoder=DECODER, body=views.body,
                     uv_layout=UV_LAYOUT, checkpoint=digest, canonical=f_c.numpy().astype(np.float32),
                     extra=extra)  # fmt: skip
-    return LiftResult(avatar, unstructured, contact_sheet(inputs, shown), novel_view)
+    return LiftResult(avatar, unstructured, sheet, novel_view)

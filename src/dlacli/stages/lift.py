@@ -509,6 +509,21 @@ def contact_sheet(inputs: np.ndarray, renders: np.ndarray, tile: int = 256) -> n
     return np.concatenate([row(inputs), row(renders)], axis=0)
 
 
+def sheet_and_novel_view(views: ViewSet, novel: ViewSet | None, render):
+    """The contact sheet of an avatar shown by `render(cameras) -> rgb [C, H, W, 3]` (numpy):
+    the views at <= 512 px above its renders of them, plus the first novel view (ground truth
+    the avatar never saw) as a fifth column when `novel` has one -> (sheet, (render, truth,
+    mask) of that novel view or None)."""
+    rgb, _, cams = _resized_targets(views, 512)
+    inputs, renders, novel_view = rgb.numpy(), render(cams), None
+    if novel is not None and len(novel):
+        n_rgb, n_mask, n_cams = _resized_targets(novel, 512)
+        n_out = render(Cameras(n_cams.viewmats[:1], n_cams.Ks[:1], n_cams.width, n_cams.height))
+        novel_view = (n_out[0], n_rgb[0].numpy(), n_mask[0].numpy())
+        inputs, renders = np.concatenate([inputs, n_rgb[:1].numpy()]), np.concatenate([renders, n_out])
+    return contact_sheet(inputs, renders), novel_view
+
+
 def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: ViewSet | None = None) -> LiftResult:
     """A view folder (with body.json) -> avatar (Z = the Gaussian map F), the unstructured
     Gaussians and a contact sheet. `novel`: ground-truth views of the same pose that lift does not
@@ -534,16 +549,8 @@ def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: Vi
     if cfg.steps > 0:
         fmap, history = refine(fmap, views, vertices, cfg, progress, samples, falloff)
         fmap = bake_colours(fmap, views, vertices, depth, falloff)  # colours where the refined geometry puts them
-    rgb, mask, cams = _resized_targets(views, 512)
-    inputs, (renders, _) = rgb.numpy(), render_views(fmap, vertices, cams, samples, falloff)
-    renders, novel_view = renders.numpy(), None
-    if novel is not None and len(novel):
-        n_rgb, n_mask, n_cams = _resized_targets(novel, 512)
-        first = Cameras(n_cams.viewmats[:1], n_cams.Ks[:1], n_cams.width, n_cams.height)
-        n_out = render_views(fmap, vertices, first, samples, falloff)[0].numpy()
-        novel_view = (n_out[0], n_rgb[0].numpy(), n_mask[0].numpy())
-        inputs, renders = np.concatenate([inputs, n_rgb[:1].numpy()]), np.concatenate([renders, n_out])
-    sheet = contact_sheet(inputs, renders)
+    sheet, novel_view = sheet_and_novel_view(
+        views, novel, lambda cams: render_views(fmap, vertices, cams, samples, falloff)[0].numpy())
     extra = {"lift": {"steps": cfg.steps, "grid": cfg.grid, "gaussians": cfg.gaussians,
                       "final_loss": history[-1] if history else None, "view_falloff": falloff},
              "samples": {"count": cfg.gaussians, "seed": cfg.seed}}  # what render/animate draw by default  # fmt: skip
