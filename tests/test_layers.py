@@ -5,7 +5,7 @@ depth: module level, inside functions, under `if TYPE_CHECKING:`), plus the star
 Direction (an import may only point to a lower rank, or stay inside its own unit):
 
     errors, paths, the package  <-  types  <-  geometry, kinematics, raster_core
-        <-  body, render, io  <-  nn  <-  stages  <-  train, bench  <-  cli
+        <-  body, render, io  <-  avatar  <-  nn  <-  stages  <-  train, bench  <-  cli
 
 body, render and io are one level and do not import each other; `ALLOWED` lists the one edge
 between them that the code has a reason for. Nothing imports `dlacli.cli` but `dlacli.cli`.
@@ -30,6 +30,7 @@ RANK = {
     "dlacli": 0,  # the package itself (__version__)
     "dlacli.errors": 0,
     "dlacli.paths": 0,
+    "dlacli.limits": 0,
     "dlacli.types": 1,
     "dlacli.geometry": 2,
     "dlacli.kinematics": 2,
@@ -37,11 +38,12 @@ RANK = {
     "dlacli.body": 3,
     "dlacli.render": 3,
     "dlacli.io": 3,
-    "dlacli.nn": 4,
-    "dlacli.stages": 5,
-    "dlacli.train": 6,
-    "dlacli.bench": 6,
-    "dlacli.cli": 7,
+    "dlacli.avatar": 4,
+    "dlacli.nn": 5,
+    "dlacli.stages": 6,
+    "dlacli.train": 7,
+    "dlacli.bench": 7,
+    "dlacli.cli": 8,
 }
 
 # (importer, imported) pairs allowed between two units of the same rank, with the reason.

@@ -13,7 +13,7 @@ import torch
 
 from dlacli.cli.app import main
 from dlacli.io.avatar import write_avatar
-from dlacli.stages import gaussian_map as gm
+from dlacli.avatar import gaussian_map as gm
 from dlacli.types import PHENOTYPE_KEYS, Avatar, BodyParams
 
 N = 1024
@@ -78,7 +78,7 @@ def _same_rotation(a, b, atol):
 
 def _reference(avatar: Avatar, vertices: torch.Tensor):
     """The render path's Gaussians for posed vertices [1, V, 3] (stages/render.render_avatar)."""
-    from dlacli.stages.codec import Decoded
+    from dlacli.avatar.codec import Decoded
 
     samples = gm.make_samples(N, 4)
     (g,) = gm.gaussians_at_frames(Decoded(avatar).at(), samples, gm.sample_frames(vertices, samples))

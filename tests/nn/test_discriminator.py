@@ -11,7 +11,7 @@ import torch
 
 from dlacli.errors import DlaInputError
 from dlacli.nn import discriminator as D
-from dlacli.nn.checkpoint import load_checkpoint, save_checkpoint
+from dlacli.avatar.checkpoint import load_checkpoint, save_checkpoint
 
 F32 = torch.float32
 

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from dlacli.errors import DlaInputError
-from dlacli.nn.checkpoint import load_checkpoint, save_checkpoint
+from dlacli.avatar.checkpoint import load_checkpoint, save_checkpoint
 from dlacli.nn.encoder import (
     PRESETS,
     EncoderConfig,

@@ -13,15 +13,10 @@ from torch import nn
 
 from dlacli.body.regions import PARTS, segmentation_onehot
 from dlacli.errors import DlaInputError
-from dlacli.nn.checkpoint import load_checkpoint, save_checkpoint
+from dlacli.avatar.checkpoint import load_checkpoint, save_checkpoint
+from dlacli.avatar.gaussian_map import CHANNELS, LOG_SCALE, OFFSET, OPACITY, RGB, ROTATION
 from dlacli.nn.gpd import (
-    CHANNELS,
-    LOG_SCALE,
-    OFFSET,
-    OPACITY,
     PRESETS,
-    RGB,
-    ROTATION,
     GaussianParameterDecoder,
     GPDConfig,
     neutral_gaussian_map,

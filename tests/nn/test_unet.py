@@ -13,7 +13,7 @@ import torch
 
 from dlacli.errors import DlaInputError
 from dlacli.nn import unet as U
-from dlacli.nn.checkpoint import config_from_dict, load_checkpoint, save_checkpoint
+from dlacli.avatar.checkpoint import config_from_dict, load_checkpoint, save_checkpoint
 
 F32 = torch.float32
 DEPTH = 40  # ~rounding steps from input to output of the tiny net (its layers), for tolerances

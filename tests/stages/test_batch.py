@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from dlacli.render.splat import render_gaussians
-from dlacli.stages import gaussian_map as gm
+from dlacli.avatar import gaussian_map as gm
 from dlacli.types import BodyParams, Gaussians
 
 R = 24

@@ -15,8 +15,8 @@ import torch
 @pytest.fixture(scope="module")
 def tiny_checkpoint(tmp_path_factory):
     """A randomly initialised tiny network whose pose/view branch is switched on (non-zero)."""
-    from dlacli.nn.checkpoint import save_checkpoint
-    from dlacli.stages.learned import LearnedAvatarNet, learned_config
+    from dlacli.avatar.checkpoint import save_checkpoint
+    from dlacli.nn.learned import LearnedAvatarNet, learned_config
 
     torch.manual_seed(0)
     cfg = learned_config("tiny")
@@ -39,7 +39,7 @@ def _posed(subject_dir):
 
 def test_gaussian_map_channels_agree_with_the_gpd():
     from dlacli.nn import gpd
-    from dlacli.stages import gaussian_map as gm
+    from dlacli.avatar import gaussian_map as gm
 
     assert gpd.CHANNELS == gm.CHANNELS
     for name in ("OPACITY", "RGB", "OFFSET", "ROTATION", "LOG_SCALE"):
@@ -47,7 +47,7 @@ def test_gaussian_map_channels_agree_with_the_gpd():
 
 
 def test_presets_agree_and_variants_switch_the_ablations():
-    from dlacli.stages.learned import LearnedAvatarNet, learned_config
+    from dlacli.nn.learned import LearnedAvatarNet, learned_config
 
     for preset in ("tiny", "small", "paper"):
         cfg = learned_config(preset)
@@ -62,8 +62,8 @@ def test_presets_agree_and_variants_switch_the_ablations():
 
 def test_checkpoint_round_trip_gives_the_same_avatar_maps(tiny_checkpoint, subject):
     from dlacli.geometry import camera_centers
-    from dlacli.nn.checkpoint import load_checkpoint
-    from dlacli.stages.learned import conditioning
+    from dlacli.avatar.checkpoint import load_checkpoint
+    from dlacli.nn.learned import conditioning
 
     path, digest, net = tiny_checkpoint
     loaded = load_checkpoint(path)
@@ -82,8 +82,8 @@ def test_codec_decodes_a_learned_avatar_as_the_batched_path_does(tiny_checkpoint
     decode with the same conditioning maps, and the delta depends on pose and on camera."""
     from dlacli.body.uv import UV_LAYOUT
     from dlacli.geometry import camera_centers
-    from dlacli.stages.codec import Decoded
-    from dlacli.stages.learned import conditioning
+    from dlacli.avatar.codec import Decoded
+    from dlacli.nn.learned import conditioning
     from dlacli.types import Avatar
 
     path, digest, net = tiny_checkpoint

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from dlacli.body.builtin_motions import builtin_motion
 from dlacli.body.model import get_body_model
 from dlacli.stages.animate import pose_avatar
-from dlacli.stages.codec import Decoder, register_decoder
+from dlacli.avatar.codec import Decoder, register_decoder
 from dlacli.stages.rig import build_rig, polar_rotation, skin, skinning_matrices
 from dlacli.types import Avatar, BodyParams, Motion
 
@@ -158,7 +158,7 @@ def test_lbs_stays_close_to_dla_skinning(avatar, rig):
     anim = pose_avatar(avatar, motion)
     mats = skinning_matrices(avatar, motion)
     errors, angles = [], []
-    from dlacli.stages import gaussian_map as gm
+    from dlacli.avatar import gaussian_map as gm
     from dlacli.stages.render import sample_settings
 
     samples = gm.make_samples(*sample_settings(avatar))

@@ -11,7 +11,7 @@ import torch
 
 from dlacli.errors import DlaInputError
 from dlacli.io.views import read_views
-from dlacli.stages.codec import PoseConditioning, ViewCosineDecoder, view_cosine
+from dlacli.avatar.codec import PoseConditioning, ViewCosineDecoder, view_cosine
 from dlacli.stages.lift import MIN_FALLOFF, LiftConfig, lift
 
 N = 32_768
@@ -105,7 +105,7 @@ def test_lift_shows_what_render_draws(subject):
     from dlacli.stages.lift import _resized_targets, render_views
     from dlacli.stages.render import render_avatar
     from dlacli.body.model import get_body_model
-    from dlacli.stages import gaussian_map as gm
+    from dlacli.avatar import gaussian_map as gm
 
     views = read_views(subject)
     avatar = lift(views, LiftConfig(steps=0, gaussians=N)).avatar

@@ -84,7 +84,7 @@ def test_two_gloo_processes_equal_one_process_with_the_combined_batch(data64, tm
     for k in ("total", "l1", "ug"):  # the losses are the same means over the same 2 items
         assert abs(rec1["history"][0][k] - rec2["history"][0][k]) <= 1e-5 * abs(rec1["history"][0][k])
     ck = "ckpt-000001/generator"
-    from dlacli.nn.checkpoint import load_checkpoint
+    from dlacli.avatar.checkpoint import load_checkpoint
 
     n1, n2 = (load_checkpoint(tmp_path / r / ck).module for r in ("one", "two"))
     w1, w2 = dict(n1.named_parameters()), dict(n2.named_parameters())

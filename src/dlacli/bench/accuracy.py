@@ -166,7 +166,7 @@ def run(seeds: list[int], methods: list[MethodSpec], res: int = 512, appearance:
     from dlacli.io.avatar import read_avatar
     from dlacli.stages.synth import synth
 
-    from dlacli.nn.checkpoint import install_checkpoint, resolve_checkpoint
+    from dlacli.avatar.checkpoint import install_checkpoint, resolve_checkpoint
 
     for spec in methods:  # the renders find a learned avatar's decoder by its hash, as after `dla lift`
         if "checkpoint" in spec.config:

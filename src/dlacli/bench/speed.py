@@ -315,7 +315,7 @@ def _body(cfg: SpeedConfig, row, log) -> list[dict]:
     from dlacli.body.model import get_body_model
     from dlacli.body.skinning import skin_gaussians
     from dlacli.body.uv import tangent_frames
-    from dlacli.stages import gaussian_map as gm
+    from dlacli.avatar import gaussian_map as gm
 
     t0 = time.perf_counter()
     body = get_body_model()

@@ -287,8 +287,8 @@ def visible_gaussians(avatar: Avatar) -> int:
     """Gaussians of the avatar's canonical map, at its own samples, with opacity > EMPTY_OPACITY."""
     import torch
 
-    from dlacli.stages import gaussian_map as gm
-    from dlacli.stages.codec import Decoded
+    from dlacli.avatar import gaussian_map as gm
+    from dlacli.avatar.codec import Decoded
     from dlacli.stages.render import sample_settings
 
     samples = gm.make_samples(*sample_settings(avatar))

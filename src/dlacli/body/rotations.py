@@ -1,5 +1,5 @@
 """Moved to `dlacli.geometry` (the bottom-layer module). This re-export is kept only because
-body/skinning.py and stages/gaussian_map.py still import from here; once they import
+body/skinning.py and avatar/gaussian_map.py still import from here; once they import
 dlacli.geometry, delete this file. New code must not import it."""
 
 from dlacli.geometry import (  # noqa: F401

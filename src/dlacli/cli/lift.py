@@ -9,10 +9,11 @@ from typing import Optional
 import typer
 
 from dlacli.cli.options import gaussian_count
+from dlacli.limits import DEFAULT_GAUSSIANS, LIFT_RESOLUTION, LIFT_STEPS
 
-# `dlacli.stages.lift.LiftConfig`'s defaults, written out so that loading the CLI (`dla --version`,
-# `dla info`) does not import the stage and torch; tests/test_layers.py checks that they agree.
-_DEFAULTS = SimpleNamespace(steps=50, resolution=256, gaussians=131_072)
+# `dlacli.stages.lift.LiftConfig`'s defaults, from the torch-free limits module (loading the CLI for
+# `dla --version` or `dla info` does not import the stage and torch).
+_DEFAULTS = SimpleNamespace(steps=LIFT_STEPS, resolution=LIFT_RESOLUTION, gaussians=DEFAULT_GAUSSIANS)
 
 
 def lift(
@@ -42,7 +43,7 @@ def lift(
     from dlacli.io.avatar import write_avatar
     from dlacli.io.ply import write_ply
     from dlacli.io.views import read_transforms, read_views, view_files
-    from dlacli.stages.codec import check_encoder
+    from dlacli.avatar.codec import check_encoder
     from dlacli.stages.lift import MAX_VIEWS, LiftConfig
     from dlacli.stages.lift import lift as run_lift
 
@@ -105,7 +106,7 @@ def lift(
             Image.fromarray(result.contact_sheet).save(tmp)
         write_avatar(result.avatar, output)
     if learned:  # animate, render and edit find the decoder by the hash the avatar records
-        from dlacli.nn.checkpoint import install_checkpoint, resolve_checkpoint
+        from dlacli.avatar.checkpoint import install_checkpoint, resolve_checkpoint
 
         install_checkpoint(resolve_checkpoint(str(checkpoint)))
     typer.echo(str(output))

@@ -10,6 +10,7 @@ from typing import Iterator
 import typer
 
 from dlacli.errors import DlaInputError
+from dlacli.limits import MAX_GAUSSIANS
 
 
 def finite(value: float | None) -> float | None:
@@ -34,7 +35,6 @@ def naming(**files) -> Iterator[None]:
         raise DlaInputError(target, problem) from None
 
 
-MAX_GAUSSIANS = 4_194_304  # dlacli.stages.render.MAX_GAUSSIANS, written out (the CLI must not import torch)
 
 
 def gaussian_count(value: str | None) -> int | str | None:

@@ -44,7 +44,7 @@ def train(
     --checkpoint RUN/ckpt-N/generator` uses.
     """
     from dlacli.errors import DlaInputError
-    from dlacli.stages.learned import PRESET_NAMES, VARIANTS
+    from dlacli.nn.learned import PRESET_NAMES, VARIANTS
     from dlacli.train.loop import TrainConfig
     from dlacli.train.loop import train as run
 

@@ -24,13 +24,9 @@ import torch
 import torch.nn.functional as nnf
 from torch import Tensor, nn
 
+from dlacli.avatar.gaussian_map import CHANNELS, OPACITY, RGB, ROTATION
 from dlacli.nn import named_preset
 
-# F's channel layout, copied from dlacli.stages.gaussian_map (its module docstring; nn cannot import stages)
-CHANNELS = 14
-OPACITY, RGB, OFFSET, ROTATION, LOG_SCALE = (
-    slice(0, 1), slice(1, 4), slice(4, 7), slice(7, 11), slice(11, 14),
-)  # fmt: skip
 POSE_CHANNELS = slice(0, 6)  # conditioning: relative positions (3) + normals (3)
 VIEW_START = 6  # conditioning channels from here on: Plücker rays (6)
 NEUTRAL_OPACITY_LOGIT = 2.0

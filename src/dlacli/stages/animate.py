@@ -1,7 +1,7 @@
 """Animate: an avatar and a motion -> world Gaussians per frame -> USD and a preview video.
 
 The Gaussian map F is decoded once (identity decoder: F = Z, so the canonical part is F itself),
-Gaussians are drawn at fixed surface samples (stages/gaussian_map.py), and each frame only
+Gaussians are drawn at fixed surface samples (avatar/gaussian_map.py), and each frame only
 recomputes the posed body's tangent frames and the skinning x = T + R dx, R_g = R dR, s = S ds.
 """
 
@@ -14,7 +14,7 @@ from typing import Callable, Iterator
 import numpy as np
 import torch
 
-from dlacli.stages import gaussian_map as gm
+from dlacli.avatar import gaussian_map as gm
 from dlacli.types import Avatar, Cameras, Gaussians, Motion, rgb_to_sh0
 
 PREVIEW_AZIMUTH = 25.0  # degrees: a three-quarter front view
@@ -68,7 +68,7 @@ def pose_avatar(
     USD_VIEW_AZIMUTH when it is view-conditioned (formats/usd.md: a USD file has no camera), and
     then colours and opacities are per frame too. Count and seed default to the avatar's own."""
     from dlacli.body.model import get_body_model
-    from dlacli.stages.codec import Decoded
+    from dlacli.avatar.codec import Decoded
     from dlacli.stages.render import sample_settings
 
     model = get_body_model()

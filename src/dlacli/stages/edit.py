@@ -69,7 +69,7 @@ def swap_region(
     that is linear in z (identity), whose maps swap exactly like z when both avatars have one of
     the same size.
     """
-    from dlacli.stages.codec import is_linear, same_space
+    from dlacli.avatar.codec import is_linear, same_space
 
     a, b = same_space(a, b)
     check_compatible(a, b, where_a, where_b)
@@ -132,7 +132,7 @@ def interpolate(a: Avatar, b: Avatar, t: float, where_a: str = "A", where_b: str
     [0, 1] extrapolates. Between them the blend is re-decoded from z: the canonical cache is
     dropped, except for a decoder linear in z (identity), where it blends like z.
     """
-    from dlacli.stages.codec import is_linear, same_space
+    from dlacli.avatar.codec import is_linear, same_space
 
     a, b = same_space(a, b)
     check_compatible(a, b, where_a, where_b)

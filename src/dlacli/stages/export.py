@@ -10,7 +10,7 @@ Poses (`POSES`), all on the avatar's own body shape (phenotype):
 or a frame of a motion (`dla render --motion`'s pose of that frame).
 
 Gaussians are sampled at the avatar's own count and seed (`stages.render.sample_settings`) and
-placed with the posed body's tangent frames (stages/gaussian_map.py). A pose-conditioned decoder
+placed with the posed body's tangent frames (avatar/gaussian_map.py). A pose-conditioned decoder
 decodes F per pose; a view-conditioned one is evaluated from the front, as for USD (animate's
 `usd_view_eye`), since a splat file has no camera.
 
@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from dlacli.errors import DlaInputError
-from dlacli.stages import gaussian_map as gm
+from dlacli.avatar import gaussian_map as gm
 from dlacli.types import Avatar, BodyParams, Gaussians, Motion
 
 POSES = ("rest", "canonical", "input")
@@ -122,7 +122,7 @@ def export_frames(
     (all of them when None), in dla's world axes; `orient` them for a file."""
     from dlacli.body.model import get_body_model
     from dlacli.stages.animate import usd_view_eye
-    from dlacli.stages.codec import Decoded
+    from dlacli.avatar.codec import Decoded
     from dlacli.stages.render import sample_settings
 
     model = get_body_model()

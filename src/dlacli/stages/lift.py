@@ -8,7 +8,7 @@ a. `unstructured_gaussians`: one Gaussian per (block of) masked pixel, placed al
 b. `unproject_to_uv`: each Gaussian goes to the nearest body texel that faces its camera; texels
    average what they receive (opacity, offset along the tangent frame), and texels no view saw
    take the values of the nearest seen texel in 3D. The result is the Gaussian map F = Z
-   (identity decoder; stages/gaussian_map.py). `bake_colours` then gives every texel the colour
+   (identity decoder; avatar/gaussian_map.py). `bake_colours` then gives every texel the colour
    the views show at its own 3D point (projective texturing, the most frontal view dominating).
 c. `refine`: optimise F's geometry (opacity, normal offset, rotation, scale) through sampling +
    skinning + splatting against the input views (L1 + mask + D-SSIM) at the views' own size, up
@@ -28,12 +28,12 @@ from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
 from dlacli.errors import DlaInputError
+from dlacli.limits import LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS
 from dlacli.geometry import project_points as _project  # points [..., 3] -> (pixels [..., 2], z [...])
-from dlacli.stages import gaussian_map as gm
-from dlacli.stages.codec import shading
+from dlacli.avatar import gaussian_map as gm
+from dlacli.avatar.codec import shading
 from dlacli.types import Avatar, Cameras, Gaussians, ViewSet, rgb_to_sh0
 
-MAX_VIEWS = 64  # every view is rendered at every refinement step: memory and time grow with them
 ENCODER = "unproject"
 DECODER = "identity"
 VIEW_DECODER = "view-cosine"  # when the views' colours depend on the view (`view_falloff`)
@@ -49,9 +49,9 @@ MIN_FALLOFF = 0.05  # |k| below this: the avatar keeps the identity decoder (col
 
 @dataclass
 class LiftConfig:
-    resolution: int = 256  # the Gaussian map F is resolution x resolution
+    resolution: int = LIFT_RESOLUTION  # the Gaussian map F is resolution x resolution
     grid: int = 128  # unstructured Gaussians: one per pixel of a grid x grid downsampled view
-    steps: int = 50  # refinement steps (0: unprojection only); see `dla bench pipeline`
+    steps: int = LIFT_STEPS  # refinement steps (0: unprojection only); see `dla bench pipeline`
     gaussians: int = gm.DEFAULT_GAUSSIANS  # sampled during refinement
     render_size: int = 512  # refinement renders views at most this many pixels on the long side
     lr: float = 0.01
@@ -399,13 +399,13 @@ def _mean(x: torch.Tensor, rows: int = 1024) -> torch.Tensor:
 
 def view_colours(fmap: np.ndarray, falloff: float, vertices: np.ndarray, cameras: Cameras, samples: gm.Samples) -> torch.Tensor | None:
     """The samples' colours [C, N, 3] as each camera sees F [14, R, R] with a view falloff k on
-    the body in one pose (vertices [V, 3]): what the view-cosine decoder (stages/codec.py) makes
+    the body in one pose (vertices [V, 3]): what the view-cosine decoder (avatar/codec.py) makes
     of them, so lift refines and shows what `dla render` draws. None for k = 0."""
     if not falloff:
         return None
     from dlacli.body.uv import normal_map
     from dlacli.geometry import camera_centers
-    from dlacli.stages.codec import PoseConditioning, ViewCosineDecoder, uv_rays
+    from dlacli.avatar.codec import PoseConditioning, ViewCosineDecoder, uv_rays
 
     res = fmap.shape[-1]
     verts = torch.from_numpy(np.asarray(vertices, dtype=np.float32))

@@ -15,11 +15,11 @@ import numpy as np
 import torch
 
 from dlacli.errors import DlaInputError
-from dlacli.stages import gaussian_map as gm
+from dlacli.limits import MAX_GAUSSIANS
+from dlacli.avatar import gaussian_map as gm
 from dlacli.types import Avatar, Cameras, Motion
 
 CAMERAS_PER_CALL = 8  # splat this many cameras at once: projections are [C, N, ...], memory grows with C
-MAX_GAUSSIANS = 4_194_304  # the most an avatar may ask to be drawn with (32x the default)
 TURNTABLE_ELEVATION = 5.0
 TURNTABLE_FOV = 40.0
 TURNTABLE_EXTENT = 2.2
@@ -63,11 +63,11 @@ def render_avatar(
     """Shots for each camera (times [C]: motion frame per camera, None = frame 0 / own pose).
 
     The decoder's canonical map is computed once; F is decoded per motion frame when the decoder
-    is pose-conditioned and per camera when it is view-conditioned (stages/codec.py). Gaussian
+    is pose-conditioned and per camera when it is view-conditioned (avatar/codec.py). Gaussian
     count and seed default to the ones the avatar records (`sample_settings`)."""
     from dlacli.geometry import camera_centers
     from dlacli.render.splat import render_gaussians
-    from dlacli.stages.codec import Decoded
+    from dlacli.avatar.codec import Decoded
 
     decoded = Decoded(avatar, where, checkpoint)
     count, seed = sample_settings(avatar, n_gaussians, seed)

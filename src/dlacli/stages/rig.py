@@ -115,8 +115,8 @@ def build_rig(
     Count and seed of the sample points default to the avatar's own (stages/render.sample_settings).
     K = anny's weights per vertex (9)."""
     from dlacli.body.model import get_body_model
-    from dlacli.stages import gaussian_map as gm
-    from dlacli.stages.codec import Decoded
+    from dlacli.avatar import gaussian_map as gm
+    from dlacli.avatar.codec import Decoded
     from dlacli.stages.render import sample_settings
 
     model = get_body_model()
@@ -258,7 +258,7 @@ def body_mesh(fmap: torch.Tensor, phenotype: dict[str, float]) -> dict[str, np.n
     smoothed, none)."""
     from dlacli.body.model import get_body_model
     from dlacli.body.uv import tangent_frames, vertex_normals
-    from dlacli.stages import gaussian_map as gm
+    from dlacli.avatar import gaussian_map as gm
 
     model = get_body_model()
     rest = model.zero_pose(phenotype).vertices[0]  # [V, 3]
@@ -291,7 +291,7 @@ def albedo_texture(fmap: torch.Tensor) -> np.ndarray:
     """The map's colour channels as an 8-bit sRGB image [R, R, 3] (row 0 = v near 1, the UV
     image convention), dilated into the empty texels."""
     from dlacli.body.uv import uv_raster
-    from dlacli.stages import gaussian_map as gm
+    from dlacli.avatar import gaussian_map as gm
 
     r = int(fmap.shape[-1])
     rgb = fmap[gm.RGB].permute(1, 2, 0).double().clamp(0, 1).numpy()  # [R, R, 3]
@@ -310,7 +310,7 @@ def rig_asset(
     colour texture, and (with a motion) each joint's world transform per frame."""
     from dlacli.body.model import get_body_model
     from dlacli.io.usd_rig import RigAsset
-    from dlacli.stages.codec import Decoded
+    from dlacli.avatar.codec import Decoded
 
     model = get_body_model()
     decoded = Decoded(avatar, where, checkpoint)

@@ -142,7 +142,7 @@ class GeneratorLoss(nn.Module):
         from dlacli.nn.encoder import kl_divergence
         from dlacli.nn.losses import perceptual_loss
         from dlacli.render.splat import render_gaussians
-        from dlacli.stages.learned import conditioning, scaled_cameras, subject_depth
+        from dlacli.nn.learned import conditioning, scaled_cameras, subject_depth
         from dlacli.geometry import camera_centers
 
         net, cfg = self.net, self.cfg
@@ -259,11 +259,11 @@ def train(data: str | os.PathLike, out: str | os.PathLike, cfg: TrainConfig, *, 
           until: int | None = None, log=None) -> dict:  # fmt: skip
     """Train (or resume) a run; returns train.json's content. `until`: stop (with a checkpoint)
     after that many steps in all, to be resumed later."""
-    from dlacli.nn.checkpoint import load_checkpoint, save_checkpoint
+    from dlacli.avatar.checkpoint import load_checkpoint, save_checkpoint
     from dlacli.nn.discriminator import PatchDiscriminator
     from dlacli.nn.discriminator import preset as disc_preset
     from dlacli.nn.losses import load_alexnet
-    from dlacli.stages.learned import LearnedAvatarNet, learned_config
+    from dlacli.nn.learned import LearnedAvatarNet, learned_config
     from dlacli.train.data import TrainingData, split_subjects
 
     world = init_world()
@@ -389,7 +389,8 @@ def train(data: str | os.PathLike, out: str | os.PathLike, cfg: TrainConfig, *, 
 def validate(net, data, size: int, seed: int = 0, subjects: int = 2):
     """Masked and whole-image PSNR and alpha IoU of the decoder's renders on validation items (the
     posterior mean, no noise), and a picture: ground truth above prediction per target."""
-    from dlacli.stages.learned import render_targets, scaled_cameras, subject_depth
+    from dlacli.nn.learned import scaled_cameras, subject_depth
+    from dlacli.stages.learned import render_targets
 
     net.eval()
     psnr, psnr_m, iou, tiles_gt, tiles_pred = [], [], [], [], []

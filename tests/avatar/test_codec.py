@@ -1,4 +1,4 @@
-"""The codec seam (stages/codec.py): resolution of an avatar's decoder, and render / animate
+"""The codec seam (avatar/codec.py): resolution of an avatar's decoder, and render / animate
 decoding per camera and per frame when a decoder asks for it.
 
 The conditioned decoders here are toys written in the test: a view-conditioned one shifts
@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from dlacli.errors import DlaInputError
-from dlacli.stages import codec
-from dlacli.stages import gaussian_map as gm
+from dlacli.avatar import codec
+from dlacli.avatar import gaussian_map as gm
 from dlacli.types import Avatar, BodyParams, Motion
 
 RES = 32  # UV resolution of the test avatars

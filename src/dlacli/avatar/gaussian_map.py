@@ -12,7 +12,7 @@ Gaussians are sampled from F at fixed surface samples (half uniform in UV, half 
 mesh surface, as in the paper) by bilinear lookup, then placed with the posed body's tangent frames:
 x = T + R dxyz, R_g = R dR, s = S ds (dlacli.body.skinning). Which map F an avatar gives (the
 identity decoder's F = Z, or a learned GPD's F_c + F_delta) is the codec's business
-(dlacli.stages.codec); this module only samples and places a given F.
+(dlacli.avatar.codec); this module only samples and places a given F.
 """
 
 from __future__ import annotations
@@ -24,13 +24,13 @@ import torch
 import torch.nn.functional as nnf
 
 from dlacli.errors import DlaInputError
+from dlacli.limits import DEFAULT_GAUSSIANS
 from dlacli.types import Gaussians, rgb_to_sh0
 
 CHANNELS = 14
 OPACITY, RGB, OFFSET, ROTATION, LOG_SCALE = (
     slice(0, 1), slice(1, 4), slice(4, 7), slice(7, 11), slice(11, 14),
 )  # fmt: skip
-DEFAULT_GAUSSIANS = 131_072  # 65,536 uniform in UV + 65,536 uniform on the surface
 
 
 @dataclass

@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from dlacli.errors import DlaInputError
-from dlacli.nn import checkpoint as ck
+from dlacli.avatar import checkpoint as ck
 
 
 @dataclasses.dataclass
@@ -205,9 +205,9 @@ def test_classes_outside_dlacli_are_refused_before_import(tmp_path):
     with pytest.raises(DlaInputError, match="outside dlacli"):
         ck.load_checkpoint(tmp_path / "ck")
     for dotted, problem in [("dlacli.nn.no_such_net.Net", "cannot be imported"),
-                            ("dlacli.nn.checkpoint.NoSuchNet", "does not exist"),
+                            ("dlacli.avatar.checkpoint.NoSuchNet", "does not exist"),
                             ("dlacli.errors.DlaInputError", "not a torch nn.Module"),
-                            ("dlacli.nn.checkpoint.Path", "defined in pathlib, outside"),
+                            ("dlacli.avatar.checkpoint.Path", "defined in pathlib, outside"),
                             ("dlacliX.Net", "outside dlacli"), ("os.system", "outside"), ("x; rm", "not a dotted")]:  # fmt: skip
         _edit_config(tmp_path / "ck", lambda r: r.update({"class": dotted}))
         with pytest.raises(DlaInputError, match=problem):

@@ -68,7 +68,7 @@ class IdentityDecoder(Decoder):
         self.where = where
 
     def canonical(self, z: torch.Tensor) -> torch.Tensor:
-        from dlacli.stages.gaussian_map import CHANNELS
+        from dlacli.avatar.gaussian_map import CHANNELS
 
         if z.shape[0] != CHANNELS:
             raise DlaInputError(self.where, f"identity decoder needs z with {CHANNELS} channels, got {tuple(z.shape)}")
@@ -92,14 +92,14 @@ class ViewCosineDecoder(IdentityDecoder):
     FALLOFF = 14  # z's channel of k
 
     def canonical(self, z: torch.Tensor) -> torch.Tensor:
-        from dlacli.stages.gaussian_map import CHANNELS
+        from dlacli.avatar.gaussian_map import CHANNELS
 
         if z.shape[0] != CHANNELS + 1:
             raise DlaInputError(self.where, f"view-cosine decoder needs z with {CHANNELS + 1} channels, got {tuple(z.shape)}")
         return z[:CHANNELS]
 
     def delta(self, z: torch.Tensor, pose: PoseConditioning | None, rays: torch.Tensor | None) -> torch.Tensor | None:
-        from dlacli.stages.gaussian_map import CHANNELS, RGB
+        from dlacli.avatar.gaussian_map import CHANNELS, RGB
 
         if pose is None or rays is None:
             return None
@@ -176,13 +176,13 @@ def resolve_decoder(avatar: Avatar, where: str = "avatar", checkpoint: str | Non
 
     A registered name is built by its factory. Otherwise, an avatar with a checkpoint hash is
     decoded by the network in that checkpoint (resolved in the checkpoints cache or at
-    `checkpoint`, nn/checkpoint.py), which must be a Decoder of that name."""
+    `checkpoint`, avatar/checkpoint.py), which must be a Decoder of that name."""
     factory = _DECODERS.get(avatar.decoder)
     if factory is not None:
         return factory(checkpoint or avatar.checkpoint, checkpoint or where)
     if not avatar.checkpoint:
         raise DlaInputError(where, f"decoder {avatar.decoder!r} is not available in this version (known: {', '.join(decoder_names())})")
-    from dlacli.nn.checkpoint import load_checkpoint, resolve_checkpoint
+    from dlacli.avatar.checkpoint import load_checkpoint, resolve_checkpoint
 
     path = resolve_checkpoint(checkpoint or avatar.checkpoint)
     loaded = load_checkpoint(path)
