@@ -18,3 +18,20 @@ LIFT_STEPS = 50  # refinement steps of the default lift (0 = mesh unprojection o
 LIFT_RESOLUTION = 256  # side of the UV Gaussian map Z
 MAX_LIFT_STEPS = 100_000
 MAX_VIEWS = 64  # every view is rendered at every refinement step: memory and time grow with them
+
+# --- seeds (sample points, synthetic subjects, diffusion noise): integers in [0, MAX_SEED]
+MAX_SEED = 2**32 - 1  # what numpy's legacy seeding and an avatar's extra.samples.seed take
+MAX_TRAIN_SEED = 2**31 - 1  # dla train's seed: a signed 32-bit integer
+MAX_SYNTH_SEEDS = 1_000_000  # subjects of one `dla synth --seeds` run
+
+# --- images and videos the commands write
+MIN_IMAGE_SIZE = 16  # side of a square image or video frame in pixels (render, previews, synth, UV maps)
+MAX_IMAGE_SIZE = 4096
+MAX_RENDER_PIXELS = 1 << 30  # all images of one render together (--video keeps them in memory, 4 GiB as RGBA8)
+MAX_FPS = 1000.0  # frame rates above this are refused (by every motion reader, native ones too)
+MIN_RESAMPLE_FPS = 0.1  # the slowest rate --fps resamples a motion to
+MIN_VIDEO_FPS = 1.0  # the slowest frame rate of a video dla writes
+
+# --- animate: pose_avatar holds positions, rotations and scales of every frame (40 bytes a
+# Gaussian-frame): 2^27 of them is ~5 GB, e.g. DEFAULT_GAUSSIANS x 1,024 frames
+MAX_GAUSSIAN_FRAMES = 1 << 27

@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from dlacli import limits
+
 if TYPE_CHECKING:
     import torch
 
@@ -207,7 +209,7 @@ class Motion:
 
 
 # Limits every motion reader and resampler shares (docs/motion.md, "Limits").
-MAX_FPS = 1000.0  # frame rates above this are refused (by every motion reader, native ones too)
+MAX_FPS = limits.MAX_FPS  # frame rates above this are refused (by every motion reader, native ones too)
 MIN_FPS = 0.01  # one frame per 100 s: slower "motions" are a broken frame time, not a clip
 MAX_FRAMES = 200_000  # 27 minutes at 120 fps; longer motions are refused before they are built
 
