@@ -38,7 +38,22 @@ def _root(
 
 def _register() -> None:
     """Commands in the order a user meets them: the stages, then tools."""
-    from dlacli.cli import animate, bench, body, dream, edit, export, info, interp, lift, motion, render, synth, train, view
+    from dlacli.cli import (
+        animate,
+        bench,
+        body,
+        dream,
+        edit,
+        export,
+        info,
+        interp,
+        lift,
+        motion,
+        render,
+        synth,
+        train,
+        view,
+    )
 
     for module in (dream, lift, animate, render, view, export, edit, interp, synth, train, motion, body, info, bench):
         module.register(app)
@@ -74,7 +89,8 @@ def _usage_line(err) -> str:
             where = max(opts, key=len)
         else:
             where = getattr(param, "metavar", None) or (param.name or "argument").upper()
-        message = re.sub(r"^(Invalid value|Missing (parameter|option|argument))( for)? ?'?[^':]*'?: ?", "", message) or message
+        prefix = r"^(Invalid value|Missing (parameter|option|argument))( for)? ?'?[^':]*'?: ?"
+        message = re.sub(prefix, "", message) or message
     elif getattr(err, "option_name", None):
         where = err.option_name
     ctx = getattr(err, "ctx", None)

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from dlacli.cli import options
+
 body_app = typer.Typer(
     name="body",
     help="The body model (anny): UV regions.",
@@ -71,15 +73,12 @@ def draw_regions(resolution: int):
 
 
 def regions(
-    output: Path = typer.Option(..., "-o", "--output", help="PNG file to write."),
-    res: int = typer.Option(512, "--res", min=16, max=4096, help="UV map resolution in texels."),
+    output: Path = options.output("PNG file to write.", (".png",), "image"),
+    res: int = options.image_size(512, "UV map resolution in texels.", "--res"),
 ) -> None:
     """Draw the named UV regions (face, hair, hands, feet, arms, legs, torso, ...) with a legend."""
-    from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_path, check_outputs
 
-    if output.suffix.lower() != ".png":
-        raise DlaInputError(output, "the output must be a .png file")
     check_outputs(files=[output])
     image = draw_regions(res)
     with atomic_path(output) as tmp:

@@ -7,18 +7,47 @@ from typing import Optional
 
 import typer
 
+from dlacli.cli import options
+
 
 def dream(
-    photo: Path = typer.Argument(..., metavar="PHOTO", help="Photo of one person (PNG/JPEG; RGBA: alpha = person mask). A sample ships with dla: see below."),
-    output: Path = typer.Option(..., "-o", "--output", help="View folder to write (replaced whole, written atomically)."),
-    backend: str = typer.Option("template", "--backend", help="'template' (CPU, no weights: the photo projected on a 2.5D shell of the fitted body) or 'diffusion' (pose-controlled video diffusion; extra 'diffusion' and local weights)."),
-    keypoints: Optional[Path] = typer.Option(None, "--keypoints", help="COCO-17 keypoints JSON of the person (default: detected with MediaPipe Pose)."),
-    mask: Optional[Path] = typer.Option(None, "--mask", help="Person mask PNG when the photo has no alpha channel (default: detected with MediaPipe's person segmentation)."),
-    res: int = typer.Option(512, "--res", min=64, max=4096, help="Width and height of the square views in pixels."),
-    model: Optional[str] = typer.Option(None, "--model", help="Diffusion backend: a local diffusers pipeline folder or a hub id already in the local cache (default Wan-AI/Wan2.1-VACE-1.3B-diffusers). Nothing is downloaded."),
+    photo: Path = typer.Argument(
+        ...,
+        metavar="PHOTO",
+        help="Photo of one person (PNG/JPEG; RGBA: alpha = person mask). A sample ships with dla: see below.",
+    ),
+    output: Path = options.output("View folder to write (replaced whole, written atomically)."),
+    backend: str = typer.Option(
+        "template",
+        "--backend",
+        help="'template' (CPU, no weights: the photo projected on a 2.5D shell of the fitted body) or 'diffusion' "
+        "(pose-controlled video diffusion; extra 'diffusion' and local weights).",
+    ),
+    keypoints: Optional[Path] = typer.Option(
+        None, "--keypoints", help="COCO-17 keypoints JSON of the person (default: detected with MediaPipe Pose)."
+    ),
+    mask: Optional[Path] = typer.Option(
+        None,
+        "--mask",
+        help="Person mask PNG when the photo has no alpha channel (default: detected with MediaPipe's person "
+        "segmentation).",
+    ),
+    res: int = options.image_size(512, "Width and height of the square views in pixels.", "--res", minimum=64),
+    model: Optional[str] = typer.Option(
+        None,
+        "--model",
+        help="Diffusion backend: a local diffusers pipeline folder or a hub id already in the local cache (default "
+        "Wan-AI/Wan2.1-VACE-1.3B-diffusers). Nothing is downloaded.",
+    ),
     steps: int = typer.Option(50, "--steps", min=1, max=1000, help="Diffusion backend: sampling steps."),
-    frames: int = typer.Option(80, "--frames", min=4, max=1024, help="Diffusion backend: frames of the 360-degree orbit (multiple of 4; views are frames N/4, N/2, 3N/4)."),
-    seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1, help="Diffusion backend: noise seed."),
+    frames: int = typer.Option(
+        80,
+        "--frames",
+        min=4,
+        max=1024,
+        help="Diffusion backend: frames of the 360-degree orbit (multiple of 4; views are frames N/4, N/2, 3N/4).",
+    ),
+    seed: int = options.seed("Diffusion backend: noise seed.", default=0),
     fit_steps: int = typer.Option(300, "--fit-steps", min=3, max=100_000, help="Optimisation steps of the body fit."),
 ) -> None:
     """Dream novel views of a person from one photo: fit the body, then write a view folder with
@@ -26,18 +55,27 @@ def dream(
 
     Sample photo: python -c "from dlacli.stages.dream import sample_photo; print(sample_photo())"
     """
+    from dlacli.cli.progress import status
     from dlacli.io.atomic import check_outputs
     from dlacli.io.views import LAYOUT
     from dlacli.stages.dream import dream as run
 
     check_outputs(folders=[(output, (*LAYOUT, "fit_overlay.png"))], inputs=[photo, keypoints, mask])
-
-    kwargs = dict(backend=backend, keypoints=keypoints, mask=mask, res=res, model=model, steps=steps,
-                  frames=frames, seed=seed, fit_steps=fit_steps)  # fmt: skip
-    from dlacli.cli.progress import status
-
     with status("dla dream") as update:
-        path = run(photo, output, progress=update, **kwargs)
+        path = run(
+            photo,
+            output,
+            backend=backend,
+            keypoints=keypoints,
+            mask=mask,
+            res=res,
+            model=model,
+            steps=steps,
+            frames=frames,
+            seed=seed,
+            fit_steps=fit_steps,
+            progress=update,
+        )
     typer.echo(str(path))
 
 

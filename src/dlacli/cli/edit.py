@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from dlacli.cli.options import finite
+from dlacli.cli import options
 
 edit_app = typer.Typer(
     help="Edit avatars in their UV-aligned latent space.",
@@ -17,11 +17,20 @@ edit_app = typer.Typer(
 
 @edit_app.command("swap")
 def swap(
-    a: Path = typer.Argument(..., metavar="A", help="The avatar to edit (avatar.npz)."),
-    b: Path = typer.Argument(..., metavar="B", help="The avatar that gives the region (avatar.npz)."),
-    region: str = typer.Option(..., "--region", "-r", help="Region name, e.g. face, hair, hands, upper_body (see `dla body regions`)."),
-    output: Path = typer.Option(..., "--output", "-o", help="Where to write the edited avatar.npz."),
-    feather: float = typer.Option(0.0, "--feather", min=0.0, max=1024.0, callback=finite, help="Blend over this many UV texels (at Z's resolution) outside the region."),
+    a: Path = options.avatar("The avatar to edit (avatar.npz).", metavar="A"),
+    b: Path = options.avatar("The avatar that gives the region (avatar.npz).", metavar="B"),
+    region: str = typer.Option(
+        ..., "--region", "-r", help="Region name, e.g. face, hair, hands, upper_body (see `dla body regions`)."
+    ),
+    output: Path = options.output("Where to write the edited avatar.npz.", (".npz",), "avatar"),
+    feather: float = typer.Option(
+        0.0,
+        "--feather",
+        min=0.0,
+        max=1024.0,
+        callback=options.finite,
+        help="Blend over this many UV texels (at Z's resolution) outside the region.",
+    ),
 ) -> None:
     """Replace REGION of avatar A with avatar B's; everything else stays A's (body included)."""
     from dlacli.body.regions import REGION_NAMES
@@ -32,8 +41,6 @@ def swap(
 
     if region not in REGION_NAMES:
         raise DlaInputError("--region", f"unknown region {region!r} (known: {', '.join(REGION_NAMES)})")
-    if output.suffix.lower() != ".npz":
-        raise DlaInputError(output, "the avatar is an .npz file")
     check_outputs(files=[output], inputs=[a, b])
     avatar = swap_region(read_avatar(a), read_avatar(b), region, feather, where_a=str(a), where_b=str(b))
     write_avatar(avatar, output)

@@ -7,18 +7,34 @@ from typing import Optional
 
 import typer
 
-from dlacli.cli.options import finite
+from dlacli.cli import options
+from dlacli.cli.options import check_suffix
 
 
 def interp(
-    a: Path = typer.Argument(..., metavar="A", help="Avatar at t = 0 (avatar.npz)."),
-    b: Path = typer.Argument(..., metavar="B", help="Avatar at t = 1 (avatar.npz)."),
-    output: Path = typer.Option(..., "--output", "-o", help="avatar.npz to write, or a folder with --steps."),
-    t: float = typer.Option(0.5, "--t", min=-10.0, max=10.0, callback=finite, help="Blend fraction: 0 gives A exactly, 1 gives B exactly."),
-    steps: int = typer.Option(0, "--steps", min=0, max=1000, help="Write this many avatars from t=0 to t=1 (inclusive) into the folder OUTPUT instead."),
-    video: Optional[Path] = typer.Option(None, "--video", help="With --steps: also render the blend from the front as an .mp4."),
-    size: int = typer.Option(512, "--size", min=16, max=4096, help="Video size in pixels (square)."),
-    fps: float = typer.Option(12.0, "--fps", min=1.0, max=1000.0, callback=finite, help="Frame rate of --video."),
+    a: Path = options.avatar("Avatar at t = 0 (avatar.npz).", metavar="A"),
+    b: Path = options.avatar("Avatar at t = 1 (avatar.npz).", metavar="B"),
+    output: Path = options.output("avatar.npz to write, or a folder with --steps."),
+    t: float = typer.Option(
+        0.5,
+        "--t",
+        min=-10.0,
+        max=10.0,
+        callback=options.finite,
+        help="Blend fraction: 0 gives A exactly, 1 gives B exactly.",
+    ),
+    steps: int = typer.Option(
+        0,
+        "--steps",
+        min=0,
+        max=1000,
+        help="Write this many avatars from t=0 to t=1 (inclusive) into the folder OUTPUT instead.",
+    ),
+    video: Optional[Path] = options.side_output(
+        "--video", "With --steps: also render the blend from the front as an .mp4.", (".mp4",), "video"
+    ),
+    size: int = options.image_size(512, "Video size in pixels (square)."),
+    fps: float = options.video_fps(12.0, "Frame rate of --video."),
 ) -> None:
     """Blend avatars A and B: z = (1 - t) z_A + t z_B; the body blends too."""
     import numpy as np
@@ -32,8 +48,7 @@ def interp(
     if steps == 0:
         if video is not None:
             raise DlaInputError("--video", "needs --steps (a video of one blend would be a still)")
-        if output.suffix.lower() != ".npz":
-            raise DlaInputError(output, "the avatar is an .npz file (or use --steps K for a folder)")
+        check_suffix(output, (".npz",), "avatar", " (or --steps K for a folder)")
         check_outputs(files=[output], inputs=[a, b])
         avatar_a, avatar_b = read_avatar(a), read_avatar(b)
         write_avatar(interpolate(avatar_a, avatar_b, t, str(a), str(b)), output)
@@ -41,8 +56,6 @@ def interp(
         return
     if steps < 2:
         raise DlaInputError("--steps", f"needs at least 2 avatars (t = 0 and t = 1), got {steps}")
-    if video is not None and video.suffix.lower() != ".mp4":
-        raise DlaInputError(video, "the video is an .mp4 file")
     check_outputs(files=[video], folders=[(output, ("interp_*.npz",))], inputs=[a, b])
     avatar_a, avatar_b = read_avatar(a), read_avatar(b)
     if video is not None:

@@ -7,7 +7,10 @@ from typing import Optional
 
 import typer
 
-from dlacli.cli.options import finite
+from dlacli.cli import options
+from dlacli.limits import MIN_VIDEO_FPS
+
+PREVIEW_MAX_FPS = 30.0  # a preview plays the motion at its own rate up to this
 
 motion_app = typer.Typer(
     name="motion",
@@ -16,26 +19,21 @@ motion_app = typer.Typer(
     add_completion=False,
 )
 
-_SPEC_HELP = (
-    "A motion.npz, AMASS .npz, .bvh, .amc (its .asf beside it, or CLIP.amc:SUBJECT.asf), "
-    "or a built-in name: idle, walk, turnaround, wave."
-)
 
 def convert(
-    source: str = typer.Argument(..., help=_SPEC_HELP),
-    output: Path = typer.Option(..., "-o", "--output", help="motion.npz to write."),
-    fps: Optional[float] = typer.Option(None, "--fps", min=0.1, max=1000.0, callback=finite, help="Resample to this frame rate (default: keep the source's)."),
-    asf: Optional[Path] = typer.Option(None, "--asf", help="ASF skeleton for an .amc source (default: found beside it)."),
-    allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
+    source: str = options.motion_argument(metavar="SOURCE"),
+    output: Path = options.output("motion.npz to write.", (".npz",), "motion"),
+    fps: Optional[float] = options.resample_fps("Resample to this frame rate (default: keep the source's)."),
+    asf: Optional[Path] = typer.Option(
+        None, "--asf", help="ASF skeleton for an .amc source (default: found beside it)."
+    ),
+    allow_missing_joints: bool = options.allow_missing_joints(),
 ) -> None:
     """Retarget a motion onto anny's rig and write it as a native motion.npz."""
-    from dlacli.stages.motion_source import load_motion, split_spec
-    from dlacli.errors import DlaInputError
     from dlacli.io.atomic import check_outputs
     from dlacli.io.motion import write_motion
+    from dlacli.stages.motion_source import load_motion, split_spec
 
-    if output.suffix.lower() != ".npz":
-        raise DlaInputError(output, "the output must be a .npz file")
     check_outputs(files=[output], inputs=[*split_spec(source), asf])
     motion = load_motion(source, fps=fps, asf=asf, allow_missing_joints=allow_missing_joints)
     write_motion(motion, output)
@@ -43,24 +41,23 @@ def convert(
 
 
 def preview(
-    motion_spec: str = typer.Argument(..., metavar="MOTION", help=_SPEC_HELP),
-    output: Path = typer.Option(..., "-o", "--output", help="mp4 file to write."),
-    fps: Optional[float] = typer.Option(None, "--fps", min=1.0, max=1000.0, callback=finite, help="Frame rate of the video (default: the motion's, at most 30)."),
-    res: int = typer.Option(384, "--res", min=64, max=2048, help="Video width and height in pixels (rounded up to a multiple of 16)."),
-    allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
+    motion_spec: str = options.motion_argument(),
+    output: Path = options.output("mp4 file to write.", (".mp4",), "video"),
+    fps: Optional[float] = options.video_fps(None, "Frame rate of the video (default: the motion's, at most 30)."),
+    res: int = options.image_size(
+        384, "Video width and height in pixels (rounded up to a multiple of 16).", "--res", minimum=64, maximum=2048
+    ),
+    allow_missing_joints: bool = options.allow_missing_joints(),
 ) -> None:
     """Render the default body doing a motion into an mp4 (left side blue, right side red)."""
-    from dlacli.stages.motion_source import load_motion, split_spec
-    from dlacli.errors import DlaInputError
     from dlacli.io.atomic import check_outputs
     from dlacli.io.video import write_video
     from dlacli.stages.motion_preview import motion_preview_frames
+    from dlacli.stages.motion_source import load_motion, split_spec
 
-    if output.suffix.lower() != ".mp4":
-        raise DlaInputError(output, "the output must be a .mp4 file")
     check_outputs(files=[output], inputs=split_spec(motion_spec))
     motion = load_motion(motion_spec, allow_missing_joints=allow_missing_joints)
-    video_fps = fps if fps is not None else max(1.0, min(motion.fps, 30.0))
+    video_fps = fps if fps is not None else max(MIN_VIDEO_FPS, min(motion.fps, PREVIEW_MAX_FPS))
     if abs(video_fps - motion.fps) > 1e-9:
         from dlacli.body.retarget import resample_motion
 

@@ -7,34 +7,87 @@ from typing import Optional
 
 import typer
 
+from dlacli.cli import options
+from dlacli.limits import MAX_TRAIN_SEED
+
 # per-preset defaults of the schedule (a flag given on the command line wins); see docs/train.md
 _SCHEDULE = {
     "tiny": dict(steps_low=300, steps_full=300, low_size=48, full_size=96, lr_g=1e-3, lr_d=1e-5, batch=2, targets=2),
-    "small": dict(steps_low=2000, steps_full=4000, low_size=128, full_size=256, lr_g=3e-4, lr_d=3e-6, batch=4, targets=2),
-    "paper": dict(steps_low=20000, steps_full=60000, low_size=256, full_size=512, lr_g=1e-4, lr_d=1e-6, batch=8, targets=2),
+    "small": dict(
+        steps_low=2000, steps_full=4000, low_size=128, full_size=256, lr_g=3e-4, lr_d=3e-6, batch=4, targets=2
+    ),
+    "paper": dict(
+        steps_low=20000, steps_full=60000, low_size=256, full_size=512, lr_g=1e-4, lr_d=1e-6, batch=8, targets=2
+    ),
 }
 
 
 def train(
-    data: Path = typer.Option(..., "--data", help="Dataset folder (`dla synth --seeds A-B -o DATA`) or one subject folder."),
-    output: Path = typer.Option(..., "--output", "-o", help="Run folder: train.json, checkpoints, loss.png, val/."),
-    preset: str = typer.Option("tiny", "--preset", help="Network sizes and schedule: tiny (2 CPU cores, about an hour), small, paper (the paper's parameter counts)."),
-    variant: str = typer.Option("full", "--variant", help="full, learned-query (ablation A.ii) or no-conditioning (ablation B)."),
-    resume: bool = typer.Option(False, "--resume", help="Continue the run in OUTPUT from its last checkpoint (same settings)."),
-    stage: str = typer.Option("both", "--stage", help="low (L_UG + L1 at the low size), full (every loss at the full size) or both, low first."),
-    steps_low: Optional[int] = typer.Option(None, "--steps-low", min=0, max=10_000_000, help="Steps of stage low (default: the preset's, docs/train.md)."),
-    steps_full: Optional[int] = typer.Option(None, "--steps-full", min=0, max=10_000_000, help="Steps of stage full (default: the preset's)."),
-    low_size: Optional[int] = typer.Option(None, "--low-size", min=8, max=2048, help="Target render size of stage low, pixels (default: the preset's)."),
-    full_size: Optional[int] = typer.Option(None, "--full-size", min=8, max=2048, help="Target render size of stage full, pixels (default: the preset's)."),
-    batch: Optional[int] = typer.Option(None, "--batch", min=1, max=1024, help="Items per process per step (default: the preset's)."),
-    targets: Optional[int] = typer.Option(None, "--targets", min=1, max=64, help="Target images per item (default: the preset's)."),
-    lr_g: Optional[float] = typer.Option(None, "--lr", min=1e-8, max=1.0, help="Generator learning rate (default: the preset's; the paper: 1e-4)."),
-    lr_d: Optional[float] = typer.Option(None, "--lr-d", min=0.0, max=1.0, help="Discriminator learning rate (default: the preset's; the paper: 1e-6)."),
-    validation: int = typer.Option(2, "--validation", min=0, max=10_000, help="Subjects held out for validation: the lowest seeds, so the set stays when the dataset grows."),
-    eval_every: int = typer.Option(50, "--eval-every", min=1, max=10_000_000, help="Validate (scores + val/step_N.png) every N steps."),
-    checkpoint_every: int = typer.Option(50, "--checkpoint-every", min=1, max=10_000_000, help="Checkpoint every N steps (and at the end)."),
-    alexnet: Optional[Path] = typer.Option(None, "--alexnet", help="Local AlexNet weights (torchvision layout, .safetensors or .pth) for the perceptual loss; without them: MS-SSIM."),
-    seed: int = typer.Option(0, "--seed", min=0, max=2**31 - 1, help="Seed of initialisation, data order and noise."),
+    data: Path = typer.Option(
+        ..., "--data", help="Dataset folder (`dla synth --seeds A-B -o DATA`) or one subject folder."
+    ),
+    output: Path = options.output("Run folder: train.json, checkpoints, loss.png, val/."),
+    preset: str = typer.Option(
+        "tiny",
+        "--preset",
+        help="Network sizes and schedule: tiny (2 CPU cores, about an hour), small, paper (the paper's parameter "
+        "counts).",
+    ),
+    variant: str = typer.Option(
+        "full", "--variant", help="full, learned-query (ablation A.ii) or no-conditioning (ablation B)."
+    ),
+    resume: bool = typer.Option(
+        False, "--resume", help="Continue the run in OUTPUT from its last checkpoint (same settings)."
+    ),
+    stage: str = typer.Option(
+        "both",
+        "--stage",
+        help="low (L_UG + L1 at the low size), full (every loss at the full size) or both, low first.",
+    ),
+    steps_low: Optional[int] = typer.Option(
+        None, "--steps-low", min=0, max=10_000_000, help="Steps of stage low (default: the preset's, docs/train.md)."
+    ),
+    steps_full: Optional[int] = typer.Option(
+        None, "--steps-full", min=0, max=10_000_000, help="Steps of stage full (default: the preset's)."
+    ),
+    low_size: Optional[int] = typer.Option(
+        None, "--low-size", min=8, max=2048, help="Target render size of stage low, pixels (default: the preset's)."
+    ),
+    full_size: Optional[int] = typer.Option(
+        None, "--full-size", min=8, max=2048, help="Target render size of stage full, pixels (default: the preset's)."
+    ),
+    batch: Optional[int] = typer.Option(
+        None, "--batch", min=1, max=1024, help="Items per process per step (default: the preset's)."
+    ),
+    targets: Optional[int] = typer.Option(
+        None, "--targets", min=1, max=64, help="Target images per item (default: the preset's)."
+    ),
+    lr_g: Optional[float] = typer.Option(
+        None, "--lr", min=1e-8, max=1.0, help="Generator learning rate (default: the preset's; the paper: 1e-4)."
+    ),
+    lr_d: Optional[float] = typer.Option(
+        None, "--lr-d", min=0.0, max=1.0, help="Discriminator learning rate (default: the preset's; the paper: 1e-6)."
+    ),
+    validation: int = typer.Option(
+        2,
+        "--validation",
+        min=0,
+        max=10_000,
+        help="Subjects held out for validation: the lowest seeds, so the set stays when the dataset grows.",
+    ),
+    eval_every: int = typer.Option(
+        50, "--eval-every", min=1, max=10_000_000, help="Validate (scores + val/step_N.png) every N steps."
+    ),
+    checkpoint_every: int = typer.Option(
+        50, "--checkpoint-every", min=1, max=10_000_000, help="Checkpoint every N steps (and at the end)."
+    ),
+    alexnet: Optional[Path] = typer.Option(
+        None,
+        "--alexnet",
+        help="Local AlexNet weights (torchvision layout, .safetensors or .pth) for the perceptual loss; without them: "
+        "MS-SSIM.",
+    ),
+    seed: int = options.seed("Seed of initialisation, data order and noise.", default=0, maximum=MAX_TRAIN_SEED),
 ) -> None:
     """Train the learned avatar networks end to end through skinning and splatting.
 

@@ -7,18 +7,25 @@ from typing import Optional
 
 import typer
 
-from dlacli.cli.options import finite, naming
+from dlacli.cli import options
+from dlacli.cli.options import naming_avatar
+
+PAGE_SUFFIXES = (".html", ".htm")
 
 
 def view(
-    avatar: Path = typer.Argument(..., metavar="AVATAR", help="avatar.npz"),
-    motion: Optional[str] = typer.Option(None, "--motion", "-m", help="Motion file or built-in name (idle, walk, turnaround, wave); default: the avatar's own pose, one frame."),
-    output: Optional[Path] = typer.Option(None, "--output", "-o", help="The page, an .html file (default: AVATAR with the suffix .html)."),
-    gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=4_194_304, help="Gaussians in the page, half sampled uniformly in UV, half on the surface (default: the count the avatar was lifted with, else 131,072)."),
-    fps: Optional[float] = typer.Option(None, "--fps", min=0.1, max=1000.0, callback=finite, help="Resample the motion to this frame rate (default: the motion's own)."),
-    seed: Optional[int] = typer.Option(None, "--seed", min=0, max=2**32 - 1, help="Seed of the sample points (default: the avatar's own)."),
-    checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="The learned decoder's checkpoint folder, when it is not in the checkpoints cache (~/.cache/dla/checkpoints) under the hash the avatar records."),
-    allow_missing_joints: bool = typer.Option(False, "--allow-missing-joints", help="Accept a motion file lacking joints its skeleton family always has (e.g. a renamed LeftUpLeg): those anny bones stay at rest."),
+    avatar: Path = options.avatar(),
+    motion: Optional[str] = options.motion(
+        "The motion the page plays (default: the avatar's own pose, one frame)", short=True
+    ),
+    output: Optional[Path] = options.output(
+        "The page, an .html file (default: AVATAR with the suffix .html).", PAGE_SUFFIXES, "web page", required=False
+    ),
+    gaussians: Optional[str] = options.gaussians(what="Gaussians in the page"),
+    fps: Optional[float] = options.resample_fps(),
+    seed: Optional[int] = options.seed(),
+    checkpoint: Optional[Path] = options.checkpoint(),
+    allow_missing_joints: bool = options.allow_missing_joints(),
 ) -> None:
     """Write a web page (WebGL2, no network) that plays the avatar: orbit, zoom, play, scrub."""
     from dlacli.errors import DlaInputError
@@ -28,17 +35,17 @@ def view(
     from dlacli.stages.view import view_page, write_page
 
     if output is None:
-        output = avatar.with_suffix(".html")
-    if output.suffix.lower() not in (".html", ".htm"):
-        raise DlaInputError(output, "the page is an .html file")
+        output = avatar.with_suffix(PAGE_SUFFIXES[0])
     if fps is not None and motion is None:
         raise DlaInputError("--fps", "resamples a motion: give --motion too")
     check_outputs(files=[output], inputs=[avatar, checkpoint, *(split_spec(motion) if motion else ())])
+    ckpt = None if checkpoint is None else str(checkpoint)
     av = read_avatar(avatar)
-    mot = load_motion(motion, fps=fps, phenotype=av.body.phenotype, allow_missing_joints=allow_missing_joints) if motion else None
-    with naming(avatar=avatar, pose=avatar, phenotype=avatar, motion=motion or avatar):
-        html = view_page(av, mot, gaussians, seed, where=str(avatar),
-                         checkpoint=None if checkpoint is None else str(checkpoint), title=avatar.stem)  # fmt: skip
+    mot = None
+    if motion:
+        mot = load_motion(motion, fps=fps, phenotype=av.body.phenotype, allow_missing_joints=allow_missing_joints)
+    with naming_avatar(avatar, motion=motion or avatar):
+        html = view_page(av, mot, gaussians, seed, where=str(avatar), checkpoint=ckpt, title=avatar.stem)
     write_page(html, output)
     typer.echo(str(output))
 

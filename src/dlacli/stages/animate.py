@@ -15,6 +15,8 @@ import numpy as np
 import torch
 
 from dlacli.avatar import gaussian_map as gm
+from dlacli.errors import DlaInputError
+from dlacli.limits import MAX_GAUSSIAN_FRAMES
 from dlacli.types import Avatar, Cameras, Gaussians, Motion, rgb_to_sh0
 
 PREVIEW_AZIMUTH = 25.0  # degrees: a three-quarter front view
@@ -66,14 +68,22 @@ def pose_avatar(
 
     The canonical map is decoded once; a conditioned decoder adds F_delta per frame, seen from
     USD_VIEW_AZIMUTH when it is view-conditioned (formats/usd.md: a USD file has no camera), and
-    then colours and opacities are per frame too. Count and seed default to the avatar's own."""
+    then colours and opacities are per frame too. Count and seed default to the avatar's own;
+    frames x count is at most limits.MAX_GAUSSIAN_FRAMES (the arrays of every frame are held)."""
     from dlacli.body.model import get_body_model
     from dlacli.avatar.codec import Decoded
     from dlacli.stages.render import sample_settings
 
+    count, seed = sample_settings(avatar, n_gaussians, seed)
+    if motion.num_frames * count > MAX_GAUSSIAN_FRAMES:
+        too_many = f"{motion.num_frames} frames x {count} Gaussians is more than dla animates at once"
+        raise DlaInputError(
+            "--gaussians",
+            f"{too_many} ({MAX_GAUSSIAN_FRAMES:.3g} Gaussian-frames): lower --fps or --gaussians, or cut the motion",
+        )
     model = get_body_model()
     decoded = Decoded(avatar, where, checkpoint)
-    samples = gm.make_samples(*sample_settings(avatar, n_gaussians, seed))
+    samples = gm.make_samples(count, seed)
     t_total, n = motion.num_frames, len(samples)
     out = {k: np.empty((t_total, n, d), np.float32) for k, d in (("pos", 3), ("quat", 4), ("scale", 3))}
     if decoded.conditioned:
