@@ -10,6 +10,7 @@ from __future__ import annotations
 
 # --- Gaussians sampled from an avatar's UV map (DESIGN.md section 1, "Animate")
 DEFAULT_GAUSSIANS = 131_072  # the paper's count: 65,536 uniform in UV + 65,536 uniform on the surface
+MIN_GAUSSIANS = 2  # one UV and one surface sample
 MAX_GAUSSIANS = 32 * DEFAULT_GAUSSIANS  # the most an avatar or an option may ask to be drawn with
 DEFAULT_SAMPLE_SEED = 0  # seed of the surface sample points
 

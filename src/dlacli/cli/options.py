@@ -4,7 +4,8 @@ returns the typer parameter with its help text, range and parser, and the callba
 one place each check is made. Ranges and defaults come from `dlacli.limits` (torch-free: building
 the options loads no stage).
 
-typer's float ranges let NaN through (every comparison with NaN is false): `finite` refuses it.
+`finite` refuses NaN and infinities in float options (typer's ranges have let NaN through: every
+comparison with NaN is false).
 """
 
 from __future__ import annotations
@@ -23,12 +24,11 @@ from dlacli.limits import (
     MAX_GAUSSIANS,
     MAX_IMAGE_SIZE,
     MAX_SEED,
+    MIN_GAUSSIANS,
     MIN_IMAGE_SIZE,
     MIN_RESAMPLE_FPS,
     MIN_VIDEO_FPS,
 )
-
-MIN_GAUSSIANS = 2  # fewer cannot be split between UV and surface samples
 
 CHECKPOINT_HELP = (
     "The learned decoder's checkpoint folder, when it is not in the checkpoints cache "
