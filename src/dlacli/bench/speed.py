@@ -242,7 +242,7 @@ def _run_splat_case(path: str, n: int, res: int, cfg: SpeedConfig, pythonpath: s
         inspect.getsource(f) for f in (_median_min, _splat_scene, _splat_case))
     src += "\n\nimport json, sys\nprint(json.dumps(_splat_case(*json.loads(sys.argv[1]))))\n"
     env = dict(os.environ, OMP_WAIT_POLICY=os.environ.get("OMP_WAIT_POLICY", "PASSIVE"),
-               MALLOC_MMAP_THRESHOLD_="131072")  # big blocks from / back to the OS: the sampled RSS follows them  # fmt: skip
+               MALLOC_MMAP_THRESHOLD_=str(128 * 1024))  # big blocks from / back to the OS: the sampled RSS follows them  # fmt: skip
     if numba_cache:
         env["NUMBA_CACHE_DIR"] = numba_cache
     if pythonpath:

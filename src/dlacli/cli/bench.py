@@ -225,7 +225,7 @@ def speed(
     res: Optional[int] = typer.Option(None, "--res", min=32, max=4096, help="Image size of the lift subject and the render suite (default 512)."),
     frames: Optional[int] = typer.Option(None, "--frames", min=1, max=10_000, help="Frames of the animate, usd and render suites (default 30)."),
     lift_steps: Optional[str] = typer.Option(None, "--lift-steps", help="lift: refinement steps to time, comma-separated (default 0,50)."),
-    splat_cases: Optional[str] = typer.Option(None, "--splat-cases", metavar="N:RES,...", help="splat: Gaussian counts and image sizes, e.g. 20000:256,131072:512 (default: 2048:128 and 20k/65k/131k at 256 and 512)."),
+    splat_cases: Optional[str] = typer.Option(None, "--splat-cases", metavar="N:RES,...", help=f"splat: Gaussian counts and image sizes, e.g. 20000:256,{DEFAULT_GAUSSIANS}:512 (default: 2048:128 and 20k/65k/131k at 256 and 512)."),
     no_torch: bool = typer.Option(False, "--no-torch", help="splat: skip the slow pure-torch and dense paths."),
     baseline: Optional[Path] = typer.Option(None, "--baseline", help="splat: also time another copy of the package (a src folder holding dlacli), alternated with this one; the report shows baseline / current."),
     cold: bool = typer.Option(False, "--cold", help="splat: also time a first call with an empty numba cache (the JIT compile)."),
