@@ -9,17 +9,24 @@ from dlacli.errors import DlaInputError
 
 
 def test_method_specs():
-    from dlacli.bench.accuracy import parse_methods
+    """The suite reads the registry's specs (dlacli.stages.methods) and the older spellings as
+    what they meant; a method has one name whatever its setting."""
+    from dlacli.stages.methods import parse_methods
 
-    specs = parse_methods("unproject, refine:50, refine:150@256, learned:/runs/a/generator, learned:/r:b/g:20")
-    assert [(s.name, s.config) for s in specs] == [
+    specs = parse_methods("unproject, refine:50, refine:150@256, learned:/runs/a/generator, learned:/r:b/g:20, refine")
+    assert [(s.name, s.options()) for s in specs] == [
         ("unproject", {"steps": 0}),
-        ("unproject+refine", {"steps": 50}),
-        ("unproject+refine", {"steps": 150, "render_size": 256}),
+        ("unproject", {"steps": 50}),
+        ("unproject", {"steps": 150, "render_size": 256}),
         ("learned", {"checkpoint": "/runs/a/generator", "steps": 0}),
-        ("learned+refine", {"checkpoint": "/r:b/g", "steps": 20}),
+        ("learned", {"checkpoint": "/r:b/g", "steps": 20}),
+        ("unproject", {"steps": 50}),  # bare `refine`, as `dla bench stability` read it
     ]
-    for bad in ("", "refine", "refine:x", "refine:0", "learned", "magic"):
+    text = "unproject:steps=0, unproject:steps=50, unproject:steps=150,render_size=256, "
+    text += "learned:checkpoint=/r:b/g,steps=20"
+    new = parse_methods(text)
+    assert [(s.name, s.options()) for s in new] == [(s.name, s.options()) for s in specs[:3] + specs[4:5]]
+    for bad in ("", "refine:x", "refine:0", "learned", "magic", "unproject:steps=-1", "unproject:colour=1"):
         with pytest.raises(DlaInputError, match="--methods"):
             parse_methods(bad)
 
@@ -37,8 +44,9 @@ def test_pose_frames_split_by_camera():
 
 
 def test_a_small_run_scores_every_split(tmp_path):
-    from dlacli.bench.accuracy import SPLITS, parse_methods, run, score_avatar
-    from dlacli.bench.results import check_row
+    from dlacli.bench.accuracy import SPLITS, run, score_avatar
+    from dlacli.bench.rows import check_row
+    from dlacli.stages.methods import parse_methods
 
     from dlacli.bench.accuracy import peak_rss_mb
 

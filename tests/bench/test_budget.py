@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from dlacli.bench.budget import DEFAULT_COUNT, choices, curve, run
-from dlacli.bench.results import budget_markdown, budget_row, check_row, make_row, speed_row
+from dlacli.bench.report import budget_markdown
+from dlacli.bench.rows import budget_row, check_row, make_row, speed_row
 from dlacli.errors import DlaInputError
 
 SEED = 37  # a seed no other test uses
@@ -76,7 +77,7 @@ def test_a_tiny_budget_run():
 def test_report_with_every_kind(tmp_path):
     from PIL import Image
 
-    from dlacli.bench.results import append_rows
+    from dlacli.bench.rows import append_rows
     from dlacli.cli.app import main
 
     pytest.importorskip("matplotlib")

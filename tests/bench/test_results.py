@@ -1,4 +1,5 @@
-"""Benchmark result rows (dla.bench/1), the Pareto frontier and the report, on toy inputs."""
+"""Benchmark result rows (dla.bench/1), the Pareto frontier and the report, on toy inputs; the
+bench package's modules import one way (rows <- suites <- charts, report)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from dlacli.bench.results import (FORMAT, append_rows, check_row, draw_chart, make_row, pareto_front, points,
-                                  read_rows, report_markdown)  # fmt: skip
+from dlacli.bench.charts import draw_chart
+from dlacli.bench.report import report_markdown
+from dlacli.bench.rows import (FORMAT, append_rows, check_row, label, make_row, pareto_front, points, read_rows,
+                               stability_row)
 from dlacli.errors import DlaInputError
 
 
@@ -23,8 +26,7 @@ def _toy_rows() -> list[dict]:
     for subject, bump in ((1, 0.0), (2, 0.4)):
         for split, shift in (("novel_views", 0.0), ("novel_poses", -0.5)):
             for steps, seconds, masked in ((0, 3.0, 18.7), (50, 44.0, 19.9), (100, 80.0, 19.8)):
-                method = "unproject" if steps == 0 else "unproject+refine"
-                rows.append(make_row(method, {"steps": steps}, split, seconds + subject, None,
+                rows.append(make_row("unproject", {"steps": steps}, split, seconds + subject, None,
                                      _metrics(masked + bump + shift), subject=subject, device="cpu (2 threads)"))  # fmt: skip
     return rows
 
@@ -50,8 +52,8 @@ def test_rows_round_trip_and_bad_rows_are_refused(tmp_path):
 
 def test_points_aggregate_over_subjects():
     pts = {p["label"]: p for p in points(_toy_rows(), "novel_views")}
-    assert set(pts) == {"unproject steps=0", "unproject+refine steps=50", "unproject+refine steps=100"}
-    p = pts["unproject+refine steps=50"]
+    assert set(pts) == {"unproject steps=0", "unproject steps=50", "unproject steps=100"}
+    p = pts["unproject steps=50"]
     assert p["subjects"] == 2 and p["seconds"] == pytest.approx(45.5) and p["value"] == pytest.approx(20.1)
 
 
@@ -75,7 +77,7 @@ def test_chart_and_report_from_a_toy_run(tmp_path):
     assert image.std() > 10  # something is drawn
     md = report_markdown(rows, "chart.png")
     assert "![time against masked PSNR](chart.png)" in md
-    assert "| **unproject+refine steps=50** | 2 |" in md and "| unproject+refine steps=100 | 2 |" in md
+    assert "| **unproject steps=50** | 2 |" in md and "| unproject steps=100 | 2 |" in md
     assert md.count("## ") == 2
 
 
@@ -103,5 +105,62 @@ def test_pipeline_results_become_rows():
     rows = result_rows(result)
     assert [(r["method"], r["config"]["steps"], r["split"]) for r in rows] == [
         ("unproject", 0, "novel_views"), ("unproject", 0, "novel_poses"),
-        ("unproject+refine", 50, "novel_views"), ("unproject+refine", 50, "novel_poses")]
+        ("unproject", 50, "novel_views"), ("unproject", 50, "novel_poses")]
     assert all(r["subject"] == 7 and r["peak_mb"] is None for r in rows)
+
+
+def test_rows_from_before_the_registry_read_under_its_names(tmp_path):
+    """Rows that said "refine", "unproject+refine" or "learned+refine" (docs/benchmarks.jsonl
+    holds some) are read as the registry names them; an unprojection that recorded no steps
+    made none. Other rows are read as they are."""
+    m = _metrics(19.0)
+    old = [
+        make_row("unproject+refine", {"steps": 50, "res": 512}, "novel_views", 40.0, None, m, device="cpu"),
+        make_row("learned+refine", {"checkpoint": "ab" * 8, "steps": 20}, "novel_views", 9.0, None, m, device="cpu"),
+        make_row("unproject", {"steps": 0}, "novel_views", 2.0, None, m, device="cpu"),
+        stability_row("refine", {"steps": 50, "subject_fill": 0.8}, "novel_views", 3.0, None, m, "pose_noise", 0.0),
+        stability_row("unproject", {"res": 48}, "novel_views", 3.0, None, m, "pose_noise", 0.0, device="cpu"),
+        make_row("m", {}, "novel_views", 1.0, None, m, device="cpu"),
+    ]
+    append_rows(tmp_path / "old.jsonl", old)
+    rows = read_rows(tmp_path / "old.jsonl")
+    assert [(r["method"], r["config"]) for r in rows] == [
+        ("unproject", {"steps": 50, "res": 512}),
+        ("learned", {"checkpoint": "ab" * 8, "steps": 20}),
+        ("unproject", {"steps": 0}),
+        ("unproject", {"steps": 50, "subject_fill": 0.8}),
+        ("unproject", {"res": 48, "steps": 0}),
+        ("m", {}),
+    ]
+    labels = ["unproject steps=50", "learned steps=20", "unproject steps=0", "unproject steps=50", "unproject steps=0"]
+    assert [label(r) for r in rows] == [*labels, "m"]
+
+
+def test_bench_modules_import_one_way():
+    """No import cycle in the bench package (imports inside functions count too): rows and score
+    import no other bench module but metrics, the suites neither charts nor report."""
+    import ast
+    from pathlib import Path
+
+    import dlacli.bench
+
+    folder = Path(dlacli.bench.__file__).parent
+    graph = {}
+    for path in folder.glob("*.py"):
+        found = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [node.module] if isinstance(node, ast.ImportFrom) and node.module else []
+            names += [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            found |= {n.split(".")[2] for n in names if n.startswith("dlacli.bench.")}
+        graph[path.stem] = found
+    assert graph["rows"] <= {"score"} and graph["score"] <= {"metrics"}
+    for suite in ("accuracy", "budget", "pipeline", "speed", "stability"):
+        assert not graph[suite] & {"charts", "report"}, suite
+
+    def reach(start, seen):
+        for nxt in graph.get(start, ()):
+            assert nxt not in seen, f"import cycle through {seen + [nxt]}"
+            reach(nxt, seen + [nxt])
+
+    for module in graph:
+        reach(module, [module])

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from dlacli.bench import speed as S
-from dlacli.bench.results import check_row, speed_markdown, speed_row
+from dlacli.bench.report import speed_markdown
+from dlacli.bench.rows import check_row, speed_row
 from dlacli.errors import DlaInputError
 
 

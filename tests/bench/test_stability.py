@@ -4,13 +4,14 @@ run, the rows' schema, the degradation summary and a tiny end-to-end run with it
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from dlacli.bench import stability as S
-from dlacli.bench.results import check_row, stability_row
+from dlacli.bench.rows import check_row, stability_row
 from dlacli.errors import DlaInputError
 
 SEED = 31  # a seed no other test uses
@@ -99,35 +100,47 @@ def test_subject_perturbations(subject):
     assert np.array_equal(touching.novel_poses.images, subject.novel_poses.images)  # the clean subject's motion
 
 
-def test_runs_record_failures(subject):
-    good = S.make_avatar("unproject", subject.views, {})
+@dataclass(frozen=True)
+class _NoOptions:
+    """The config of the toy methods below (they take none)."""
 
-    def broken(views, config):
+
+def test_runs_record_failures(subject):
+    from dlacli.stages import methods
+
+    good = methods.make_spec("unproject").lift(subject.views).avatar
+
+    def broken(views, config, progress, novel):
         raise RuntimeError("out of\nmemory")
 
-    S.register_method("t_broken", broken)
-    S.register_method("t_nan", lambda views, config: replace(good, z=np.full_like(good.z, np.nan)))
+    def toy(name, avatar):
+        lift = lambda views, config, progress, novel: SimpleNamespace(avatar=avatar)  # noqa: E731
+        return methods.Method(name, _NoOptions, lift, "toy")
+
+    methods.register(methods.Method("t_broken", _NoOptions, broken, "raises"))
+    methods.register(toy("t_nan", replace(good, z=np.full_like(good.z, np.nan))))
     empty_z = good.z.copy()
     empty_z[0] = -20.0  # every opacity logit: sigmoid ~2e-9
-    S.register_method("t_empty", lambda views, config: replace(good, z=empty_z))
+    methods.register(toy("t_empty", replace(good, z=empty_z)))
     try:
-        assert S.run_one("t_broken", {}, subject.views, subject)["error"] == "RuntimeError: out of memory"
+        spec = methods.parse_method
+        assert S.run_one(spec("t_broken"), subject.views, subject)["error"] == "RuntimeError: out of memory"
         for name, status in (("t_broken", "error"), ("t_nan", "nan"), ("t_empty", "empty"), ("unproject", "ok")):
-            result = S.run_one(name, {}, subject.views, subject)
+            result = S.run_one(spec(name), subject.views, subject)
             assert result["status"] == status, (name, result)
             assert (result["metrics"] != {}) == (status == "ok")
         assert S.visible_gaussians(good) > 0 and S.visible_gaussians(replace(good, z=empty_z)) == 0
     finally:
         for name in ("t_broken", "t_nan", "t_empty"):
-            S.METHODS.pop(name)
+            methods.METHODS.pop(name)
     with pytest.raises(DlaInputError, match="t_broken"):
-        S.method_config("t_broken")
+        methods.parse_methods("t_broken")
 
 
 def test_stability_rows_pass_the_schema():
     ok = stability_row("unproject", {"res": 48}, "novel_views", 1.0, None, {"psnr": 25, "psnr_masked": 18, "ssim": 0.9, "iou": 0.9},
                        "pose_noise", 5.0, subject=1, device="cpu")  # fmt: skip
-    failed = stability_row("refine", {}, "novel_poses", 0.5, None, {}, "fewer_views", 1.0, "error", "ValueError: x", device="cpu")
+    failed = stability_row("unproject", {"steps": 50}, "novel_poses", 0.5, None, {}, "fewer_views", 1.0, "error", "ValueError: x", device="cpu")
     for row in (ok, failed):
         assert check_row(dict(row)) == row
     for change, needle in (({"status": "fine"}, "status"), ({"metrics": {}}, "psnr"), ({"level": float("inf")}, "level"),
@@ -160,10 +173,13 @@ def test_drop_level_and_curves():
 def test_a_tiny_run_and_its_report(tmp_path, capsys):
     from PIL import Image
 
-    from dlacli.bench.results import append_rows, draw_stability_chart, stability_markdown
+    from dlacli.bench.charts import draw_stability_chart
+    from dlacli.bench.report import stability_markdown
+    from dlacli.bench.rows import append_rows
+    from dlacli.stages.methods import parse_methods
 
     pytest.importorskip("matplotlib")
-    rows = S.run([SEED], {"unproject": {}}, ["fewer_views", "colour_shift"], res=48, levels=2, novel_views=1, novel_poses=1,
+    rows = S.run([SEED], parse_methods("unproject"), ["fewer_views", "colour_shift"], res=48, levels=2, novel_views=1, novel_poses=1,
                  log=lambda line: None)  # fmt: skip
     assert len(rows) == 2 * 2 * 2  # perturbations x levels x splits
     assert all(check_row(dict(r)) == r and r["status"] == "ok" for r in rows)

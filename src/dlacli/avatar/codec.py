@@ -139,8 +139,6 @@ def view_cosine(normals: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:
 
 # name -> factory(checkpoint, where) -> Decoder
 _DECODERS: dict[str, Callable[[str, str], Decoder]] = {"identity": IdentityDecoder, "view-cosine": ViewCosineDecoder}
-# name -> encoder function (views, config) -> LiftResult; filled lazily by stages.lift
-_ENCODERS: dict[str, str] = {"unproject": "dlacli.stages.lift:lift", "learned": "dlacli.stages.learned:lift_learned"}
 
 
 def register_decoder(name: str, factory: Callable[[str, str], Decoder]) -> None:
@@ -150,17 +148,6 @@ def register_decoder(name: str, factory: Callable[[str, str], Decoder]) -> None:
 
 def decoder_names() -> list[str]:
     return sorted(_DECODERS)
-
-
-def encoder_names() -> list[str]:
-    return sorted(_ENCODERS)
-
-
-def check_encoder(name: str, where: str = "--method") -> str:
-    """`name` if it is a known encoder, else a one-line error listing them."""
-    if name not in _ENCODERS:
-        raise DlaInputError(where, f"unknown encoder {name!r} (available: {', '.join(encoder_names())})")
-    return name
 
 
 def is_linear(avatar: Avatar) -> bool:

@@ -10,12 +10,14 @@ the paper's three splits:
     novel_view_pose  the same 8 poses from azimuths 120 and 240 (no input camera there)
 
 Metrics: PSNR over the whole image, PSNR inside the person's mask, SSIM, alpha IoU
-(bench/metrics.py). LPIPS needs AlexNet weights the toolkit does not ship: it is absent, and the
-report says so. Method specs (`--methods`, comma-separated):
+(bench/score.py). LPIPS needs AlexNet weights the toolkit does not ship: it is absent, and the
+report says so. Methods (`--methods`) are specs of dlacli.stages.methods, e.g.
 
-    unproject                  mesh unprojection (ablation A.i)
-    refine:STEPS[@SIZE]        unprojection + STEPS refinement steps at render size SIZE
-    learned:CKPT[:STEPS]       the learned encoder + GPD from a checkpoint, + STEPS refinement of Z
+    unproject                              mesh unprojection (ablation A.i)
+    unproject:steps=50,render_size=256     + 50 refinement steps rendering at 256 px
+    learned:checkpoint=CKPT,steps=20       the learned encoder + GPD from a checkpoint, + 20 steps of Z
+
+(and the older spellings refine:STEPS[@SIZE], learned:CKPT[:STEPS]).
 """
 
 from __future__ import annotations
@@ -24,64 +26,16 @@ import os
 import resource
 import tempfile
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from dlacli.errors import DlaInputError
+from dlacli.stages.methods import MethodSpec
 
 SPLITS = ("novel_views", "novel_poses", "novel_view_pose")
 FRONT_AZIMUTH = 0.0  # the novel-pose camera that coincides with an input camera's direction
-
-
-@dataclass(frozen=True)
-class MethodSpec:
-    name: str  # "unproject", "unproject+refine" or "learned" (+refine)
-    config: dict
-    label: str  # the spec as the user wrote it
-
-
-def parse_methods(text: str) -> list[MethodSpec]:
-    """`--methods` -> specs; one-line errors naming the bad spec."""
-    specs = []
-    for raw in [t.strip() for t in text.split(",") if t.strip()]:
-        kind, _, rest = raw.partition(":")
-        try:
-            if kind == "unproject" and not rest:
-                specs.append(MethodSpec("unproject", {"steps": 0}, raw))
-            elif kind == "refine":
-                steps, _, size = rest.partition("@")
-                cfg = {"steps": int(steps)}
-                if size:
-                    cfg["render_size"] = int(size)
-                if cfg["steps"] < 1 or cfg.get("render_size", 512) < 16:
-                    raise ValueError
-                specs.append(MethodSpec("unproject+refine", cfg, raw))
-            elif kind == "learned" and rest:
-                head, _, tail = rest.rpartition(":")
-                ckpt, steps = (head, int(tail)) if head and tail.isdigit() else (rest, 0)
-                cfg = {"checkpoint": ckpt, "steps": steps}
-                specs.append(MethodSpec("learned" if cfg["steps"] == 0 else "learned+refine", cfg, raw))
-            else:
-                raise ValueError
-        except ValueError:
-            raise DlaInputError("--methods", f"cannot read {raw!r} (unproject, refine:STEPS[@SIZE], learned:CKPT[:STEPS])") from None
-    if not specs:
-        raise DlaInputError("--methods", "is empty")
-    return specs
-
-
-def lift_with(spec: MethodSpec, views):
-    """The avatar a method makes from the views (in this process)."""
-    if spec.name.startswith("learned"):
-        from dlacli.stages.learned import lift_learned
-
-        return lift_learned(views, spec.config["checkpoint"], steps=spec.config["steps"]).avatar
-    from dlacli.stages.lift import LiftConfig, lift
-
-    return lift(views, LiftConfig(**spec.config)).avatar
 
 
 def _child(spec: MethodSpec, folder: str, out: str, threads: int) -> tuple[float, float]:
@@ -93,7 +47,7 @@ def _child(spec: MethodSpec, folder: str, out: str, threads: int) -> tuple[float
     torch.set_num_threads(threads)
     views = read_views(folder)
     t0 = time.perf_counter()
-    avatar = lift_with(spec, views)
+    avatar = spec.lift(views).avatar
     seconds = time.perf_counter() - t0
     write_avatar(avatar, out)
     return seconds, peak_rss_mb()
@@ -134,16 +88,9 @@ def split_indices(views) -> dict[str, np.ndarray]:
     return {"novel_poses": np.flatnonzero(front), "novel_view_pose": np.flatnonzero(~front)}
 
 
-def scores(pred: np.ndarray, gt: np.ndarray, masks: np.ndarray) -> dict[str, float]:
-    from dlacli.bench.metrics import alpha_iou, masked_psnr, psnr, ssim
-
-    return {"psnr": psnr(pred[..., :3], gt), "psnr_masked": masked_psnr(pred[..., :3], gt, masks),
-            "ssim": ssim(pred[..., :3], gt), "iou": alpha_iou(pred[..., 3], masks)}  # fmt: skip
-
-
 def score_avatar(avatar, folder: Path) -> dict[str, dict[str, float]]:
     """The avatar's metrics on the subject's three splits."""
-    from dlacli.bench.pipeline import render_split
+    from dlacli.bench.score import render_split, scores
     from dlacli.io.motion import read_motion
     from dlacli.io.views import read_views
 
@@ -162,15 +109,12 @@ def run(seeds: list[int], methods: list[MethodSpec], res: int = 512, appearance:
         wardrobe: str = "heldout", novel_views: int = 12, novel_poses: int = 8,
         log: Callable[[str], None] = print) -> list[dict]:  # fmt: skip
     """dla.bench/1 rows: one per seed, method and split."""
-    from dlacli.bench.results import make_row
+    from dlacli.bench.rows import make_row
     from dlacli.io.avatar import read_avatar
     from dlacli.stages.synth import synth
 
-    from dlacli.avatar.checkpoint import install_checkpoint, resolve_checkpoint
-
     for spec in methods:  # the renders find a learned avatar's decoder by its hash, as after `dla lift`
-        if "checkpoint" in spec.config:
-            install_checkpoint(resolve_checkpoint(spec.config["checkpoint"]))
+        spec.install()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
@@ -181,7 +125,7 @@ def run(seeds: list[int], methods: list[MethodSpec], res: int = 512, appearance:
                 seconds, peak = timed_lift(spec, folder, path)
                 avatar = read_avatar(path)
                 result = score_avatar(avatar, folder)
-                config = {**spec.config, "res": res, "appearance": appearance, "wardrobe": wardrobe}
+                config = {**spec.options(), "res": res, "appearance": appearance, "wardrobe": wardrobe}
                 if "checkpoint" in config:  # the weights by hash, not by local path; what they are
                     lift = avatar.extra.get("lift", {})
                     config.update(checkpoint=avatar.checkpoint[:16], preset=lift.get("preset"), variant=lift.get("variant"))

@@ -3,7 +3,7 @@ Gaussians and the UV resolution at a target render size, with the render time an
 count costs, and what `--gaussians auto`'s rules choose (dlacli.stages.budget).
 
 Per seed: a synth subject with its views at the render size; per UV resolution, one avatar
-(a method of dlacli.bench.stability.METHODS, lifted with that `resolution`); per count on the
+(a method spec of dlacli.stages.methods, lifted with that `resolution`); per count on the
 ladder: masked PSNR, PSNR, SSIM and IoU of the renders on the input views ("inputs": what lift
 --gaussians auto measures), the novel views and the novel poses; the median time to render one
 image; the size and write time of a `usd_frames`-frame walk as USD (animate's default schema and
@@ -21,7 +21,10 @@ from typing import Callable
 
 import numpy as np
 
-DEFAULT_COUNT = 131_072  # the count render and animate draw without --gaussians (the saving's baseline)
+from dlacli.limits import DEFAULT_GAUSSIANS
+from dlacli.stages.methods import MethodSpec
+
+DEFAULT_COUNT = DEFAULT_GAUSSIANS  # the count render and animate draw without --gaussians (the saving's baseline)
 
 
 def _timed_split(avatar, views, n: int, motion=None) -> tuple[np.ndarray, np.ndarray, float]:
@@ -55,16 +58,19 @@ def _usd_cost(avatar, n: int, frames: int, folder: Path) -> tuple[float, float]:
 
 
 def run(seeds: list[int], counts: list[int], uv_resolutions: list[int], render_size: int = 512,
-        method: str = "unproject", config: dict | None = None, novel_views: int = 4, novel_poses: int = 2,
+        method: MethodSpec | None = None, novel_views: int = 4, novel_poses: int = 2,
         usd_frames: int = 8, log: Callable[[str], None] = print) -> list[dict]:  # fmt: skip
-    """Budget rows (dlacli.bench.results "budget") for every seed x UV resolution x count x split."""
-    from dlacli.bench.metrics import alpha_iou, masked_psnr, psnr, ssim
-    from dlacli.bench.results import budget_row, default_device
-    from dlacli.bench.stability import make_avatar, make_subject, method_config
+    """Budget rows (dlacli.bench.rows "budget") for every seed x UV resolution x count x split;
+    `method`: a stages.methods spec that takes `resolution` (default: unproject)."""
+    from dlacli.bench.rows import budget_row, default_device
+    from dlacli.bench.score import scores
+    from dlacli.bench.stability import make_subject
     from dlacli.stages.budget import AUTO_VIEWS, sampling_noise
+    from dlacli.stages.methods import make_spec
     from dlacli.stages.render import turntable_cameras
 
-    cfg = method_config(method, config)
+    spec = method or make_spec("unproject")
+    cfg = spec.options()
     device = default_device()
     counts = sorted(set(counts))
     rows = []
@@ -75,7 +81,7 @@ def run(seeds: list[int], counts: list[int], uv_resolutions: list[int], render_s
                       ("novel_poses", subject.novel_poses, subject.motion))  # fmt: skip
             for res in uv_resolutions:
                 t0 = time.perf_counter()
-                avatar = make_avatar(method, subject.views, {**cfg, "resolution": res})
+                avatar = spec.with_options(resolution=res).lift(subject.views).avatar
                 lift_s = time.perf_counter() - t0
                 noise = sampling_noise(avatar, turntable_cameras(avatar, AUTO_VIEWS, render_size), counts)
                 for n in counts:
@@ -83,9 +89,8 @@ def run(seeds: list[int], counts: list[int], uv_resolutions: list[int], render_s
                     line = []
                     for split, views, motion in splits:
                         pred, gt, per_image = _timed_split(avatar, views, n, motion)
-                        metrics = {"psnr": psnr(pred[..., :3], gt), "psnr_masked": masked_psnr(pred[..., :3], gt, views.masks),
-                                   "ssim": ssim(pred[..., :3], gt), "iou": alpha_iou(pred[..., 3], views.masks)}  # fmt: skip
-                        rows.append(budget_row(method, {**cfg, "uv_resolution": res, "usd_frames": usd_frames}, split, lift_s,
+                        metrics = scores(pred, gt, views.masks)
+                        rows.append(budget_row(spec.name, {**cfg, "uv_resolution": res, "usd_frames": usd_frames}, split, lift_s,
                                                metrics, n, render_size, per_image * 1e3, usd_mib, usd_s, noise[n],
                                                subject=seed, device=device))  # fmt: skip
                         line.append(f"{split} {metrics['psnr_masked']:.2f}")
@@ -98,12 +103,14 @@ def run(seeds: list[int], counts: list[int], uv_resolutions: list[int], render_s
 
 
 def curve(rows: list[dict], split: str, metric: str = "psnr_masked") -> dict[tuple[str, int], dict[int, dict]]:
-    """{(method, uv_resolution): {count: {value (mean over subjects), render_ms, usd_mib (medians),
-    noise (mean)}}} of the budget rows on `split`."""
+    """{(method and setting, uv_resolution): {count: {value (mean over subjects), render_ms,
+    usd_mib (medians), noise (mean)}}} of the budget rows on `split`."""
+    from dlacli.bench.rows import label
+
     groups: dict[tuple[str, int], dict[int, list[dict]]] = {}
     for r in rows:
         if r.get("kind") == "budget" and r["split"] == split:
-            key = (r["method"], int(r["config"].get("uv_resolution", 0)))
+            key = (label(r, ("uv_resolution", "usd_frames")), int(r["config"].get("uv_resolution", 0)))
             groups.setdefault(key, {}).setdefault(r["gaussians"], []).append(r)
     out = {}
     for key, by_n in sorted(groups.items()):
@@ -119,7 +126,7 @@ def curve(rows: list[dict], split: str, metric: str = "psnr_masked") -> dict[tup
 
 
 def choices(rows: list[dict], tolerance_db: float | None = None) -> dict[tuple[str, int], dict[str, int]]:
-    """Per (method, uv_resolution): the count each rule picks from the rows' means: "novel views"
+    """Per (method and setting, uv_resolution): the count each rule picks from the rows' means: "novel views"
     and "novel poses" (ground truth the method never saw: the oracle), "inputs" (lift --gaussians
     auto), "self-consistency" (sampling noise, stages.budget.predicted_psnr)."""
     from dlacli.stages.budget import TOLERANCE_DB, choose_gaussians, predicted_psnr

@@ -17,26 +17,9 @@ from typing import Callable
 
 import numpy as np
 
-from dlacli.bench.metrics import alpha_iou, masked_psnr, psnr, ssim
+from dlacli.bench.score import METRICS, score_split
 
-
-def render_split(avatar, views, motion=None) -> tuple[np.ndarray, np.ndarray]:
-    """The avatar rendered at a split's cameras (and motion frames) -> (RGBA [C, H, W, 4] in the
-    views' order, ground truth [C, H, W, 3] on black)."""
-    from dlacli.stages.render import render_avatar
-
-    shots = sorted(render_avatar(avatar, views.cameras, views.times, motion), key=lambda s: s.camera)
-    return np.stack([s.rgba for s in shots]), views.images * views.masks[..., None]
-
-
-def _score(avatar, views, motion=None) -> dict[str, float]:
-    pred, gt = render_split(avatar, views, motion)
-    return {
-        "psnr": psnr(pred[..., :3], gt),
-        "psnr_masked": masked_psnr(pred[..., :3], gt, views.masks),
-        "ssim": ssim(pred[..., :3], gt),
-        "iou": alpha_iou(pred[..., 3], views.masks),
-    }
+_score = score_split  # the name tests/stages score lifts with
 
 
 def run(seeds: list[int], steps: list[int], res: int = 512, novel_views: int = 12,
@@ -45,7 +28,7 @@ def run(seeds: list[int], steps: list[int], res: int = 512, novel_views: int = 1
     from dlacli.io.motion import read_motion
     from dlacli.io.views import read_views
     from dlacli.stages.animate import pose_avatar, write_animation
-    from dlacli.stages.lift import LiftConfig, lift
+    from dlacli.stages.methods import make_spec
     from dlacli.stages.synth import synth
 
     rows = []
@@ -59,10 +42,10 @@ def run(seeds: list[int], steps: list[int], res: int = 512, novel_views: int = 1
             motion = read_motion(folder / "novel_poses" / "motion.npz")
             for n_steps in steps:
                 t0 = time.perf_counter()
-                avatar = lift(views, LiftConfig(steps=n_steps)).avatar
+                avatar = make_spec("unproject", steps=n_steps).lift(views).avatar
                 lift_s = time.perf_counter() - t0
                 row = {"seed": seed, "steps": n_steps, "lift_s": lift_s,
-                       "novel_views": _score(avatar, nv), "novel_poses": _score(avatar, npose, motion)}  # fmt: skip
+                       "novel_views": score_split(avatar, nv), "novel_poses": score_split(avatar, npose, motion)}  # fmt: skip
                 rows.append(row)
                 log(f"seed {seed} steps {n_steps}: lift {lift_s:.1f} s, novel views {row['novel_views']}, novel poses {row['novel_poses']}")
             walk = builtin_motion("walk")
@@ -81,7 +64,7 @@ def run(seeds: list[int], steps: list[int], res: int = 512, novel_views: int = 1
         summary[str(n_steps)] = {
             "lift_s_median": statistics.median(r["lift_s"] for r in sel),
             **{f"{split}_{k}_mean": float(np.mean([r[split][k] for r in sel]))
-               for split in ("novel_views", "novel_poses") for k in ("psnr", "psnr_masked", "ssim", "iou")},
+               for split in ("novel_views", "novel_poses") for k in METRICS},
         }  # fmt: skip
     return {"rows": rows, "summary": summary, "animate_s_median": statistics.median(animate_s),
             "animate_frames": animate_frames, "res": res}  # fmt: skip
@@ -93,21 +76,20 @@ def markdown_table(result: dict) -> str:
             "|---|---|---|---|")  # fmt: skip
     lines = [head]
     for steps, s in result["summary"].items():
-        nv = " / ".join(f"{s[f'novel_views_{k}_mean']:.{2 if k.startswith('psnr') else 3}f}" for k in ("psnr", "psnr_masked", "ssim", "iou"))
-        npose = " / ".join(f"{s[f'novel_poses_{k}_mean']:.{2 if k.startswith('psnr') else 3}f}" for k in ("psnr", "psnr_masked", "ssim", "iou"))
+        nv = " / ".join(f"{s[f'novel_views_{k}_mean']:.{2 if k.startswith('psnr') else 3}f}" for k in METRICS)
+        npose = " / ".join(f"{s[f'novel_poses_{k}_mean']:.{2 if k.startswith('psnr') else 3}f}" for k in METRICS)
         lines.append(f"| {steps} | {s['lift_s_median']:.1f} | {nv} | {npose} |")
     return "\n".join(lines)
 
 
 def result_rows(result: dict) -> list[dict]:
-    """The run as `dla.bench/1` rows (dlacli.bench.results): one per subject, steps setting and
-    split; method "unproject" (0 steps) or "unproject+refine"."""
-    from dlacli.bench.results import make_row
+    """The run as `dla.bench/1` rows (dlacli.bench.rows): one per subject, steps setting and
+    split; method "unproject" (stages.methods) with its steps."""
+    from dlacli.bench.rows import make_row
 
     rows = []
     for r in result["rows"]:
-        method = "unproject" if r["steps"] == 0 else "unproject+refine"
         for split in ("novel_views", "novel_poses"):
-            rows.append(make_row(method, {"steps": r["steps"], "res": result["res"]}, split, r["lift_s"], None,
+            rows.append(make_row("unproject", {"steps": r["steps"], "res": result["res"]}, split, r["lift_s"], None,
                                  r[split], subject=r["seed"]))  # fmt: skip
     return rows

@@ -39,8 +39,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
+from dlacli.limits import DEFAULT_GAUSSIANS
+
 SUITES = ("startup", "splat", "body", "lift", "animate", "usd", "render")
-SPLAT_CASES = ((2_048, 128), (20_000, 256), (20_000, 512), (65_536, 256), (65_536, 512), (131_072, 256), (131_072, 512))
+_N = DEFAULT_GAUSSIANS
+SPLAT_CASES = ((2_048, 128), (20_000, 256), (20_000, 512), (65_536, 256), (65_536, 512), (_N, 256), (_N, 512))
 DENSE_MAX_PAIRS = 2_048 * 128 * 128  # Gaussians x pixels up to which the dense path runs
 USD_LIMBS = 16
 
@@ -55,13 +58,13 @@ class SpeedConfig:
     baseline: str | None = None  # another src folder holding a dlacli package, for splat ratios
     cold: bool = False  # splat: also time one first call with an empty numba cache (the JIT compile)
     rounds: int = 1
-    gaussians: int = 131_072  # body, animate, render
+    gaussians: int = DEFAULT_GAUSSIANS  # body, animate, render
     frames: int = 30  # animate, render, usd
     res: int = 512  # lift subject, render size
     lift_steps: tuple[int, ...] = (0, 50)
     seed: int = 1001  # the lift subject (a seed no test uses)
     startup_runs: int = 10
-    usd_gaussians: int = 131_072
+    usd_gaussians: int = DEFAULT_GAUSSIANS
     usd_schemas: tuple[str, ...] = ("points", "instancer")
     usd_tolerances_mm: tuple[float, ...] = (0.0, 1.0)
     _cache: dict = field(default_factory=dict, repr=False)
@@ -239,7 +242,7 @@ def _run_splat_case(path: str, n: int, res: int, cfg: SpeedConfig, pythonpath: s
         inspect.getsource(f) for f in (_median_min, _splat_scene, _splat_case))
     src += "\n\nimport json, sys\nprint(json.dumps(_splat_case(*json.loads(sys.argv[1]))))\n"
     env = dict(os.environ, OMP_WAIT_POLICY=os.environ.get("OMP_WAIT_POLICY", "PASSIVE"),
-               MALLOC_MMAP_THRESHOLD_="131072")  # big blocks from / back to the OS: the sampled RSS follows them  # fmt: skip
+               MALLOC_MMAP_THRESHOLD_=str(128 * 1024))  # big blocks from / back to the OS: the sampled RSS follows them  # fmt: skip
     if numba_cache:
         env["NUMBA_CACHE_DIR"] = numba_cache
     if pythonpath:
@@ -359,7 +362,7 @@ def _subject_and_avatar(cfg: SpeedConfig, log):
     """(view folder, its ViewSet, an unprojected avatar at cfg.gaussians), made once per run."""
     if "avatar" not in cfg._cache:
         from dlacli.io.views import read_views
-        from dlacli.stages.lift import LiftConfig, lift
+        from dlacli.stages.methods import make_spec
         from dlacli.stages.synth import synth
 
         tmp = tempfile.mkdtemp(prefix="dla-speed-")
@@ -369,7 +372,7 @@ def _subject_and_avatar(cfg: SpeedConfig, log):
         cfg._cache["synth_s"] = time.perf_counter() - t0
         views = read_views(folder)
         cfg._cache["views"] = views
-        cfg._cache["avatar"] = lift(views, LiftConfig(steps=0, gaussians=cfg.gaussians)).avatar
+        cfg._cache["avatar"] = make_spec("unproject", steps=0, gaussians=cfg.gaussians).lift(views).avatar
     return cfg._cache["views"], cfg._cache["avatar"]
 
 
@@ -385,13 +388,13 @@ def _walk(frames: int):
 
 
 def _lift(cfg: SpeedConfig, row, log) -> list[dict]:
-    from dlacli.stages.lift import LiftConfig, lift
+    from dlacli.stages.methods import make_spec
 
     views, _ = _subject_and_avatar(cfg, log)
     out = [row("lift", "synth", "cpu", {"res": cfg.res, "seed": cfg.seed}, cfg._cache["synth_s"], 1)]
     for steps in cfg.lift_steps:
         t0 = time.perf_counter()
-        lift(views, LiftConfig(steps=steps, gaussians=cfg.gaussians))
+        make_spec("unproject", steps=steps, gaussians=cfg.gaussians).lift(views)
         sec = time.perf_counter() - t0
         out.append(row("lift", "lift", "cpu", {"res": cfg.res, "steps": steps, "gaussians": cfg.gaussians}, sec, 1))
         log(f"lift {steps} steps at {cfg.res} px: {sec:.1f} s")
@@ -492,8 +495,8 @@ def _render(cfg: SpeedConfig, row, log) -> list[dict]:
 
 def run(suites: list[str] | tuple[str, ...] = SUITES, cfg: SpeedConfig | None = None,
         log: Callable[[str], None] = print) -> list[dict]:  # fmt: skip
-    """The suites' speed rows (dlacli.bench.results "speed"), one `run` id for all."""
-    from dlacli.bench.results import default_device, speed_row
+    """The suites' speed rows (dlacli.bench.rows "speed"), one `run` id for all."""
+    from dlacli.bench.rows import default_device, speed_row
 
     cfg = cfg or SpeedConfig()
     unknown = [s for s in suites if s not in SUITES]

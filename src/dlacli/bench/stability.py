@@ -1,6 +1,7 @@
 """How lift degrades when its inputs are wrong: degradation curves per method (`dla bench stability`).
 
-A method turns a ViewSet into an Avatar (`METHODS`, `register_method`). A perturbation
+A method (a spec of dlacli.stages.methods: "unproject", "unproject:steps=50", ...) turns a
+ViewSet into an Avatar. A perturbation
 (`PERTURBATIONS`) has levels, the first its clean baseline, and changes either the input views
 handed to the method (body parameters, images, cameras, which views) or the synthetic subject
 itself (its pose, its distance from the cameras). Every run is scored, as `dla bench pipeline`
@@ -24,61 +25,11 @@ from typing import Callable
 
 import numpy as np
 
+from dlacli.stages.methods import MethodSpec
 from dlacli.types import Avatar, Cameras, Motion, ViewSet
 
 EMPTY_OPACITY = 0.01
 DROP_DB = 2.0  # the report states the first level at which masked PSNR has dropped this much
-
-
-# --------------------------------------------------------------------------------- methods
-
-Method = Callable[[ViewSet, dict], Avatar]  # (input views, config) -> avatar
-
-
-def _unproject(views: ViewSet, config: dict) -> Avatar:
-    from dlacli.stages.lift import LiftConfig, lift
-
-    return lift(views, LiftConfig(**{**config, "steps": 0})).avatar
-
-
-def _refine(views: ViewSet, config: dict) -> Avatar:
-    from dlacli.stages.lift import LiftConfig, lift
-
-    return lift(views, LiftConfig(**{"steps": 50, **config})).avatar
-
-
-# name -> (function, default config); `dla bench stability --methods` and bench.budget pick from here
-METHODS: dict[str, tuple[Method, dict]] = {"unproject": (_unproject, {}), "refine": (_refine, {"steps": 50})}
-
-
-def register_method(name: str, fn: Method, config: dict | None = None) -> None:
-    """Add a method (e.g. a learned encoder with its checkpoint in `config`)."""
-    METHODS[name] = (fn, dict(config or {}))
-
-
-def _learned(views: ViewSet, config: dict) -> Avatar:
-    from dlacli.stages.learned import lift_learned
-
-    return lift_learned(views, config["checkpoint"], steps=int(config.get("steps", 0))).avatar
-
-
-def register_learned(checkpoint: str, steps: int = 0) -> None:
-    """Add the method "learned": a `dla train` checkpoint's U-Net + encoder + GPD (+ steps of Z)."""
-    register_method("learned", _learned, {"checkpoint": checkpoint, "steps": steps})
-
-
-def method_config(name: str, overrides: dict | None = None) -> dict:
-    """The method's default config with `overrides` for the keys it has (unknown names: DlaInputError)."""
-    from dlacli.errors import DlaInputError
-
-    if name not in METHODS:
-        raise DlaInputError("--methods", f"unknown method {name!r} (one of {', '.join(METHODS)})")
-    base = METHODS[name][1]
-    return {**base, **{k: v for k, v in (overrides or {}).items() if k in base}}
-
-
-def make_avatar(name: str, views: ViewSet, config: dict) -> Avatar:
-    return METHODS[name][0](views, config)
 
 
 # --------------------------------------------------------------------------------- subjects
@@ -298,8 +249,7 @@ def visible_gaussians(avatar: Avatar) -> int:
 
 def score(avatar: Avatar, subject: Subject) -> tuple[str, dict[str, dict[str, float]]]:
     """(status, {split: metrics}) of an avatar on the subject's novel views and poses."""
-    from dlacli.bench.metrics import alpha_iou, masked_psnr, psnr, ssim
-    from dlacli.bench.pipeline import render_split
+    from dlacli.bench.score import render_split, scores
 
     if not np.isfinite(avatar.z).all():
         return "nan", {}
@@ -310,18 +260,17 @@ def score(avatar: Avatar, subject: Subject) -> tuple[str, dict[str, dict[str, fl
         pred, gt = render_split(avatar, views, motion)
         if not np.isfinite(pred).all():
             return "nan", {}
-        out[split] = {"psnr": psnr(pred[..., :3], gt), "psnr_masked": masked_psnr(pred[..., :3], gt, views.masks),
-                      "ssim": ssim(pred[..., :3], gt), "iou": alpha_iou(pred[..., 3], views.masks)}  # fmt: skip
+        out[split] = scores(pred, gt, views.masks)
     if any(not math.isfinite(v) for m in out.values() for v in m.values()):
         return "nan", {}
     return "ok", out
 
 
-def run_one(method: str, config: dict, views: ViewSet, subject: Subject) -> dict:
+def run_one(spec: MethodSpec, views: ViewSet, subject: Subject) -> dict:
     """One method on one (perturbed) input: {status, error, seconds, metrics per split}."""
     t0 = time.perf_counter()
     try:
-        avatar = make_avatar(method, views, config)
+        avatar = spec.lift(views).avatar
         seconds = time.perf_counter() - t0
         status, metrics = score(avatar, subject)
         error = None
@@ -331,29 +280,29 @@ def run_one(method: str, config: dict, views: ViewSet, subject: Subject) -> dict
     return {"status": status, "error": error, "seconds": seconds, "metrics": metrics}
 
 
-def _rows(method, config, res, subject, pert: Perturbation, level, result, device) -> list[dict]:
-    from dlacli.bench.results import stability_row
+def _rows(spec: MethodSpec, res, subject, pert: Perturbation, level, result, device) -> list[dict]:
+    from dlacli.bench.rows import stability_row
 
-    cfg = {**config, "res": res, **{f"subject_{k}": round(v, 4) for k, v in subject.info.items()}}
-    return [stability_row(method, cfg, split, result["seconds"], None, result["metrics"].get(split, {}), pert.name,
+    cfg = {**spec.options(), "res": res, **{f"subject_{k}": round(v, 4) for k, v in subject.info.items()}}
+    return [stability_row(spec.name, cfg, split, result["seconds"], None, result["metrics"].get(split, {}), pert.name,
                           level, result["status"], result["error"], subject=subject.seed, device=device)
             for split in ("novel_views", "novel_poses")]  # fmt: skip
 
 
-def run(seeds: list[int], methods: dict[str, dict], perturbations: list[str] | None = None, res: int = 256,
+def run(seeds: list[int], methods: list[MethodSpec], perturbations: list[str] | None = None, res: int = 256,
         levels: int | None = None, novel_views: int = 4, novel_poses: int = 2,
         log: Callable[[str], None] = print) -> list[dict]:  # fmt: skip
-    """Every method (name -> config) on every level of every perturbation, per seed -> stability
-    rows. `levels`: at most this many levels per perturbation (`quick_levels`). The clean run is
-    made once per method and seed and reported as each perturbation's baseline."""
-    from dlacli.bench.results import default_device
+    """Every method (stages.methods specs) on every level of every perturbation, per seed ->
+    stability rows. `levels`: at most this many levels per perturbation (`quick_levels`). The
+    clean run is made once per method and seed and reported as each perturbation's baseline."""
+    from dlacli.bench.rows import default_device
 
     names = list(PERTURBATIONS) if perturbations is None else perturbations
     device = default_device()
     rows: list[dict] = []
     for seed in seeds:
         clean = make_subject(seed, res, novel_views, novel_poses)
-        baseline = {m: run_one(m, cfg, clean.views, clean) for m, cfg in methods.items()}
+        baseline = [run_one(spec, clean.views, clean) for spec in methods]
         for name in names:
             pert = PERTURBATIONS[name]
             lv = pert.levels if levels is None else quick_levels(pert, levels)
@@ -369,11 +318,11 @@ def run(seeds: list[int], methods: dict[str, dict], perturbations: list[str] | N
                         inputs = subject.views
                     else:
                         subject, inputs = clean, pert.views(clean.views, level, rng)
-                    results = {m: run_one(m, cfg, inputs, subject) for m, cfg in methods.items()}
-                for m, result in results.items():
-                    rows += _rows(m, methods[m], res, subject, pert, level, result, device)
+                    results = [run_one(spec, inputs, subject) for spec in methods]
+                for spec, result in zip(methods, results):
+                    rows += _rows(spec, res, subject, pert, level, result, device)
                     nv = result["metrics"].get("novel_views", {}).get("psnr_masked")
-                    log(f"seed {seed} {name} {level:g}: {m} {result['status']}"
+                    log(f"seed {seed} {name} {level:g}: {spec.label} {result['status']}"
                         + (f", novel views masked PSNR {nv:.2f}" if nv is not None else f" ({result['error']})" if result["error"] else ""))  # fmt: skip
     return rows
 
@@ -388,13 +337,16 @@ def _rig_distance() -> float:
 
 
 def curves(rows: list[dict], split: str = "novel_views", metric: str = "psnr_masked") -> dict:
-    """{perturbation: {method: [(level, mean metric over subjects with status ok, runs, failures)]}},
-    perturbations in PERTURBATIONS' order, levels in the order the rows first give them."""
+    """{perturbation: {method and setting (rows.label): [(level, mean metric over subjects with
+    status ok, runs, failures)]}}, perturbations in PERTURBATIONS' order, levels in the order the
+    rows first give them."""
+    from dlacli.bench.rows import label
+
     out: dict[str, dict[str, dict[float, list]]] = {}
     for r in rows:
         if r.get("kind") != "stability" or r["split"] != split:
             continue
-        cell = out.setdefault(r["perturbation"], {}).setdefault(r["method"], {}).setdefault(r["level"], [[], 0, 0])
+        cell = out.setdefault(r["perturbation"], {}).setdefault(label(r), {}).setdefault(r["level"], [[], 0, 0])
         cell[1] += 1
         if r["status"] == "ok":
             cell[0].append(r["metrics"][metric])

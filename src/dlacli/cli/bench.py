@@ -8,10 +8,20 @@ from typing import Optional
 
 import typer
 
+from dlacli.limits import DEFAULT_GAUSSIANS, LIFT_STEPS, MAX_GAUSSIANS
+from dlacli.stages.methods import METHODS
+
 bench_app = typer.Typer(
     help="Benchmarks: accuracy against cost, stability, the Gaussian budget and speed, on synthetic subjects.",
     no_args_is_help=True,
     context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+
+_KNOWN = "; ".join(f"{m.name} ({m.about})" for m in METHODS.values())
+_SPECS = (
+    f"NAME[:KEY=VALUE,...] (dlacli.stages.methods): {_KNOWN}; "
+    "e.g. unproject:steps=50,render_size=256 or learned:checkpoint=CKPT,steps=20"
 )
 
 
@@ -57,8 +67,9 @@ def _cases(text: str) -> tuple[tuple[int, int], ...]:
             n, res = (int(x) for x in part.split(":"))
         except ValueError:
             raise DlaInputError("--splat-cases", f"expected N:RES pairs, got {part.strip()[:40]!r}") from None
-        if not (1 <= n <= 4_194_304 and 16 <= res <= 4096):
-            raise DlaInputError("--splat-cases", f"{part.strip()}: N must be in [1, 4194304] and RES in [16, 4096]")
+        if not (1 <= n <= MAX_GAUSSIANS and 16 <= res <= 4096):
+            problem = f"N must be in [1, {MAX_GAUSSIANS}] and RES in [16, 4096]"
+            raise DlaInputError("--splat-cases", f"{part.strip()}: {problem}")
         out.append((n, res))
     if not out or len(out) > 64:
         raise DlaInputError("--splat-cases", "expected 1 to 64 N:RES pairs")
@@ -79,7 +90,7 @@ def _jsonl(path: Optional[Path]) -> Optional[Path]:
 def _emit(rows: list[dict], jsonl: Optional[Path], as_json: bool, table) -> None:
     """Append the rows to --jsonl, then print them as JSON lines or as `table(rows)` (markdown)."""
     if jsonl is not None:
-        from dlacli.bench.results import append_rows
+        from dlacli.bench.rows import append_rows
 
         append_rows(jsonl, rows)
     if as_json:
@@ -116,7 +127,7 @@ def pipeline(
     result = run(_ints(seeds, "--seeds", 2**32 - 1), _ints(steps, "--steps", 100_000), res=res,
                  log=lambda line: print(line, file=sys.stderr))  # fmt: skip
     if jsonl is not None:
-        from dlacli.bench.results import append_rows
+        from dlacli.bench.rows import append_rows
 
         append_rows(jsonl, result_rows(result))
     if as_json:
@@ -129,7 +140,7 @@ def pipeline(
 @bench_app.command("accuracy")
 def accuracy(
     seeds: str = typer.Option("9001,9002", "--seeds", help="Synthetic subjects reserved for benchmarking (no test or training uses 9000-9999)."),
-    methods: str = typer.Option("unproject,refine:50", "--methods", help="Comma-separated: unproject, refine:STEPS[@SIZE] (SIZE = render size of refinement), learned:CKPT[:STEPS] (a dla train checkpoint, STEPS refinement of Z)."),
+    methods: str = typer.Option("unproject,unproject:steps=50", "--methods", help="Methods to compare, comma-separated: " + _SPECS + "."),
     res: int = typer.Option(512, "--res", min=32, max=4096, help="Image size (the paper's protocol: 512, black background)."),
     appearance: str = typer.Option("lit", "--appearance", help="Subjects' appearance: lit (pose- and view-dependent shading) or albedo."),
     wardrobe: str = typer.Option("heldout", "--wardrobe", help="Subjects' garments: heldout (none a training subject wore), full, default."),
@@ -139,15 +150,16 @@ def accuracy(
     """Accuracy against cost of every method: lift in a fresh process (wall time, peak memory),
     then PSNR (whole image and inside the mask), SSIM and alpha IoU on novel views, novel poses
     and novel view & pose. LPIPS is absent: it needs AlexNet weights dla does not ship."""
-    from dlacli.bench.accuracy import parse_methods, run
-    from dlacli.bench.results import report_markdown
+    from dlacli.bench.accuracy import run
+    from dlacli.bench.report import report_markdown
+    from dlacli.stages.methods import parse_methods
     from dlacli.stages.synth import APPEARANCES, WARDROBES
 
     specs = parse_methods(methods)
     _names(appearance, "--appearance", APPEARANCES)
     _names(wardrobe, "--wardrobe", WARDROBES)
     for spec in specs:
-        if "checkpoint" in spec.config and not Path(spec.config["checkpoint"]).exists():
+        if "checkpoint" in spec.options() and not Path(spec.options()["checkpoint"]).exists():
             from dlacli.errors import DlaInputError
 
             raise DlaInputError("--methods", f"{spec.label}: no such checkpoint folder")
@@ -170,13 +182,13 @@ def regions(
     import numpy as np
     from PIL import Image
 
-    from dlacli.bench.pipeline import render_split
     from dlacli.bench.regions import REGIONS, error_picture, pixel_regions, region_psnr
+    from dlacli.bench.score import render_split
     from dlacli.body.model import get_body_model
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_path, check_outputs
     from dlacli.io.views import read_views
-    from dlacli.stages.lift import LiftConfig, lift
+    from dlacli.stages.methods import make_spec
     from dlacli.stages.synth import synth
 
     if output is not None and output.suffix.lower() != ".png":
@@ -186,7 +198,7 @@ def regions(
     with tempfile.TemporaryDirectory() as tmp:
         folder = synth(seed, Path(tmp) / "subject", res=res, novel_views=4, novel_poses=0)
         views = read_views(folder)
-        avatar = lift(views, LiftConfig(steps=steps)).avatar
+        avatar = make_spec("unproject", steps=steps).lift(views).avatar
         verts = get_body_model().forward_body(views.body).vertices[0].numpy()
         for split, vs in (("input views", views), ("novel views", read_views(folder / "novel_views", require_body=False))):
             rgba, gt = render_split(avatar, vs)
@@ -209,11 +221,11 @@ def speed(
     suite: str = typer.Option("startup,splat,body,lift,animate,usd,render", "--suite", help="Suites to run, comma-separated: startup, splat, body, lift, animate, usd, render."),
     quick: bool = typer.Option(False, "--quick", help="Tiny sizes of every suite (a smoke run, seconds)."),
     repeats: Optional[int] = typer.Option(None, "--repeats", min=1, max=1000, help="Timed calls per case (default 5; --quick 2)."),
-    gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=4_194_304, help="Gaussians of the body, animate and render suites (default 131,072)."),
+    gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=MAX_GAUSSIANS, help=f"Gaussians of the body, animate and render suites (default {DEFAULT_GAUSSIANS:,})."),
     res: Optional[int] = typer.Option(None, "--res", min=32, max=4096, help="Image size of the lift subject and the render suite (default 512)."),
     frames: Optional[int] = typer.Option(None, "--frames", min=1, max=10_000, help="Frames of the animate, usd and render suites (default 30)."),
     lift_steps: Optional[str] = typer.Option(None, "--lift-steps", help="lift: refinement steps to time, comma-separated (default 0,50)."),
-    splat_cases: Optional[str] = typer.Option(None, "--splat-cases", metavar="N:RES,...", help="splat: Gaussian counts and image sizes, e.g. 20000:256,131072:512 (default: 2048:128 and 20k/65k/131k at 256 and 512)."),
+    splat_cases: Optional[str] = typer.Option(None, "--splat-cases", metavar="N:RES,...", help=f"splat: Gaussian counts and image sizes, e.g. 20000:256,{DEFAULT_GAUSSIANS}:512 (default: 2048:128 and 20k/65k/131k at 256 and 512)."),
     no_torch: bool = typer.Option(False, "--no-torch", help="splat: skip the slow pure-torch and dense paths."),
     baseline: Optional[Path] = typer.Option(None, "--baseline", help="splat: also time another copy of the package (a src folder holding dlacli), alternated with this one; the report shows baseline / current."),
     cold: bool = typer.Option(False, "--cold", help="splat: also time a first call with an empty numba cache (the JIT compile)."),
@@ -226,7 +238,7 @@ def speed(
     USD write throughput, animation frames per second, CLI start-up. Medians; never a test."""
     from dataclasses import replace
 
-    from dlacli.bench.results import speed_markdown
+    from dlacli.bench.report import speed_markdown
     from dlacli.bench.speed import SUITES, SpeedConfig, quick_config, run
     from dlacli.errors import DlaInputError
 
@@ -253,9 +265,9 @@ def speed(
 @bench_app.command("stability")
 def stability(
     seeds: str = typer.Option("1001", "--seeds", help="Synthetic subjects (use seeds no test uses)."),
-    methods: str = typer.Option("unproject,refine", "--methods", help="Methods to compare (dlacli.bench.stability.METHODS): unproject, refine, and learned with --checkpoint."),
-    steps: Optional[int] = typer.Option(None, "--steps", min=1, max=100_000, help="Refinement steps of the 'refine' method (default 50)."),
-    checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="A dla train checkpoint: adds the method 'learned' (U-Net + encoder + GPD, no refinement)."),
+    methods: str = typer.Option("unproject,unproject:steps=50", "--methods", help="Methods to compare, comma-separated: " + _SPECS + "."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, max=100_000, help=f"Refinement steps of the older spelling 'refine' (default {LIFT_STEPS}); write unproject:steps=N instead."),
+    checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="A dla train checkpoint for the methods named 'learned' without checkpoint=."),
     perturbations: Optional[str] = typer.Option(None, "--perturbations", help="Comma-separated subset (default all): pose_noise, shape_noise, colour_shift, misregister_px, misregister_deg, fewer_views, extreme_pose, self_contact, small_in_frame, large_in_frame."),
     levels: Optional[int] = typer.Option(None, "--levels", min=2, max=100, help="At most this many levels per perturbation, the clean one and the worst included (default all)."),
     res: int = typer.Option(256, "--res", min=32, max=4096, help="Image size of the subjects."),
@@ -266,27 +278,27 @@ def stability(
     colour-shifted and misregistered views, fewer views, extreme poses and self-contact, the
     person small or large in frame); masked PSNR on novel views and poses per level, the level
     where it has dropped 2 dB, and every NaN, exception or empty avatar."""
-    from dlacli.bench.results import stability_markdown
-    from dlacli.bench.stability import METHODS, PERTURBATIONS, method_config, register_learned, run
+    from dlacli.bench.report import stability_markdown
+    from dlacli.bench.stability import PERTURBATIONS, run
+    from dlacli.stages.methods import parse_methods
 
-    if checkpoint is not None:
-        register_learned(str(checkpoint))
-    names = _names(methods, "--methods", list(METHODS))
+    fill = {"checkpoint": str(checkpoint)} if checkpoint is not None else None
+    specs = parse_methods(methods, refine_steps=steps or LIFT_STEPS, fill=fill, flags={"checkpoint": "--checkpoint"})
+    specs = list({(s.name, json.dumps(s.options(), sort_keys=True)): s for s in specs}.values())  # each once
     perts = _names(perturbations, "--perturbations", list(PERTURBATIONS)) if perturbations else None
     jsonl = _jsonl(jsonl)
-    configs = {m: method_config(m, {"steps": steps} if steps is not None else None) for m in names}
-    rows = run(_ints(seeds, "--seeds", 2**32 - 1), configs, perts, res=res, levels=levels, log=_stderr)
+    rows = run(_ints(seeds, "--seeds", 2**32 - 1), specs, perts, res=res, levels=levels, log=_stderr)
     _emit(rows, jsonl, as_json, lambda r: "\n".join(stability_markdown(r, intro=False)).rstrip())
 
 
 @bench_app.command("budget")
 def budget(
     seeds: str = typer.Option("1001", "--seeds", help="Synthetic subjects (use seeds no test uses)."),
-    counts: str = typer.Option("4096,8192,16384,32768,65536,131072,262144", "--counts", help="Gaussian counts to compare."),
+    counts: str = typer.Option(",".join(str(2**k) for k in range(12, 19)), "--counts", help="Gaussian counts to compare."),
     uv: str = typer.Option("128,256,512", "--uv", help="UV resolutions of the Gaussian map (lift --resolution) to compare."),
     size: int = typer.Option(512, "--size", min=32, max=4096, help="The target render size: the subjects' views are rendered and scored at it."),
-    method: str = typer.Option("unproject", "--method", help="The method making the avatars (dlacli.bench.stability.METHODS): unproject, refine."),
-    steps: Optional[int] = typer.Option(None, "--steps", min=1, max=100_000, help="Refinement steps of the 'refine' method (default 50)."),
+    method: str = typer.Option("unproject", "--method", help="The method making the avatars (one that takes resolution=): " + _SPECS + "."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, max=100_000, help=f"Refinement steps of the older spelling 'refine' (default {LIFT_STEPS}); write unproject:steps=N instead."),
     usd_frames: int = typer.Option(8, "--usd-frames", min=0, max=1000, help="Frames of the walk written as USD per count (0: no USD sizes)."),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of tables."),
     jsonl: Optional[Path] = typer.Option(None, "--jsonl", help="Also append the runs as dla.bench/1 JSON lines to this file (`dla bench report` reads it)."),
@@ -294,19 +306,20 @@ def budget(
     """The Gaussian budget: masked PSNR against the number of Gaussians and the UV resolution at a
     render size, with render time and USD size per count, and what `--gaussians auto` picks."""
     from dlacli.bench.budget import run
-    from dlacli.bench.results import budget_markdown
-    from dlacli.bench.stability import METHODS, method_config
+    from dlacli.bench.report import budget_markdown
+    from dlacli.stages.methods import parse_method
 
-    (name,) = _names(method, "--method", list(METHODS))
-    ns = _ints(counts, "--counts", 4_194_304)
+    spec = parse_method(method, refine_steps=steps or LIFT_STEPS)
+    uvs = _ints(uv, "--uv", 2048)
+    spec.with_options("--method", resolution=uvs[0])  # one that takes the UV resolution
+    ns = _ints(counts, "--counts", MAX_GAUSSIANS)
     if min(ns) < 2:
         from dlacli.errors import DlaInputError
 
         raise DlaInputError("--counts", "every count must be at least 2")
     jsonl = _jsonl(jsonl)
-    cfg = method_config(name, {"steps": steps} if steps is not None else None)
-    rows = run(_ints(seeds, "--seeds", 2**32 - 1), ns, _ints(uv, "--uv", 2048), render_size=size, method=name,
-               config=cfg, usd_frames=usd_frames, log=_stderr)  # fmt: skip
+    rows = run(_ints(seeds, "--seeds", 2**32 - 1), ns, uvs, render_size=size, method=spec, usd_frames=usd_frames,
+               log=_stderr)  # fmt: skip
     _emit(rows, jsonl, as_json, lambda r: "\n".join(budget_markdown(r, intro=False)).rstrip())
 
 
@@ -318,8 +331,9 @@ def report(
     """Regenerate the benchmark page (tables per split, the Pareto frontier, the time-vs-accuracy
     chart; the stability curves, the Gaussian budget and the speed tables when the rows hold
     them) from result rows, so the page never drifts from the numbers."""
-    from dlacli.bench.results import (draw_budget_chart, draw_chart, draw_stability_chart, kind, read_rows,
-                                      report_markdown)  # fmt: skip
+    from dlacli.bench.charts import draw_budget_chart, draw_chart, draw_stability_chart
+    from dlacli.bench.report import report_markdown
+    from dlacli.bench.rows import kind, read_rows
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_path, check_outputs, output_group
 

@@ -10,18 +10,31 @@ import typer
 
 from dlacli.cli.options import gaussian_count
 from dlacli.limits import DEFAULT_GAUSSIANS, LIFT_RESOLUTION, LIFT_STEPS
+from dlacli.stages.methods import METHODS
 
 # `dlacli.stages.lift.LiftConfig`'s defaults, from the torch-free limits module (loading the CLI for
 # `dla --version` or `dla info` does not import the stage and torch).
 _DEFAULTS = SimpleNamespace(steps=LIFT_STEPS, resolution=LIFT_RESOLUTION, gaussians=DEFAULT_GAUSSIANS)
+# the options that set a field of the method's config, by field name
+_FIELDS = {
+    "steps": "--steps",
+    "checkpoint": "--checkpoint",
+    "resolution": "--resolution",
+    "gaussians": "--gaussians",
+    "seed": "--seed",
+    "view_colour": "--view-colour",
+}
+_KNOWN = "; ".join(f"'{m.name}' ({m.about})" for m in METHODS.values())
+_METHOD_HELP = f"The lift method, NAME[:KEY=VALUE,...] (dlacli.stages.methods): {_KNOWN}. Options below set its keys."
 
 
 def lift(
+    ctx: typer.Context,
     views: Path = typer.Argument(..., metavar="VIEWS", help="View folder: transforms.json, images, body.json."),
     output: Path = typer.Option(..., "--output", "-o", help="avatar.npz to write; a contact sheet PNG is written beside it."),
     ply: Optional[Path] = typer.Option(None, "--ply", help="Also write the unstructured pose-space Gaussians as a 3DGS .ply."),
     steps: Optional[int] = typer.Option(None, "--steps", min=0, max=100_000, help=f"Refinement steps against the input views (unproject: default {_DEFAULTS.steps}, 0 = mesh unprojection only; learned: default 0, N refines Z through the frozen decoder); more is slower and closer."),
-    method: str = typer.Option("unproject", "--method", help="Encoder into the latent Z: 'unproject' (mesh unprojection, no weights) or 'learned' (U-Net + cross-attention encoder + GPD from --checkpoint)."),
+    method: str = typer.Option("unproject", "--method", help=_METHOD_HELP),
     checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="With --method learned: the network checkpoint folder (`dla train`'s RUN/ckpt-N/generator) or its hash in the checkpoints cache."),
     resolution: int = typer.Option(_DEFAULTS.resolution, "--resolution", min=16, max=2048, help="UV resolution of the Gaussian map Z."),
     gaussians: str = typer.Option(str(_DEFAULTS.gaussians), "--gaussians", callback=gaussian_count, metavar="N|auto", help="Gaussians sampled from Z while refining; 'auto': refine with 131,072, then record the fewest (4,096 ... 262,144) whose re-renders of the input views score within 0.2 dB masked PSNR of the best (docs/benchmarks.md, 'The Gaussian budget')."),
@@ -43,18 +56,14 @@ def lift(
     from dlacli.io.avatar import write_avatar
     from dlacli.io.ply import write_ply
     from dlacli.io.views import read_transforms, read_views, view_files
-    from dlacli.avatar.codec import check_encoder
-    from dlacli.stages.lift import MAX_VIEWS, LiftConfig
-    from dlacli.stages.lift import lift as run_lift
+    from dlacli.limits import MAX_VIEWS
 
-    check_encoder(method)
-    learned = method == "learned"
-    if learned and checkpoint is None:
-        raise DlaInputError("--checkpoint", "--method learned needs the network's checkpoint (dla train)")
-    if not learned and checkpoint is not None:
-        raise DlaInputError("--checkpoint", f"--method {method} takes no checkpoint")
-    if steps is None:
-        steps = 0 if learned else _DEFAULTS.steps
+    auto = gaussians == "auto"
+    ckpt = None if checkpoint is None else str(checkpoint)
+    flags = dict(steps=steps, checkpoint=ckpt, resolution=resolution, gaussians=None if auto else gaussians, seed=seed,
+                 view_colour=view_colour)
+    spec = _spec(method, {k: v for k, v in flags.items() if v is not None and _on_command_line(ctx, k)})
+    steps = getattr(spec.config, "steps", 0)  # the progress bar's length: a method without refinement has none
     if output.suffix.lower() != ".npz":
         raise DlaInputError(output, "the avatar is an .npz file")
     if ply is not None and ply.suffix.lower() != ".ply":
@@ -64,25 +73,18 @@ def lift(
     if novel_dir is not None and not (novel_dir / "transforms.json").is_file():
         novel_dir = None
     novel_files = view_files(novel_dir, allow_outside) if novel_dir is not None else []
-    ckpt_files = [checkpoint] if checkpoint is not None and checkpoint.exists() else []
+    ckpt = spec.options().get("checkpoint")  # the network's files are inputs: no output may land on them
+    ckpt_files = [Path(ckpt)] if ckpt and Path(ckpt).exists() else []
     check_outputs(files=[output, sheet, ply], inputs=[views, *view_files(views, allow_outside), *novel_files, *ckpt_files])
     n_views = len(read_transforms(views)["file_paths"])
     if n_views > MAX_VIEWS:
         raise DlaInputError(views, f"has {n_views} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
-    auto = gaussians == "auto"
-    cfg = LiftConfig(steps=steps, resolution=resolution, gaussians=_DEFAULTS.gaussians if auto else gaussians, seed=seed,
-                     view_colour=view_colour)  # fmt: skip
     view_set = read_views(views, allow_outside=allow_outside)
     novel = read_views(novel_dir, require_body=False, allow_outside=allow_outside) if novel_dir is not None else None
     body = views / "body.json" if views.is_dir() else views.with_name("body.json")
     with naming(views=views, pose=body, phenotype=body), progress_bar("refining", steps) as update:
         report = lambda i, loss: update(i + 1, note=f"loss {loss:.4f}")  # noqa: E731
-        if learned:
-            from dlacli.stages.learned import lift_learned
-
-            result = lift_learned(view_set, str(checkpoint), steps=steps, progress=report, novel=novel)
-        else:
-            result = run_lift(view_set, cfg, progress=report, novel=novel)
+        result = spec.lift(view_set, progress=report, novel=novel)
     if auto:
         from dlacli.stages.budget import choose_for_views
 
@@ -105,11 +107,31 @@ def lift(
         with atomic_path(sheet) as tmp:
             Image.fromarray(result.contact_sheet).save(tmp)
         write_avatar(result.avatar, output)
-    if learned:  # animate, render and edit find the decoder by the hash the avatar records
-        from dlacli.avatar.checkpoint import install_checkpoint, resolve_checkpoint
-
-        install_checkpoint(resolve_checkpoint(str(checkpoint)))
+    spec.install()  # e.g. animate, render and edit find a learned avatar's decoder by the hash it records
     typer.echo(str(output))
+
+
+def _on_command_line(ctx: typer.Context, name: str) -> bool:
+    """Whether option `name` was given (not left at its default)."""
+    source = ctx.get_parameter_source(name)
+    return source is not None and source.name not in ("DEFAULT", "DEFAULT_MAP")
+
+
+def _spec(text: str, options: dict):
+    """The method spec `text` with the options given as flags (a key the spec sets otherwise, or
+    one the method does not take, is a one-line error naming the flag), then `dla lift`'s own
+    defaults (`Method.lift_defaults`) where neither says."""
+    from dlacli.errors import DlaInputError
+    from dlacli.stages.methods import parse_method
+
+    spec = parse_method(text, fill=options, flags=_FIELDS)
+    for key, value in options.items():
+        if not hasattr(spec.config, key):
+            raise DlaInputError(_FIELDS[key], f"--method {spec.name} takes no {key}")
+        if getattr(spec.config, key) != value:
+            raise DlaInputError(_FIELDS[key], f"--method {text[:80]} already sets {key}")
+    defaults = {k: v for k, v in spec.method.lift_defaults.items() if k not in spec.given}
+    return spec.with_options("--method", **defaults) if defaults else spec
 
 
 def register(app: typer.Typer) -> None:
