@@ -37,15 +37,6 @@ def _posed(subject_dir):
     return views, m.forward_body(views.body).vertices[0].float(), m.rest_vertices(views.body.phenotype)
 
 
-def test_gaussian_map_channels_agree_with_the_gpd():
-    from dlacli.nn import gpd
-    from dlacli.avatar import gaussian_map as gm
-
-    assert gpd.CHANNELS == gm.CHANNELS
-    for name in ("OPACITY", "RGB", "OFFSET", "ROTATION", "LOG_SCALE"):
-        assert getattr(gpd, name) == getattr(gm, name), name
-
-
 def test_presets_agree_and_variants_switch_the_ablations():
     from dlacli.nn.learned import LearnedAvatarNet, learned_config
 
