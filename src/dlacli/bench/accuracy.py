@@ -163,8 +163,8 @@ def run(seeds: list[int], methods: list[MethodSpec], res: int = 512, appearance:
         log: Callable[[str], None] = print) -> list[dict]:  # fmt: skip
     """dla.bench/1 rows: one per seed, method and split."""
     from dlacli.bench.results import make_row
+    from dlacli.data.synth import synth
     from dlacli.io.avatar import read_avatar
-    from dlacli.stages.synth import synth
 
     from dlacli.avatar.checkpoint import install_checkpoint, resolve_checkpoint
 

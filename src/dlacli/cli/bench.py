@@ -141,7 +141,8 @@ def accuracy(
     and novel view & pose. LPIPS is absent: it needs AlexNet weights dla does not ship."""
     from dlacli.bench.accuracy import parse_methods, run
     from dlacli.bench.results import report_markdown
-    from dlacli.stages.synth import APPEARANCES, WARDROBES
+    from dlacli.data.appearance import APPEARANCES
+    from dlacli.data.subject import WARDROBES
 
     specs = parse_methods(methods)
     _names(appearance, "--appearance", APPEARANCES)
@@ -173,11 +174,11 @@ def regions(
     from dlacli.bench.pipeline import render_split
     from dlacli.bench.regions import REGIONS, error_picture, pixel_regions, region_psnr
     from dlacli.body.model import get_body_model
+    from dlacli.data.synth import synth
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_path, check_outputs
     from dlacli.io.views import read_views
     from dlacli.stages.lift import LiftConfig, lift
-    from dlacli.stages.synth import synth
 
     if output is not None and output.suffix.lower() != ".png":
         raise DlaInputError(output, "the error picture is a .png file")

@@ -58,9 +58,9 @@ def synth(
     if jobs != 1:
         raise DlaInputError("--jobs", "is for dataset mode (--seeds)")
     from dlacli.cli.progress import status
+    from dlacli.data.synth import SUBJECT_LAYOUT
+    from dlacli.data.synth import synth as run
     from dlacli.io.atomic import check_outputs
-    from dlacli.stages.synth import SUBJECT_LAYOUT
-    from dlacli.stages.synth import synth as run
 
     check_outputs(folders=[(output, SUBJECT_LAYOUT)])
     kwargs = dict(res=512 if res is None else res, novel_views=12 if novel_views is None else novel_views,
@@ -72,7 +72,7 @@ def synth(
 
 
 def _dataset(seeds, output, res, novel_views, novel_poses, appearance, wardrobe, motions, jobs) -> None:
-    from dlacli.stages.synth_dataset import DatasetSettings, motion_files, synth_dataset
+    from dlacli.data.dataset import DatasetSettings, motion_files, synth_dataset
 
     settings = DatasetSettings(res=256 if res is None else res, novel_views=8 if novel_views is None else novel_views,
                                novel_poses=novel_poses, appearance=appearance or "lit", wardrobe=wardrobe or "full",
