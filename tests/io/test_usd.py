@@ -487,21 +487,6 @@ def test_keep_frames_keeps_every_corner_of_a_piecewise_linear_path():
     assert kept.tolist() == corners
 
 
-def test_rigid_motion_recovers_a_known_motion():
-    from dlacli.io.usd_compact import rigid_motion
-
-    rng = np.random.default_rng(5)
-    shape = rng.normal(size=(50, 3))
-    rots = Rotation.random(6, random_state=6)
-    shift = rng.normal(size=(6, 3))
-    rots = Rotation.concatenate([Rotation.identity(), rots])
-    shift = np.vstack([np.zeros(3), shift])
-    frames = np.stack([rots[t].apply(shape) + shift[t] for t in range(7)])  # [T, n, 3]
-    r, c = rigid_motion(frames)
-    np.testing.assert_allclose(r, rots.as_matrix() @ rots[0].as_matrix().T, atol=1e-9)
-    np.testing.assert_allclose(c, frames.mean(axis=1), atol=1e-12)
-
-
 def analytic_motion(t=40, per_group=2048, jump=23):
     """Three groups of Gaussians [T, 3 * per_group]: (a) a ring spinning about +Z at a smoothly
     varying rate (rigid), its Gaussians turning with it; (b) a sheet swaying on sine waves of

@@ -16,7 +16,7 @@ the tolerance are left out. `read_usd` reads every layout back, including files 
 the points schema existed.
 
 Quaternions are (w, x, y, z) everywhere in dla; `Vt.Quat*Array.FromNumpy` and `numpy.asarray` on
-those arrays use (x, y, z, w). Only `_wxyz_to_xyzw` / `_xyzw_to_wxyz` below reorder.
+those arrays use (x, y, z, w). Only `dlacli.geometry.quat_wxyz_to_xyzw` / `quat_xyzw_to_wxyz` reorder.
 """
 
 from __future__ import annotations
@@ -75,39 +75,6 @@ class UsdAnimation:
 # numpy helpers (functional core)
 
 
-def _wxyz_to_xyzw(q: np.ndarray) -> np.ndarray:
-    """[..., 4] (w, x, y, z) -> [..., 4] (x, y, z, w)."""
-    return np.concatenate([q[..., 1:], q[..., :1]], axis=-1)
-
-
-def _xyzw_to_wxyz(q: np.ndarray) -> np.ndarray:
-    """[..., 4] (x, y, z, w) -> [..., 4] (w, x, y, z)."""
-    return np.concatenate([q[..., 3:], q[..., :3]], axis=-1)
-
-
-def _normalized(q: np.ndarray) -> np.ndarray:
-    """[..., 4] -> [..., 4] unit length (zero rows stay zero)."""
-    norm = np.sqrt(np.einsum("...i,...i->...", q, q))[..., None]
-    return q / np.maximum(norm, np.finfo(q.dtype).tiny)
-
-
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """[..., 4] unit (w, x, y, z) -> [..., 3, 3] rotation matrices."""
-    return np.stack([np.stack(row, -1) for row in _rotation_rows(q)], -2)
-
-
-def _rotation_rows(q: np.ndarray) -> list[list[np.ndarray]]:
-    """[..., 4] unit (w, x, y, z) -> R[i][j] as 9 arrays [...] (elementwise, no [..., 3, 3] temporaries)."""
-    w, x, y, z = (q[..., k] for k in range(4))
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
-    return [
-        [1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)],
-        [2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)],
-        [2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)],
-    ]
-
-
 def instance_extent(
     positions: np.ndarray,  # [..., N, 3]
     quats: np.ndarray,  # [..., N, 4] (w, x, y, z), unit (used as given)
@@ -120,7 +87,9 @@ def instance_extent(
     instance of a prototype whose extent is that cube): half size along axis i = sum_j |R_ij| s_j.
     shape "ellipsoid": the unit sphere, tight: half size along axis i = sqrt(sum_j (R_ij s_j)^2).
     """
-    rows = _rotation_rows(quats)
+    from dlacli.geometry import quat_rotation_rows
+
+    rows = quat_rotation_rows(quats)
     s = [scales[..., j] for j in range(3)]
     if shape == "box":
         half = [sum(np.abs(rows[i][j]) * s[j] for j in range(3)) for i in range(3)]
@@ -199,9 +168,11 @@ def write_usd(
         sh = _to_numpy("sh", sh, [(n, None, 3)])
         if sh.shape[1] not in (1, 4, 9, 16):
             raise DlaInputError("sh", f"{sh.shape[1]} coefficients per channel is not (d+1)^2, d = 0..3")
+    from dlacli.geometry import quat_normalize
+
     if np.any(np.all(quats == 0, axis=-1)):
         raise DlaInputError("quats", "contains a zero quaternion")
-    quats = _normalized(quats)
+    quats = quat_normalize(quats, float(np.finfo(quats.dtype).tiny))
     if np.any(scales < 0):
         raise DlaInputError("scales", "contains negative values")
     scales = np.broadcast_to(scales, (t, n, 3))  # [T, N, 3]
@@ -323,6 +294,8 @@ def _write_group(stage, kind: str, parts, colours, times) -> None:
 def _define_instancer(stage, path: str, part, times):
     from pxr import Gf, UsdGeom, Vt
 
+    from dlacli.geometry import quat_wxyz_to_xyzw
+
     inst = UsdGeom.PointInstancer.Define(stage, path)
     UsdGeom.Scope.Define(stage, f"{path}/{PROTOTYPE.split('/')[0]}")
     sphere = UsdGeom.Sphere.Define(stage, f"{path}/{PROTOTYPE}")
@@ -331,7 +304,7 @@ def _define_instancer(stage, path: str, part, times):
     inst.CreatePrototypesRel().SetTargets([sphere.GetPath()])
     inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.zeros(len(part.indices), dtype=np.int32)))
     _set_track(inst.CreatePositionsAttr(), part.positions, Vt.Vec3fArray, times)
-    _set_track(inst.CreateOrientationsAttr(), part.quats, Vt.QuathArray, times, lambda q: _wxyz_to_xyzw(q).astype(np.float16))
+    _set_track(inst.CreateOrientationsAttr(), part.quats, Vt.QuathArray, times, lambda q: quat_wxyz_to_xyzw(q).astype(np.float16))
     _set_track(inst.CreateScalesAttr(), part.sizes, Vt.Vec3fArray, times)
     return inst
 
@@ -378,6 +351,8 @@ def _write_extents(geom, kind: str, times) -> None:
     computes (the quaternions as stored, unnormalised); points: the points +- width / 2."""
     from pxr import Vt
 
+    from dlacli.geometry import quat_xyzw_to_wxyz
+
     prim = geom.GetPrim()
     names = ("positions", "orientations", "scales") if kind == "instancer" else ("points", "widths")
     attrs = [prim.GetAttribute(name) for name in names]
@@ -388,7 +363,7 @@ def _write_extents(geom, kind: str, times) -> None:
         if values[0].size == 0:
             return
         if kind == "instancer":
-            box = instance_extent(values[0], _xyzw_to_wxyz(values[1]), values[2])
+            box = instance_extent(values[0], quat_xyzw_to_wxyz(values[1]), values[2])
         else:
             half = values[1][:, None] / 2
             box = np.stack([(values[0] - half).min(axis=0), (values[0] + half).max(axis=0)])
@@ -401,9 +376,11 @@ def _write_extents(geom, kind: str, times) -> None:
 def _write_splats(stage, splat_cls, part, opacities, rgb, sh, times):
     from pxr import Vt
 
+    from dlacli.geometry import quat_normalize, quat_wxyz_to_xyzw, quat_xyzw_to_wxyz
+
     splats = splat_cls.Define(stage, SPLATS)
     _set_track(splats.CreatePositionsAttr(), part.positions, Vt.Vec3fArray, times)
-    _set_track(splats.CreateOrientationsAttr(), part.quats, Vt.QuatfArray, times, lambda q: _wxyz_to_xyzw(q).astype(np.float32))
+    _set_track(splats.CreateOrientationsAttr(), part.quats, Vt.QuatfArray, times, lambda q: quat_wxyz_to_xyzw(q).astype(np.float32))
     _set_track(splats.CreateScalesAttr(), part.sizes, Vt.Vec3fArray, times)
     # extent at each frame of the geometry, from the values pxr returns there
     attrs = [splats.GetPrim().GetAttribute(a) for a in ("positions", "orientations", "scales")]
@@ -413,7 +390,8 @@ def _write_splats(stage, splat_cls, part, opacities, rgb, sh, times):
         pos, rot, scl = (np.asarray(a.Get(time), dtype=np.float32) for a in attrs)
         if pos.size == 0:
             break
-        box = instance_extent(pos, _normalized(_xyzw_to_wxyz(rot)), PARTICLE_FIELD_EXTENT_SIGMAS * scl, "ellipsoid")
+        unit = quat_normalize(quat_xyzw_to_wxyz(rot), float(np.finfo(rot.dtype).tiny))
+        box = instance_extent(pos, unit, PARTICLE_FIELD_EXTENT_SIGMAS * scl, "ellipsoid")
         extent.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(box)), *([time] if sampled else []))
     _set_maybe_timed(splats.CreateOpacitiesAttr(), opacities, Vt.FloatArray, times, timed=opacities.ndim == 2)
     if sh is None:
@@ -556,7 +534,7 @@ def _read_parts(path: Path, prims, times) -> dict[str, np.ndarray]:
     parts, each composed with its prim's local-to-world transform at that time."""
     from pxr import Usd, UsdGeom
 
-    from dlacli.geometry import matrix_to_quat, quat_multiply
+    from dlacli.geometry import matrix_to_quat, quat_multiply, quat_normalize, quat_xyzw_to_wxyz
 
     points = prims[0].GetTypeName() == "Points"
     tcs = [Usd.TimeCode(s) for s in times] or [Usd.TimeCode.Default()]
@@ -596,12 +574,13 @@ def _read_parts(path: Path, prims, times) -> dict[str, np.ndarray]:
             widths = frames("widths", 1) if prim.GetAttribute("widths").HasValue() else np.full((t, len(idx), 1), 2.0)
             scale[:, idx] = widths / 2
             continue
-        q = _normalized(_xyzw_to_wxyz(frames("orientations", 4)))  # [T, n, 4] in the prim's frame
+        q = frames("orientations", 4)
+        q = quat_normalize(quat_xyzw_to_wxyz(q), float(np.finfo(q.dtype).tiny))  # [T, n, 4] in the prim's frame
         if not np.allclose(m[:, :3, :3], np.eye(3)):
             r = np.swapaxes(m[:, :3, :3], 1, 2)  # column-vector rotation of each frame
             r = r / np.linalg.norm(r, axis=1, keepdims=True)
             q = quat_multiply(np.broadcast_to(matrix_to_quat(r)[:, None], q.shape), q.astype(np.float64))
-        quat[:, idx] = _normalized(np.asarray(q, np.float32))
+        quat[:, idx] = quat_normalize(np.asarray(q, np.float32), float(np.finfo(np.float32).tiny))
         scale[:, idx] = frames("scales", 3) if prim.GetAttribute("scales").HasValue() else 1.0
     return {"positions": pos, "quats": quat, "scales": scale, "indices": indices}
 

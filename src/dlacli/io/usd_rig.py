@@ -114,7 +114,7 @@ def write_rig_usd(path: str | os.PathLike, asset: RigAsset) -> Path:
     from PIL import Image
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
 
-    from dlacli.geometry import matrix_to_quat
+    from dlacli.geometry import matrix_to_quat, quat_wxyz_to_xyzw
     from dlacli.io.atomic import atomic_path, output_group
 
     path = Path(path)
@@ -203,7 +203,7 @@ def write_rig_usd(path: str | os.PathLike, asset: RigAsset) -> Path:
         anim.CreateJointsAttr(tokens)
         tr_attr, rot_attr = anim.CreateTranslationsAttr(), anim.CreateRotationsAttr()
         anim.CreateScalesAttr().Set(Vt.Vec3hArray.FromNumpy(np.ones((len(paths), 3), np.float16)))
-        xyzw = np.ascontiguousarray(np.concatenate([quats[..., 1:], quats[..., :1]], axis=-1), np.float32)
+        xyzw = np.ascontiguousarray(quat_wxyz_to_xyzw(quats), np.float32)
         for i in range(t):
             time = Usd.TimeCode(float(i))
             tr_attr.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(local[i, :, :3, 3], np.float32)), time)
