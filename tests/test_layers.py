@@ -65,7 +65,7 @@ HEAVY = {
     "anny": {"dlacli.body.model"},
     "warp": {"dlacli.body.model"},
     "gsplat": {"dlacli.render.splat"},
-    "pxr": {"dlacli.io.usd", "dlacli.io.usd_rig"},  # the animation and the rigged asset
+    "pxr": {"dlacli.io.usd", "dlacli.io.usd_read", "dlacli.io.usd_rig"},  # the animation (write, read) and the rigged asset
     "diffusers": {"dlacli.nn.video_diffusion"},
     "mediapipe": {"dlacli.io.detect"},
     "bpy": set(),

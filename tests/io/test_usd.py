@@ -14,7 +14,8 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 from scipy.spatial.transform import Rotation
 
 from dlacli.errors import DlaInputError
-from dlacli.io.usd import read_usd, summarize_usd, validate_usd, write_usd
+from dlacli.io.usd import write_usd
+from dlacli.io.usd_read import read_usd, summarize_usd, validate_usd
 
 SH_C0 = 0.28209479177387814
 # Rotation tolerances (radians) of stored quaternions. Rounding a unit quaternion's components to
