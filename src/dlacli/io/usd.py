@@ -24,7 +24,10 @@ those arrays use (x, y, z, w). Only `dlacli.geometry.quat_wxyz_to_xyzw` / `quat_
 
 from __future__ import annotations
 
+import contextlib
 import os
+import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +51,96 @@ PARTICLE_FIELD_EXTENT_SIGMAS = 3.0  # the splats' extent covers 3 standard devia
 MAX_TOLERANCE = 1.0  # metres; compaction tolerances above this are refused
 PRIM_TYPES = {"instancer": "PointInstancer", "points": "Points", "particlefield": "ParticleField3DGaussianSplat"}
 PATHS = {"instancer": INSTANCER, "points": POINTS, "particlefield": SPLATS}
+MAX_QUOTE = 60  # characters of a file's content an error line quotes (escaped, then cut)
+
+
+# --------------------------------------------------------------------------------------------
+# pxr's diagnostics: warnings off the terminal, errors as one line
+
+
+@contextlib.contextmanager
+def pxr_quiet():
+    """pxr's own warnings and status lines (e.g. `Warning: in _HelperGetNumericValueFromString ...`
+    for an out-of-range integer literal) stay off the terminal, on runs that fail and on runs that
+    succeed: what matters reaches the user as dla's one-line errors. pxr's errors still raise.
+    Also a decorator (`@pxr_quiet()`)."""
+    from pxr import Tf
+
+    trap_type = getattr(Tf, "DiagnosticTrap", None)
+    if trap_type is None:  # a usd-core without Tf.DiagnosticTrap prints them on file descriptor 2
+        with _stderr_silenced():
+            yield
+        return
+    with trap_type() as trap:
+        try:
+            yield
+        finally:
+            trap.Clear()  # dismissed, not reposted when the trap closes
+
+
+@contextlib.contextmanager
+def _stderr_silenced():
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def excerpt(value, limit: int = MAX_QUOTE) -> str:
+    """`value` as an error line quotes it: a str in quotes, anything else as its repr, characters
+    that are not printable escaped (`\\n`, `\\x1b`), cut after `limit` characters with the full
+    length noted: "'99999...' (20,000 characters)"."""
+    if isinstance(value, str):
+        return clipped(value, limit, quoted=True)
+    return clipped(repr(value), limit)
+
+
+def clipped(text: str, limit: int = 2 * MAX_QUOTE, quoted: bool = False) -> str:
+    """`text` (a name from a file, a library's message) escaped and cut as `excerpt` does, in
+    quotes or not."""
+    shown, size = [], 0
+    for ch in text:
+        esc = ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii")
+        if quoted and ch in "'\\":
+            esc = "\\" + ch
+        if size + len(esc) > limit:
+            cut = "".join(shown) + "..."
+            return (f"'{cut}'" if quoted else cut) + f" ({len(text):,} characters)"
+        shown.append(esc)
+        size += len(esc)
+    return f"'{''.join(shown)}'" if quoted else "".join(shown)
+
+
+def tf_message(err: BaseException) -> str:
+    """The human part of a pxr error ("Error in 'Func' at line N in file F : 'message'"), one line,
+    escaped; what it quotes from a file (a 20 KB literal, a long prim name) cut to excerpts."""
+    text = " ".join(str(err).split())
+    found = [m.strip() for m in re.findall(r" : '(.*?)'(?= Error in |$)", text)] or [text]
+    found = [m for m in dict.fromkeys(found) if not any(m != other and m in other for other in found)]
+    message = "; ".join(found)  # each message once, the longest form (pxr repeats some with a line number)
+    message = re.sub(rf"'([^']{{{MAX_QUOTE + 1},}})'", lambda m: excerpt(m.group(1)), message)
+    message = re.sub(rf"[^\s']{{{2 * MAX_QUOTE + 1},}}", lambda m: clipped(m.group(0), MAX_QUOTE), message)
+    return clipped(message, 5 * MAX_QUOTE)
+
+
+def export_layer(layer, tmp: Path, path: Path, fmt: str) -> None:
+    """Export a layer to `tmp`, the temporary file of `path`'s atomic write. pxr's failures to write
+    (the disk full, the file-size limit) are DlaInputError `path: cannot write (...)`."""
+    try:
+        with pxr_quiet():
+            written = layer.Export(str(tmp), "", {"format": fmt})
+    except Exception as err:  # pxr.Tf.ErrorException
+        reason = re.search(r"writing file: (.*?)'", str(err))  # pxr quotes the OS error
+        problem = clipped(reason.group(1), MAX_QUOTE) if reason else tf_message(err)
+        raise DlaInputError(path, f"cannot write ({problem})") from None
+    if not written:
+        raise DlaInputError(path, "cannot write (pxr's export failed)")
 
 
 # --------------------------------------------------------------------------------------------
@@ -105,6 +198,7 @@ def point_widths(scales: np.ndarray) -> np.ndarray:
 # writing
 
 
+@pxr_quiet()
 def write_usd(
     path: str | os.PathLike,
     positions,  # [T, N, 3] metres
@@ -197,8 +291,7 @@ def write_usd(
 
     fmt = "usda" if path.suffix.lower() == ".usda" else "usdc"
     with atomic_path(path) as tmp:
-        if not root.Export(str(tmp), "", {"format": fmt}):
-            raise OSError(f"{path}: USD export failed")
+        export_layer(root, tmp, path, fmt)
 
 
 def _parts(positions, quats, sizes, scales, tolerance, quat_dtype, rigid: bool):

@@ -8,7 +8,6 @@ file; `validate_usd` runs pxr's validators. Text layers are checked before pxr p
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,7 +15,21 @@ from typing import Any
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.io.usd import FORMAT, FORMAT_KEY, INDICES, INSTANCER, PATHS, POINTS, PRIM_TYPES, SPLATS, SUFFIXES
+from dlacli.io.usd import (
+    FORMAT,
+    FORMAT_KEY,
+    INDICES,
+    INSTANCER,
+    PATHS,
+    POINTS,
+    PRIM_TYPES,
+    SPLATS,
+    SUFFIXES,
+    clipped,
+    excerpt,
+    pxr_quiet,
+    tf_message,
+)
 from dlacli.types import SH_C0
 
 
@@ -54,17 +67,10 @@ def _open_stage(path: Path):
     try:
         stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Exception as err:  # pxr.Tf.ErrorException and friends
-        raise DlaInputError(path, f"not a readable USD file ({_tf_message(err)})") from None
+        raise DlaInputError(path, f"not a readable USD file ({tf_message(err)})") from None
     if stage is None:
         raise DlaInputError(path, "not a readable USD file")
     return stage
-
-
-def _tf_message(err: BaseException) -> str:
-    """The human part of a pxr error ("Error in 'Func' at line N in file F : 'message'"), one line."""
-    text = " ".join(str(err).split())
-    found = re.findall(r" : '(.*?)'(?= Error in |$)", text)
-    return "; ".join(found) if found else text[:300]
 
 
 MAX_USDA_DEPTH = 256  # USD's text parser recurses per nesting level and crashes (SIGSEGV) far below 10^5
@@ -154,7 +160,8 @@ def _part_indices(path: Path, prims, n_of) -> list[np.ndarray]:
     for prim in prims:
         value = _array(prim.GetAttribute(INDICES), None, np.int64)
         if value is None or value.size != n_of(prim):
-            raise DlaInputError(path, f"{prim.GetPath()}.{INDICES} is missing or does not match its points")
+            where = clipped(str(prim.GetPath()))
+            raise DlaInputError(path, f"{where}.{INDICES} is missing or does not match its points")
         out.append(value)
     allidx = np.concatenate(out)
     if not np.array_equal(np.sort(allidx), np.arange(allidx.size)):
@@ -193,9 +200,10 @@ def _read_parts(path: Path, prims, times) -> dict[str, np.ndarray]:
             for time in tcs:
                 arr = _array(attr, time)
                 if arr is None:
-                    raise DlaInputError(path, f"{prim.GetPath()}.{name} has no value")
+                    raise DlaInputError(path, f"{clipped(str(prim.GetPath()))}.{name} has no value")
                 if arr.size != width * len(idx):
-                    raise DlaInputError(path, f"{prim.GetPath()}.{name} has {arr.size // width} entries for {len(idx)} points")
+                    where = clipped(str(prim.GetPath()))
+                    raise DlaInputError(path, f"{where}.{name} has {arr.size // width} entries for {len(idx)} points")
                 out.append(arr.reshape(-1, width))
             return np.stack(out)
 
@@ -232,11 +240,12 @@ def _primvar_frames(path: Path, prims, indices, name: str, width: int, times, n:
         for k, time in enumerate(tcs):
             arr = _array(attr, time)
             if arr is None or arr.size != width * len(idx):
-                raise DlaInputError(path, f"{attr.GetPath()} has missing or uneven values")
+                raise DlaInputError(path, f"{clipped(str(attr.GetPath()))} has missing or uneven values")
             out[k, idx] = arr.reshape(-1, width)
     return out if timed else out[0]
 
 
+@pxr_quiet()
 def read_usd(path: str | os.PathLike) -> UsdAnimation:
     """Read a dla USD file back (any schema and layout), one frame per time code of the stage's
     range, at which pxr interpolates between the samples a compact file kept. Geometry comes from
@@ -247,7 +256,7 @@ def read_usd(path: str | os.PathLike) -> UsdAnimation:
     stage = _open_stage(path)
     fmt = stage.GetRootLayer().customLayerData.get(FORMAT_KEY)
     if fmt != FORMAT:
-        raise DlaInputError(path, f"customLayerData {FORMAT_KEY!r} is {fmt!r}, expected {FORMAT!r}")
+        raise DlaInputError(path, f"customLayerData {FORMAT_KEY!r} is {excerpt(fmt)}, expected {FORMAT!r}")
     found, schema = _schema_prims(stage)
     if schema is None:
         raise DlaInputError(path, f"no Gaussians: none of {POINTS}, {INSTANCER}, {SPLATS} (nor parts under them)")
@@ -293,6 +302,7 @@ def read_usd(path: str | os.PathLike) -> UsdAnimation:
     )
 
 
+@pxr_quiet()
 def summarize_usd(path: str | os.PathLike) -> dict[str, Any]:
     """JSON-able summary of any USD file (used by `dla info`); dla files also say their format."""
     from pxr import UsdGeom
@@ -333,6 +343,7 @@ def summarize_usd(path: str | os.PathLike) -> dict[str, Any]:
     }
 
 
+@pxr_quiet()
 def validate_usd(path: str | os.PathLike) -> list[str]:
     """Run every registered `pxr.UsdValidation` validator; the messages of all errors (not warnings)."""
     from pxr import UsdValidation

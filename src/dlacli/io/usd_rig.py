@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.io.usd import AVATAR, FORMAT_KEY, SUFFIXES  # one USD stage convention for both writers
+from dlacli.io.usd import AVATAR, FORMAT_KEY, SUFFIXES, export_layer, pxr_quiet  # one USD convention for both writers
 from dlacli.types import srgb_to_linear
 
 FORMAT = "dla.usd-rig/1"
@@ -108,6 +108,7 @@ def _check(asset: RigAsset) -> None:
         assert asset.fps is not None and asset.fps > 0, asset.fps
 
 
+@pxr_quiet()
 def write_rig_usd(path: str | os.PathLike, asset: RigAsset) -> Path:
     """Write the UsdSkel asset (binary for .usdc/.usd, text for .usda) and its texture PNG beside
     it, both atomically and together (one output group). Returns the texture's path."""
@@ -215,6 +216,5 @@ def write_rig_usd(path: str | os.PathLike, asset: RigAsset) -> Path:
         with atomic_path(tex_path) as tmp:
             Image.fromarray(asset.texture, "RGB").save(tmp, format="PNG", optimize=True)
         with atomic_path(path) as tmp:
-            if not stage.GetRootLayer().Export(str(tmp), "", {"format": fmt}):
-                raise OSError(f"{path}: USD export failed")
+            export_layer(stage.GetRootLayer(), tmp, path, fmt)
     return tex_path
