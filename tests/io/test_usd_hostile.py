@@ -83,7 +83,8 @@ def test_writes_over_the_file_size_limit_are_cannot_write(tmp_path):
     import json
 
     errors = json.loads(done.stdout.strip().splitlines()[-1])
-    assert errors == {name: [str(folder / name), "cannot write (File too large)"] for name in ("a.usdc", "a.usda", "rig.usdc")}
+    names = ("a.usdc", "a.usda", "rig.usdc")
+    assert errors == {name: [str(folder / name), "cannot write (File too large)"] for name in names}
     assert list(folder.iterdir()) == []  # no partial file, no temporary, no texture without its USD
     assert "Warning" not in done.stderr and "Error in" not in done.stderr
 
@@ -131,7 +132,8 @@ def test_dla_animate_over_the_file_size_limit(tmp_path):
     (tmp_path / "out").mkdir()
     out = tmp_path / "out" / "walk.usdc"
     args = [tmp_path / "av.npz", tmp_path / "warm" / "walk.usdc", out, 300_000]
-    done = subprocess.run([sys.executable, "-c", _ANIMATE, *map(str, args)], capture_output=True, text=True, timeout=600)
+    command = [sys.executable, "-c", _ANIMATE, *map(str, args)]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600)
     lines = done.stderr.strip().splitlines()
     assert lines[-2:] == [f"error: {out}: cannot write (File too large)", "exit=2"], done.stderr[-3000:]
     assert list((tmp_path / "out").iterdir()) == []
@@ -184,7 +186,8 @@ def test_a_long_or_hostile_format_value_is_quoted_as_an_excerpt(tmp_path):
 
 def test_long_prim_names_in_pxr_errors_are_cut(tmp_path):
     name = "N" * 20_000
-    path = _layer(tmp_path, "n.usda", f'def Xform "Avatar"\n{{\n    def Xform "{name}"\n    {{\n        int x = {BIG}\n    }}\n}}\n')
+    inner = f'    def Xform "{name}"\n    {{\n        int x = {BIG}\n    }}\n'
+    path = _layer(tmp_path, "n.usda", f'def Xform "Avatar"\n{{\n{inner}}}\n')
     with pytest.raises(DlaInputError) as err:
         read_usd(path)
     message = str(err.value)
@@ -204,9 +207,10 @@ def test_tf_message_keeps_the_message_and_cuts_the_values():
     class Fake(Exception):
         pass
 
+    parse = "Error in 'Parse' at line 48 in file textParserHelpers.h"
     err = Fake(textwrap.dedent(f"""
-        Error in 'Parse' at line 48 in file textParserHelpers.h : 'Failed to parse value at '{BIG}' in </Avatar.x>'
-        Error in 'Parse' at line 48 in file textParserHelpers.h : 'f.usda:3:4: Failed to parse value at '{BIG}' in </Avatar.x>'
+        {parse} : 'Failed to parse value at '{BIG}' in </Avatar.x>'
+        {parse} : 'f.usda:3:4: Failed to parse value at '{BIG}' in </Avatar.x>'
         Error in 'Open' at line 1 in file stage.cpp : 'Failed to open layer @f.usda@'"""))
     assert tf_message(err) == (f"f.usda:3:4: Failed to parse value at '{'9' * 60}...' (20,000 characters) in "
                                "</Avatar.x>; Failed to open layer @f.usda@")  # fmt: skip
