@@ -105,6 +105,95 @@ def test_rotation_gradients_are_finite_at_zero_and_near_pi():
     assert torch.autograd.gradcheck(G.quat_to_axis_angle, (q,))
 
 
+# ---------------------------------------------------------------------- rotations in numpy
+
+
+def test_quat_rotation_rows_are_the_matrix_of_the_quaternion_as_given():
+    """The same entries in numpy and torch; for a unit q they are quat_to_matrix's (scipy's),
+    for q scaled by s every entry of R - I scales by s^2 (no normalisation)."""
+    q = Rotation.random(50, random_state=3).as_quat()[:, [3, 0, 1, 2]]  # (w, x, y, z)
+    rows = G.quat_rotation_rows(q)
+    m = np.stack([np.stack(row, -1) for row in rows], -2)
+    np.testing.assert_allclose(m, Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(m, G.quat_to_matrix(torch.from_numpy(q)).numpy(), rtol=0, atol=1e-15)
+    scaled = np.stack([np.stack(row, -1) for row in G.quat_rotation_rows(2.0 * q)], -2)
+    np.testing.assert_allclose(scaled - np.eye(3), 4.0 * (m - np.eye(3)), atol=1e-12)
+
+
+def test_quat_normalize_in_numpy_and_torch():
+    q = np.array([[3.0, 0.0, 4.0, 0.0], [0.0, 0.0, 0.0, 0.0], [1e-18, 0.0, 0.0, 0.0]], np.float32)
+    out = G.quat_normalize(q, float(np.finfo(np.float32).tiny))
+    assert out.dtype == np.float32
+    np.testing.assert_allclose(out, [[0.6, 0.0, 0.8, 0.0], [0.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]], rtol=1e-6)
+    np.testing.assert_allclose(G.quat_normalize(torch.from_numpy(q[:1])).numpy(), out[:1], rtol=1e-6)
+
+
+def test_quat_order_conversions():
+    q = np.arange(8.0).reshape(2, 4)
+    np.testing.assert_array_equal(G.quat_wxyz_to_xyzw(q), q[:, [1, 2, 3, 0]])
+    np.testing.assert_array_equal(G.quat_xyzw_to_wxyz(G.quat_wxyz_to_xyzw(q)), q)
+
+
+def test_quat_slerp_against_scipy():
+    """Unit-speed interpolation on the arc: scipy's Slerp (shortest path) is the oracle."""
+    from scipy.spatial.transform import Slerp
+
+    ends = Rotation.random(2 * 40, random_state=7)
+    a = ends[:40].as_quat()[:, [3, 0, 1, 2]]
+    b = ends[40:].as_quat()[:, [3, 0, 1, 2]]
+    b[::2] *= -1  # the same rotations, half of them on the far side of a
+    for t in (0.0, 0.3, 0.5, 1.0):
+        got = G.quat_slerp(a, b, t, shortest=True)
+        np.testing.assert_allclose(np.linalg.norm(got, axis=-1), 1.0, atol=1e-12)
+        for k in range(40):
+            ref = Slerp([0.0, 1.0], ends[[k, 40 + k]])(t)
+            angle = (ref.inv() * Rotation.from_quat(got[k, [1, 2, 3, 0]])).magnitude()
+            assert angle < 1e-9, (t, k, angle)
+    # without `shortest`, the arc from a to b with <a, b> < 0 is the long one (GfSlerp's)
+    one = np.array([1.0, 0.0, 0.0, 0.0])
+    turn = np.array([np.cos(0.1), 0.0, 0.0, np.sin(0.1)])  # 0.2 rad about +Z
+    half = [G.quat_slerp(one, -turn, 0.5, shortest=s) for s in (True, False)]
+    angles = [Rotation.from_quat(h[[1, 2, 3, 0]]).magnitude() for h in half]
+    assert angles[0] == pytest.approx(0.1, abs=1e-12) and angles[1] == pytest.approx(np.pi - 0.1, abs=1e-9)
+    tiny = G.quat_slerp(a, a, np.full((40, 1), 0.25))  # below 1e-6 rad: linear weights, exact
+    np.testing.assert_allclose(tiny, a, atol=1e-15)
+
+
+def test_quat_continuous_signs():
+    q = Rotation.random(30, random_state=2).as_quat()[:, [3, 0, 1, 2]].reshape(10, 3, 4)
+    flips = np.where(np.random.default_rng(0).uniform(size=(10, 3, 1)) < 0.5, -1.0, 1.0)
+    out = G.quat_continuous_signs(q * flips)
+    assert np.all(np.einsum("tnd,tnd->tn", out[1:], out[:-1]) >= 0)
+    np.testing.assert_array_equal(np.abs(out), np.abs(q))  # only signs change
+    np.testing.assert_array_equal(out[0], (q * flips)[0])
+
+
+def test_rotation_between_directions():
+    rng = np.random.default_rng(4)
+    for a, b in [*(rng.normal(size=(2, 3)) for _ in range(20)), (np.array([0.0, 0, 2]), np.array([0.0, 0, -1])),
+                 (np.array([1.0, 0, 0]), np.array([-3.0, 0, 0])), (np.array([0.0, 1, 0]), np.array([0.0, 5, 0]))]:
+        r = G.rotation_between(a, b)
+        np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(r) == pytest.approx(1.0, abs=1e-12)
+        np.testing.assert_allclose(r @ (a / np.linalg.norm(a)), b / np.linalg.norm(b), atol=1e-12)
+        axis = np.cross(a, b)
+        if np.linalg.norm(axis) > 1e-6:  # the shortest turn: about a x b, which it keeps
+            np.testing.assert_allclose(r @ axis, axis, atol=1e-9)
+
+
+def test_rigid_motion_recovers_a_known_motion():
+    rng = np.random.default_rng(5)
+    shape = rng.normal(size=(50, 3))
+    rots = Rotation.random(6, random_state=6)
+    shift = rng.normal(size=(6, 3))
+    rots = Rotation.concatenate([Rotation.identity(), rots])
+    shift = np.vstack([np.zeros(3), shift])
+    frames = np.stack([rots[t].apply(shape) + shift[t] for t in range(7)])  # [T, n, 3]
+    r, c = G.rigid_motion(frames)
+    np.testing.assert_allclose(r, rots.as_matrix() @ rots[0].as_matrix().T, atol=1e-9)
+    np.testing.assert_allclose(c, frames.mean(axis=1), atol=1e-12)
+
+
 # ------------------------------------------------------------------------------ projection
 
 

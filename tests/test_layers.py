@@ -5,10 +5,10 @@ depth: module level, inside functions, under `if TYPE_CHECKING:`), plus the star
 Direction (an import may only point to a lower rank, or stay inside its own unit):
 
     errors, paths, the package  <-  types  <-  geometry, kinematics, raster_core
-        <-  body, render, io  <-  avatar  <-  nn  <-  stages  <-  train, bench  <-  cli
+        <-  body, render, io  <-  avatar  <-  nn  <-  data, stages  <-  train, bench  <-  cli
 
-body, render and io are one level and do not import each other; `ALLOWED` lists the one edge
-between them that the code has a reason for. Nothing imports `dlacli.cli` but `dlacli.cli`.
+body, render and io are one level and do not import each other, nor do data and stages; `ALLOWED`
+lists the edges within a level that the code has a reason for. Nothing imports `dlacli.cli` but `dlacli.cli`.
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ RANK = {
     "dlacli.io": 3,
     "dlacli.avatar": 4,
     "dlacli.nn": 5,
+    "dlacli.data": 6,  # synthetic subjects and datasets, beside the stages
     "dlacli.stages": 6,
     "dlacli.train": 7,
     "dlacli.bench": 7,
@@ -52,6 +53,10 @@ ALLOWED = {
         "body writes its UV-raster cache with the toolkit's one atomic writer (DESIGN 5.7); "
         "io.atomic is a leaf of io (it imports only errors and io.files)"
     ),
+    ("dlacli.data.poses", "dlacli.stages.motion_source"): (
+        "synthetic target poses take frames of motion clips loaded and retargeted as `dla animate` loads them; "
+        "data -> stages is the one direction between the two (no stage imports dlacli.data)"
+    ),
 }
 
 # heavy or optional third-party packages -> the modules that may import them (lazily).
@@ -60,7 +65,7 @@ HEAVY = {
     "anny": {"dlacli.body.model"},
     "warp": {"dlacli.body.model"},
     "gsplat": {"dlacli.render.splat"},
-    "pxr": {"dlacli.io.usd", "dlacli.io.usd_rig"},  # the animation and the rigged asset
+    "pxr": {"dlacli.io.usd", "dlacli.io.usd_read", "dlacli.io.usd_rig"},  # the animation (write, read) and the rigged asset
     "diffusers": {"dlacli.nn.video_diffusion"},
     "mediapipe": {"dlacli.io.detect"},
     "bpy": set(),

@@ -15,7 +15,9 @@ dtypes are promoted) and are differentiable; the rotations have finite gradients
 including at the zero rotation (series expansions) and near a half turn (the log map goes through
 quaternions). Functions marked "numpy in, numpy out" also take numpy arrays and then return numpy
 arrays of the promoted input dtype (the same formulas, without autograd); mixing numpy arrays and
-tensors in one call is a TypeError.
+tensors in one call is a TypeError. The section "rotations in numpy" (quaternion order for file
+formats, slerp, sign-continuous tracks, the rotation between two directions, Kabsch fits) is numpy
+only, for the readers, writers and retargeting that work on numpy arrays.
 """
 
 from __future__ import annotations
@@ -91,19 +93,25 @@ def axis_angle_to_matrix(aa: torch.Tensor) -> torch.Tensor:
     return eye + a[..., None, None] * k + b[..., None, None] * (k @ k)
 
 
+def quat_rotation_rows(q):
+    """q [..., 4] (w, x, y, z), used as given (not normalised; numpy or torch) -> the rotation
+    matrix as rows of entries R[i][j], 9 arrays [...]: elementwise, with no [..., 3, 3] temporary
+    (`dlacli.io.usd.instance_extent` sums them directly)."""
+    w, x, y, z = (q[..., k] for k in range(4))
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+    return [
+        [1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)],
+        [2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)],
+        [2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)],
+    ]
+
+
 @_numpy_in_numpy_out
 def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
     """q [..., 4] (w, x, y, z) -> [..., 3, 3]; q need not be normalised (it is, first)."""
     q = q / q.norm(dim=-1, keepdim=True)
-    w, x, y, z = q.unbind(-1)
-    m = torch.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    )  # fmt: skip
+    m = torch.stack([entry for row in quat_rotation_rows(q) for entry in row], dim=-1)
     return m.reshape(*q.shape[:-1], 3, 3)
 
 
@@ -203,10 +211,86 @@ def quat_conjugate(q: torch.Tensor) -> torch.Tensor:
     return q * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=q.dtype, device=q.device)
 
 
-@_numpy_in_numpy_out
-def quat_normalize(q: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
-    """q [..., 4] -> [..., 4] unit quaternion (norms below eps are treated as eps)."""
+def quat_normalize(q, eps: float = 1e-12):
+    """q [..., 4] -> [..., 4] unit quaternion (norms below eps are treated as eps, so zero rows
+    stay zero). numpy in, numpy out, computed in numpy (the norm summed by einsum, as the USD
+    reader and writer have always done) and in the input's dtype."""
+    if isinstance(q, np.ndarray):
+        return q / np.maximum(np.sqrt(np.einsum("...i,...i->...", q, q))[..., None], eps)
     return q / q.norm(dim=-1, keepdim=True).clamp_min(eps)
+
+
+# ----------------------------------------------------------------------- rotations in numpy
+# numpy in, numpy out, no torch: the conventions above.
+
+
+def quat_wxyz_to_xyzw(q: np.ndarray) -> np.ndarray:
+    """[..., 4] (w, x, y, z) -> [..., 4] (x, y, z, w), the order of pxr's Vt.Quat*Array and scipy."""
+    return np.concatenate([q[..., 1:], q[..., :1]], axis=-1)
+
+
+def quat_xyzw_to_wxyz(q: np.ndarray) -> np.ndarray:
+    """[..., 4] (x, y, z, w) -> [..., 4] (w, x, y, z)."""
+    return np.concatenate([q[..., 3:], q[..., :3]], axis=-1)
+
+
+def quat_slerp(a: np.ndarray, b: np.ndarray, t, shortest: bool = False) -> np.ndarray:
+    """Spherical interpolation from a to b [..., 4] (unit) at t ([...] with a trailing 1, or a
+    scalar, in [0, 1]) -> [..., 4], GfSlerp's formula: the angle is 2 atan2(|a - b|, |a + b|)
+    (accurate near 0), linear weights below 1e-6 rad. It follows the arc from a to b as given,
+    the long way when <a, b> < 0, unless `shortest` negates such b first (q and -q are one rotation)."""
+    if shortest:
+        b = np.where(np.sum(a * b, axis=-1, keepdims=True) < 0, -b, b)
+    phi = 2 * np.arctan2(np.linalg.norm(a - b, axis=-1), np.linalg.norm(a + b, axis=-1))[..., None]
+    small = phi < 1e-6
+    sin_phi = np.where(small, 1.0, np.sin(phi))
+    wa = np.where(small, 1 - t, np.sin((1 - t) * phi) / sin_phi)
+    wb = np.where(small, t, np.sin(t * phi) / sin_phi)
+    return wa * a + wb * b
+
+
+def quat_continuous_signs(q: np.ndarray) -> np.ndarray:
+    """[T, n, 4] a quaternion track -> the same rotations with <q[t], q[t-1]> >= 0 (sign flips
+    taken out, compared in float32), so interpolating neighbouring samples takes the short way."""
+    q = q.copy()
+    for t in range(1, q.shape[0]):
+        dot = np.einsum("nd,nd->n", q[t].astype(np.float32), q[t - 1].astype(np.float32))
+        q[t] *= np.where(dot < 0, -1, 1).astype(q.dtype)[:, None]
+    return q
+
+
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """[3, 3] the shortest rotation turning direction a [3] onto direction b [3] (about a x b;
+    opposite directions: a half turn about an axis perpendicular to a)."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v = np.cross(a, b)
+    c = float(np.dot(a, b))
+    if c < -1.0 + 1e-9:  # opposite: turn 180 degrees about any axis perpendicular to a
+        axis = np.cross(a, [1.0, 0.0, 0.0])
+        if np.linalg.norm(axis) < 1e-6:
+            axis = np.cross(a, [0.0, 1.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        return 2.0 * np.outer(axis, axis) - np.eye(3)
+    k = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + k + k @ k / (1.0 + c)
+
+
+def rigid_motion(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """positions [T, n, 3] -> (R [T, 3, 3], c [T, 3]) float64, the rotation and translation that
+    best carry frame 0's shape (about its centroid) onto frame t's (Kabsch, no reflection):
+    p_t ~ R_t (p_0 - mean_0) + c_t. R_0 = I, c_t = mean_t."""
+    p = positions.astype(np.float64)
+    mean = p.mean(axis=1)  # [T, 3]
+    a = p[0] - mean[0]  # [n, 3]
+    h = np.einsum("ni,tnj->tij", a, p - mean[:, None])  # [T, 3, 3] cross-covariance
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("tji,tkj->tik", vt, u)))  # det(V U^T)
+    fix = np.ones((p.shape[0], 3))
+    fix[:, 2] = np.where(d == 0, 1, d)
+    r = np.einsum("tji,tj,tkj->tik", vt, fix, u)  # V diag(1, 1, d) U^T
+    r[0] = np.eye(3)
+    return r, mean
 
 
 # ---------------------------------------------------------------------------------- projection

@@ -163,7 +163,7 @@ def test_pose_conditioned_decoder_is_decoded_per_frame(toys, tmp_path):
     assert len(times) == 3
     for t, want in zip(times, posed.rgb):
         np.testing.assert_allclose(np.asarray(color.Get(t)), want, rtol=0, atol=0)
-    from dlacli.io.usd import read_usd
+    from dlacli.io.usd_read import read_usd
 
     back = read_usd(tmp_path / "a.usda")
     np.testing.assert_array_equal(back.rgb, posed.rgb)  # float32 colours round-trip exactly

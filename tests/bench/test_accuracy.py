@@ -63,9 +63,9 @@ def test_a_small_run_scores_every_split(tmp_path):
         assert 5 < m["psnr_masked"] < 60 and 0 < m["iou"] <= 1 and 0 < m["ssim"] <= 1
     # the scores are those of the avatar lifted and rendered here, directly (to 1e-3 dB / 1e-4:
     # the child process's lift agrees with this one's to float32 accumulation order, not bit for bit)
+    from dlacli.data.synth import synth
     from dlacli.io.views import read_views
     from dlacli.stages.lift import LiftConfig, lift
-    from dlacli.stages.synth import synth
 
     folder = synth(8101, tmp_path / "s", res=64, novel_views=2, novel_poses=1, appearance="lit", wardrobe="heldout")
     direct = score_avatar(lift(read_views(folder), LiftConfig(steps=0)).avatar, folder)

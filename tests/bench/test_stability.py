@@ -27,8 +27,8 @@ def _rng():
 
 
 def test_subject_matches_dla_synth(subject, tmp_path):
+    from dlacli.data.synth import synth
     from dlacli.io.views import read_views
-    from dlacli.stages.synth import synth
 
     folder = synth(SEED, tmp_path / "s", res=48, novel_views=1, novel_poses=1)
     for mine, theirs in ((subject.views, read_views(folder)), (subject.novel_views, read_views(folder / "novel_views", require_body=False)),
@@ -45,8 +45,8 @@ def test_view_perturbations_do_what_they_say(subject):
     from scipy.spatial.transform import Rotation
 
     from dlacli.body.model import pose_to_rotations
+    from dlacli.data.cameras import TARGET
     from dlacli.geometry import camera_centers
-    from dlacli.stages.synth import TARGET
 
     v = subject.views
     # pose noise: every bone turned by exactly the level, about some axis

@@ -43,10 +43,10 @@ def run(argv, capsys) -> tuple[int, str, str]:
 @pytest.fixture(scope="module")
 def avatar_path(tmp_path_factory):
     """A small lifted avatar (synthetic subject, unprojection only, N Gaussians)."""
+    from dlacli.data.synth import synth
     from dlacli.io.avatar import write_avatar
     from dlacli.io.views import read_views
     from dlacli.stages.lift import LiftConfig, lift
-    from dlacli.stages.synth import synth
 
     root = tmp_path_factory.mktemp("view")
     views = synth(5, root / "s5", res=96, novel_views=0, novel_poses=0)

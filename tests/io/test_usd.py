@@ -14,7 +14,8 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 from scipy.spatial.transform import Rotation
 
 from dlacli.errors import DlaInputError
-from dlacli.io.usd import read_usd, summarize_usd, validate_usd, write_usd
+from dlacli.io.usd import write_usd
+from dlacli.io.usd_read import read_usd, summarize_usd, validate_usd
 
 SH_C0 = 0.28209479177387814
 # Rotation tolerances (radians) of stored quaternions. Rounding a unit quaternion's components to
@@ -485,21 +486,6 @@ def test_keep_frames_keeps_every_corner_of_a_piecewise_linear_path():
                      for t in range(48)]).astype(np.float32)  # fmt: skip
     kept = keep_frames(lerp_check(path, path, 1e-5), 48)  # 1e-5 m: far above float32 rounding of O(1) values
     assert kept.tolist() == corners
-
-
-def test_rigid_motion_recovers_a_known_motion():
-    from dlacli.io.usd_compact import rigid_motion
-
-    rng = np.random.default_rng(5)
-    shape = rng.normal(size=(50, 3))
-    rots = Rotation.random(6, random_state=6)
-    shift = rng.normal(size=(6, 3))
-    rots = Rotation.concatenate([Rotation.identity(), rots])
-    shift = np.vstack([np.zeros(3), shift])
-    frames = np.stack([rots[t].apply(shape) + shift[t] for t in range(7)])  # [T, n, 3]
-    r, c = rigid_motion(frames)
-    np.testing.assert_allclose(r, rots.as_matrix() @ rots[0].as_matrix().T, atol=1e-9)
-    np.testing.assert_allclose(c, frames.mean(axis=1), atol=1e-12)
 
 
 def analytic_motion(t=40, per_group=2048, jump=23):

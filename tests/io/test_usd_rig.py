@@ -11,7 +11,7 @@ from dlacli.body.builtin_motions import builtin_motion
 from dlacli.body.model import get_body_model
 from dlacli.body.uv import uv_raster
 from dlacli.errors import DlaInputError
-from dlacli.io.usd import validate_usd
+from dlacli.io.usd_read import validate_usd
 from dlacli.io.usd_rig import FORMAT, joint_token, texture_path
 from dlacli.stages.rig import skinning_matrices, write_rigged_usd
 from dlacli.types import Avatar, BodyParams, Motion

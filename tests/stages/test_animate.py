@@ -15,7 +15,7 @@ from dlacli.bench.metrics import alpha_iou
 from dlacli.body.builtin_motions import builtin_motion
 from dlacli.io.avatar import write_avatar
 from dlacli.io.motion import read_motion, write_motion
-from dlacli.io.usd import read_usd, validate_usd
+from dlacli.io.usd_read import read_usd, validate_usd
 from dlacli.io.views import read_transforms, read_views
 from dlacli.stages.lift import LiftConfig, lift
 from dlacli.types import Motion

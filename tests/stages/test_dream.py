@@ -36,9 +36,9 @@ def posed():
     """A posed body rendered as an RGBA "photo" with a known camera, and its true fit."""
     from dlacli.body.keypoints import coco_keypoints
     from dlacli.body.model import get_body_model, rotations_to_pose
+    from dlacli.data.subject import relaxed_pose
     from dlacli.render.raster import render_mesh
     from dlacli.stages.fit import FitResult
-    from dlacli.stages.synth import relaxed_pose
 
     m = get_body_model()
     rot = relaxed_pose(np.random.default_rng(SEED), m.bone_labels, 20.0)

@@ -12,10 +12,11 @@ import torch
 from typer.testing import CliRunner
 
 from dlacli.cli.app import app
+from dlacli.data.cameras import INPUT_AZIMUTHS, POSE_AZIMUTHS
+from dlacli.data.synth import synth
 from dlacli.errors import DlaInputError
 from dlacli.io.motion import read_motion
 from dlacli.io.views import read_views
-from dlacli.stages.synth import INPUT_AZIMUTHS, POSE_AZIMUTHS, synth
 
 RES = 96
 NV, NP = 3, 2
@@ -132,8 +133,8 @@ def test_cli(tmp_path):
 @pytest.mark.parametrize("args, where", [(["--res", "4"], "--res"), (["--seed", "-2"], "--seed"),
                                          (["--novel-views", "-1"], "--novel-views")])  # fmt: skip
 def test_bad_arguments(tmp_path, args, where):
+    from dlacli.data.synth import synth as run
     from dlacli.errors import DlaInputError
-    from dlacli.stages.synth import synth as run
 
     kwargs = {"res": 32, "novel_views": 0, "novel_poses": 0, "seed": 1}
     key = args[0].lstrip("-").replace("-", "_")
@@ -153,22 +154,23 @@ def test_identical_rendering_of_two_poses_is_not_cached(subjects):
 
 
 def test_failure_leaves_nothing(tmp_path, monkeypatch):
-    import dlacli.stages.synth as st
+    import dlacli.data.poses as poses
 
     def boom(*args, **kwargs):
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(st, "novel_motion", boom)  # fails after the input views are written
+    monkeypatch.setattr(poses, "novel_motion", boom)  # fails after the input views are written
     with pytest.raises(RuntimeError, match="boom"):
-        st.synth(2, tmp_path / "subject", res=32, novel_views=1, novel_poses=1)
+        synth(2, tmp_path / "subject", res=32, novel_views=1, novel_poses=1)
     assert list(tmp_path.iterdir()) == []
 
 
 def test_alpha_matches_an_independent_render_of_the_dressed_mesh(subjects):
     """The layer bias slides vertices along camera rays only, so the alpha equals the coverage
     that dlacli.render.raster.render_mesh computes for the unbiased body + garments mesh."""
+    from dlacli.data.garments import DressedBody
+    from dlacli.data.subject import sample_subject
     from dlacli.render.raster import render_mesh
-    from dlacli.stages.synth import DressedBody, sample_subject
 
     main = read_views(subjects[0])
     spec = sample_subject(7)
@@ -205,21 +207,25 @@ def _static_pixels(body, verts_a, verts_b, cameras, ss: int) -> np.ndarray:
 def test_lit_colour_follows_the_pose_albedo_does_not():
     """Same subject, same cameras, the arms raised: where the surface did not move, "albedo"
     colours are identical and "lit" ones change (the ambient occlusion of the posed body)."""
-    import dlacli.stages.synth as st
+    from dlacli.data.appearance import ambient_occlusion, sample_lighting
+    from dlacli.data.cameras import INPUT_ELEVATION, synth_orbit_cameras
+    from dlacli.data.garments import DressedBody
+    from dlacli.data.images import SUPERSAMPLE, render
+    from dlacli.data.subject import _Pose, sample_subject
 
-    spec = st.sample_subject(7)
-    body = st.DressedBody(spec)
-    pose = st._Pose(body.full.bone_labels, spec.rotations)
+    spec = sample_subject(7)
+    body = DressedBody(spec)
+    pose = _Pose(body.full.bone_labels, spec.rotations)
     pose.rotate("upperarm01.L", y=-np.radians(75))
     pose.rotate("upperarm01.R", y=np.radians(75))
     verts = body.vertices(np.stack([spec.rotations, pose.rot.astype(np.float32)]), torch.zeros(2, 3), torch.zeros(2, 3))
-    cams = st.synth_orbit_cameras([0.0, 90.0, 270.0], st.INPUT_ELEVATION, 48)
-    light = st.sample_lighting(7)
-    ao = st.ambient_occlusion(verts, body.faces)  # [2, V]
-    still = _static_pixels(body, verts[0], verts[1], cams, st.SUPERSAMPLE)
+    cams = synth_orbit_cameras([0.0, 90.0, 270.0], INPUT_ELEVATION, 48)
+    light = sample_lighting(7)
+    ao = ambient_occlusion(verts, body.faces)  # [2, V]
+    still = _static_pixels(body, verts[0], verts[1], cams, SUPERSAMPLE)
     assert still.sum() > 100, still.sum()
-    albedo = [st.render(body, verts[t], cams, 7) for t in range(2)]
-    lit = [st.render(body, verts[t], cams, 7, lighting=light, ao=ao[t]) for t in range(2)]
+    albedo = [render(body, verts[t], cams, 7) for t in range(2)]
+    lit = [render(body, verts[t], cams, 7, lighting=light, ao=ao[t]) for t in range(2)]
     assert np.array_equal(albedo[0][still], albedo[1][still])
     diff = np.abs(lit[0] - lit[1])[still][:, :3].max(axis=1)
     assert diff.max() > 0.03 and (diff > 2 / 255).sum() > 10, (diff.max(), (diff > 2 / 255).sum())
@@ -233,26 +239,27 @@ def test_lit_colour_follows_the_pose_albedo_does_not():
 def test_specular_depends_on_the_view_diffuse_does_not():
     """lit_terms of the same surface points seen from two eyes: equal diffuse, other specular;
     Blinn-Phong's peak (eye on the mirror direction) is the material's strength x light colour."""
-    import dlacli.stages.synth as st
+    from dlacli.data.appearance import SPECULAR, Lighting, lit_terms, sample_lighting
+    from dlacli.data.garments import MATERIALS
 
     rng = np.random.default_rng(0)
-    light = st.sample_lighting(3)
+    light = sample_lighting(3)
     n = rng.normal(size=(200, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
-    mats = rng.choice([st.MATERIALS.index(m) for m in ("skin", "hair", "shoes")], 200)
+    mats = rng.choice([MATERIALS.index(m) for m in ("skin", "hair", "shoes")], 200)
     ao = rng.uniform(0.3, 1.0, 200)
     eyes = [n + 0.6 * rng.normal(size=(200, 3)), n + 0.6 * rng.normal(size=(200, 3))]
     eyes = [e / np.linalg.norm(e, axis=1, keepdims=True) for e in eyes]
     eyes = [e * np.sign((e * n).sum(1, keepdims=True)) for e in eyes]  # both on the side the normal faces
-    (d1, s1), (d2, s2) = (st.lit_terms(mats, n, e, ao, light) for e in eyes)
+    (d1, s1), (d2, s2) = (lit_terms(mats, n, e, ao, light) for e in eyes)
     np.testing.assert_array_equal(d1, d2)
     assert np.abs(s1 - s2).max() > 0.05
     # the peak: one light, normal = its direction, eye on the mirror direction (here: the normal too)
-    one = st.Lighting(0.0, light.directions[:1], light.colours[:1])
+    one = Lighting(0.0, light.directions[:1], light.colours[:1])
     for m in ("skin", "hair", "shoes", "suit", "eyes"):
         l = light.directions[:1]
-        diffuse, spec = st.lit_terms(np.array([st.MATERIALS.index(m)]), l, l, np.zeros(1), one)
-        np.testing.assert_allclose(spec[0], st.SPECULAR[m][0] * light.colours[0], rtol=1e-12)
+        diffuse, spec = lit_terms(np.array([MATERIALS.index(m)]), l, l, np.zeros(1), one)
+        np.testing.assert_allclose(spec[0], SPECULAR[m][0] * light.colours[0], rtol=1e-12)
         np.testing.assert_allclose(diffuse[0], light.colours[0], rtol=1e-12)  # n.l = 1, no ambient
 
 
@@ -268,7 +275,7 @@ def _grid(x0, x1, y0, y1, step, to3d):
 
 
 def test_ambient_occlusion_against_analytic_scenes():
-    import dlacli.stages.synth as st
+    from dlacli.data.appearance import AO_DIRECTIONS, ambient_occlusion, sphere_directions
 
     # a convex body occludes nothing of itself: a UV sphere has AO 1 everywhere
     th, ph = np.meshgrid(np.linspace(0.05, np.pi - 0.05, 24), np.linspace(0, 2 * np.pi, 48, endpoint=False),
@@ -278,15 +285,15 @@ def test_ambient_occlusion_against_analytic_scenes():
     a, b = idx[:-1], np.roll(idx, -1, axis=1)[:-1]
     c, d = np.roll(idx, -1, axis=1)[1:], idx[1:]
     faces = np.concatenate([np.stack([a, d, c], -1).reshape(-1, 3), np.stack([a, c, b], -1).reshape(-1, 3)])
-    assert st.ambient_occlusion(sphere, faces).min() > 0.97
+    assert ambient_occlusion(sphere, faces).min() > 0.97
     # a floor (z = 0, facing up) beside a wall (x = 0, 4 m high, 8 m wide, facing +x): the floor
     # points' AO is the cosine-weighted share of the sampled directions whose ray misses the wall
     floor, ff = _grid(-4, 4, -4, 4, 0.5, lambda u, v: np.stack([u, v, 0 * u], 1))
     wall, wf = _grid(-4, 4, 0, 4, 0.5, lambda u, v: np.stack([0 * u, u, v], 1))
     verts = np.concatenate([floor, wall])
     faces = np.concatenate([ff, wf[:, ::-1] + len(floor)])
-    ao = st.ambient_occlusion(verts, faces)
-    dirs = st.sphere_directions(st.AO_DIRECTIONS)
+    ao = ambient_occlusion(verts, faces)
+    dirs = sphere_directions(AO_DIRECTIONS)
     for x in (0.5, 1.0, 3.0):
         k = int(np.argmin(np.linalg.norm(floor - [x, 0.5, 0.0], axis=1)))
         p = floor[k]
@@ -304,14 +311,18 @@ def test_ambient_occlusion_against_analytic_scenes():
 def test_albedo_is_the_headlight_formula():
     """The default appearance: colour = albedo x (0.35 + 0.65 |cos(normal, view ray)|) per
     sub-pixel of the layer-biased z-buffer (docs/synth.md), averaged; checked where alpha = 1."""
-    import dlacli.stages.synth as st
+    from dlacli.data.appearance import shade_colors
+    from dlacli.data.cameras import INPUT_AZIMUTHS, INPUT_ELEVATION, synth_orbit_cameras
+    from dlacli.data.garments import DressedBody
+    from dlacli.data.images import render
+    from dlacli.data.subject import sample_subject
     from dlacli.render.raster import interpolate, rasterize_camera_space, vertex_normals, world_to_camera
 
-    spec = st.sample_subject(3)
-    body = st.DressedBody(spec)
+    spec = sample_subject(3)
+    body = DressedBody(spec)
     verts = body.vertices(spec.rotations[None], torch.zeros(1, 3), torch.zeros(1, 3))[0]
-    cams = st.synth_orbit_cameras(st.INPUT_AZIMUTHS, st.INPUT_ELEVATION, 32)
-    ours = st.render(body, verts, cams, 3)
+    cams = synth_orbit_cameras(INPUT_AZIMUTHS, INPUT_ELEVATION, 32)
+    ours = render(body, verts, cams, 3)
     ss, res = 2, 32
     for k in range(4):
         vcam = world_to_camera(verts, cams.viewmats[k : k + 1].double().numpy())[0]  # [V, 3]
@@ -328,7 +339,7 @@ def test_albedo_is_the_headlight_formula():
         uv = np.einsum("nk,nkd->nd", bary, body.face_uv[f])
         cos = np.abs((nrm * pos).sum(1)) / (np.linalg.norm(nrm, axis=1) * np.linalg.norm(pos, axis=1))
         sub = np.zeros((res * ss, res * ss, 3))
-        sub[cov] = st.shade_colors(body, body.face_material[f], rest, uv, 3) * (0.35 + 0.65 * cos)[:, None]
+        sub[cov] = shade_colors(body, body.face_material[f], rest, uv, 3) * (0.35 + 0.65 * cos)[:, None]
         full = cov.reshape(res, ss, res, ss).all(axis=(1, 3))
         expect = sub.reshape(res, ss, res, ss, 3).mean(axis=(1, 3))
         assert full.sum() > 20
@@ -340,7 +351,7 @@ def test_wardrobes():
     """"default" is the documented outfit rule; "full" keeps the phenotype and pose of the seed
     and draws every kind from the shipped garments."""
     from dlacli.body.garments import GARMENT_KIND
-    from dlacli.stages.synth import HAIRS, SHOES, SUITS_FEMALE, SUITS_MALE, sample_subject
+    from dlacli.data.subject import HAIRS, SHOES, SUITS_FEMALE, SUITS_MALE, sample_subject
 
     assert set(SUITS_FEMALE + SUITS_MALE + SHOES + HAIRS) == set(GARMENT_KIND)
     for seed in (0, 1, 2):
@@ -397,7 +408,7 @@ def test_dataset_same_files_for_any_jobs(datasets, tmp_path):
 
 
 def test_dataset_manifest(datasets):
-    from dlacli.stages.synth_dataset import read_manifest
+    from dlacli.data.dataset import read_manifest
 
     (a, _), clip = datasets[0][1], datasets[1]
     m = read_manifest(a / "manifest.json")
@@ -418,7 +429,8 @@ def test_dataset_manifest(datasets):
 def test_dataset_cameras_and_target_poses(datasets):
     """Input cameras 90 degrees apart from the recorded random start yaw, elevations jittered
     around INPUT_ELEVATION; clip frames among the target poses have the root above the origin."""
-    from dlacli.stages.synth import ELEVATION_JITTER, INPUT_ELEVATION, TARGET, sample_lighting
+    from dlacli.data.appearance import sample_lighting
+    from dlacli.data.cameras import ELEVATION_JITTER, INPUT_ELEVATION, TARGET
 
     a = datasets[0][1][0]
     yaws = []
@@ -481,7 +493,7 @@ def test_cli_mode_errors(tmp_path, capsys, args, problem):
 
 
 def test_train_and_heldout_wardrobes_split_the_garments():
-    from dlacli.stages.synth import HELD_OUT, sample_subject
+    from dlacli.data.subject import HELD_OUT, sample_subject
 
     for seed in range(40):
         full = sample_subject(seed, "full")

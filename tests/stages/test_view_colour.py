@@ -51,14 +51,14 @@ def test_decoder_needs_the_falloff_channel():
 @pytest.fixture(scope="module")
 def subject256(tmp_path_factory):
     """Seed 5 at 256 px (at 128 px a view pixel spans a centimetre of body: k reads ~0.4)."""
-    from dlacli.stages.synth import synth
+    from dlacli.data.synth import synth
 
     return synth(5, tmp_path_factory.mktemp("s256") / "s5", res=256, novel_views=4, novel_poses=0)
 
 
 def test_falloff_measured_from_a_headlit_subject(subject256):
     """Seed 5 at 256 px in the albedo appearance: a headlight with AMBIENT 0.35, so k = 0.65."""
-    from dlacli.stages.synth import AMBIENT
+    from dlacli.data.images import AMBIENT
 
     avatar = lift(read_views(subject256), LiftConfig(steps=0, gaussians=N)).avatar
     k = avatar.extra["lift"]["view_falloff"]
@@ -70,14 +70,15 @@ def test_falloff_measured_from_a_headlit_subject(subject256):
 @pytest.fixture(scope="module")
 def flat_subject(tmp_path_factory):
     """Seed 5 again with AMBIENT = 1: colour no longer depends on the view (k = 0)."""
-    import dlacli.stages.synth as synth_mod
+    import dlacli.data.images as images
+    from dlacli.data.synth import synth
 
-    saved = synth_mod.AMBIENT
-    synth_mod.AMBIENT = 1.0
+    saved = images.AMBIENT
+    images.AMBIENT = 1.0
     try:
-        return synth_mod.synth(5, tmp_path_factory.mktemp("flat") / "s5", res=128, novel_views=4, novel_poses=0)
+        return synth(5, tmp_path_factory.mktemp("flat") / "s5", res=128, novel_views=4, novel_poses=0)
     finally:
-        synth_mod.AMBIENT = saved
+        images.AMBIENT = saved
 
 
 def test_no_falloff_keeps_the_identity_decoder(flat_subject):

@@ -12,7 +12,7 @@ NOVEL_VIEWS, NOVEL_POSES = 2, 2
 def dataset(tmp_path_factory):
     """A dataset folder of 2 lit, full-wardrobe subjects (seeds 21, 22) at 48 px with 2 novel
     views and 2 novel poses x 3 cameras each (built-in motions for the target poses)."""
-    from dlacli.stages.synth_dataset import DatasetSettings, synth_dataset
+    from dlacli.data.dataset import DatasetSettings, synth_dataset
 
     root = tmp_path_factory.mktemp("dataset") / "data"
     settings = DatasetSettings(res=RES, novel_views=NOVEL_VIEWS, novel_poses=NOVEL_POSES)

@@ -21,7 +21,7 @@ SIZE = 32  # target render size of these runs
 def data64(tmp_path_factory):
     """3 lit, full-wardrobe subjects at 64 px (the tiny U-Net's input size), 2 novel views and
     1 novel pose (x 3 cameras) each."""
-    from dlacli.stages.synth_dataset import DatasetSettings, synth_dataset
+    from dlacli.data.dataset import DatasetSettings, synth_dataset
 
     root = tmp_path_factory.mktemp("data64") / "data"
     synth_dataset([31, 32, 33], root, DatasetSettings(res=64, novel_views=2, novel_poses=1), jobs=1)

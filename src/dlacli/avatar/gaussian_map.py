@@ -136,8 +136,8 @@ def gaussians_at_frames(fmap: torch.Tensor, samples: Samples, frames) -> list[Ga
 def sample_frames(vertices: torch.Tensor, samples: Samples):
     """Tangent frames of posed vertices [P, V, 3] at the samples: positions T [P, N, 3],
     rotations R [P, N, 3, 3] and the same as quaternions Q [P, N, 4], scales S [P, N]."""
-    from dlacli.body.rotations import matrix_to_quat
     from dlacli.body.uv import tangent_frames
+    from dlacli.geometry import matrix_to_quat
 
     frames_T, frames_R, frames_S = tangent_frames(vertices, samples.face_id, samples.bary)
     return frames_T, frames_R, frames_S, matrix_to_quat(frames_R)

@@ -110,8 +110,8 @@ def run(seeds: list[int], methods: list[MethodSpec], res: int = 512, appearance:
         log: Callable[[str], None] = print) -> list[dict]:  # fmt: skip
     """dla.bench/1 rows: one per seed, method and split."""
     from dlacli.bench.rows import make_row
+    from dlacli.data.synth import synth
     from dlacli.io.avatar import read_avatar
-    from dlacli.stages.synth import synth
 
     for spec in methods:  # the renders find a learned avatar's decoder by its hash, as after `dla lift`
         spec.install()

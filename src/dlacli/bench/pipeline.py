@@ -25,11 +25,12 @@ _score = score_split  # the name tests/stages score lifts with
 def run(seeds: list[int], steps: list[int], res: int = 512, novel_views: int = 12,
         novel_poses: int = 8, animate_frames: int = 120, log: Callable[[str], None] = print) -> dict:  # fmt: skip
     from dlacli.body.builtin_motions import builtin_motion
+    from dlacli.data.synth import synth
     from dlacli.io.motion import read_motion
     from dlacli.io.views import read_views
     from dlacli.stages.animate import pose_avatar, write_animation
+    from dlacli.data.synth import synth
     from dlacli.stages.methods import make_spec
-    from dlacli.stages.synth import synth
 
     rows = []
     animate_s = []

@@ -361,9 +361,10 @@ def _body(cfg: SpeedConfig, row, log) -> list[dict]:
 def _subject_and_avatar(cfg: SpeedConfig, log):
     """(view folder, its ViewSet, an unprojected avatar at cfg.gaussians), made once per run."""
     if "avatar" not in cfg._cache:
+        from dlacli.data.synth import synth
         from dlacli.io.views import read_views
+        from dlacli.data.synth import synth
         from dlacli.stages.methods import make_spec
-        from dlacli.stages.synth import synth
 
         tmp = tempfile.mkdtemp(prefix="dla-speed-")
         cfg._cache["tmp"] = tmp

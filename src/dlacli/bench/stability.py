@@ -49,39 +49,53 @@ class Subject:
 
 def make_subject(seed: int, res: int, novel_views: int = 4, novel_poses: int = 2,
                  pose: Callable | None = None, distance: float | None = None) -> Subject:  # fmt: skip
-    """The synth subject `seed` at res px (as stages.synth.synth, in memory): `pose(spec)`
+    """The synth subject `seed` at res px (as dlacli.data.synth.synth, in memory): `pose(spec)`
     returns the input pose [J, 3] in place of the relaxed one; `distance` (metres) moves the
     input cameras (novel views and poses keep the standard rig)."""
     import torch
 
-    from dlacli.stages import synth as S
+    from dlacli.data.cameras import (
+        DISTANCE,
+        FOV_DEG,
+        INPUT_AZIMUTHS,
+        INPUT_ELEVATION,
+        POSE_AZIMUTHS,
+        TARGET,
+        novel_view_angles,
+        synth_orbit_cameras,
+    )
+    from dlacli.data.garments import DressedBody
+    from dlacli.data.images import render
+    from dlacli.data.poses import novel_motion
+    from dlacli.data.subject import hand_clearance, sample_subject
+    from dlacli.data.synth import _body_params, _view_set
 
-    base = S.sample_subject(seed)
+    base = sample_subject(seed)
     spec = replace(base, rotations=np.asarray(pose(base), np.float32)) if pose is not None else base
-    body = S.DressedBody(spec)
+    body = DressedBody(spec)
     zero = torch.zeros(1, 3)
     verts = body.vertices(spec.rotations[None], zero, zero)[0]
-    truth = S._body_params(spec, spec.rotations)
+    truth = _body_params(spec, spec.rotations)
     from dlacli.geometry import look_at_orbit_cameras
 
-    dist = S.DISTANCE if distance is None else float(distance)
-    cams = look_at_orbit_cameras(S.TARGET, dist, S.INPUT_AZIMUTHS, S.INPUT_ELEVATION, S.FOV_DEG, res)
-    rgba = S.render(body, verts, cams, seed)
-    views = S._view_set(rgba, cams, truth, [None] * 4, {})
-    az, el = S.novel_view_angles(novel_views)
-    ncams = S.synth_orbit_cameras(az, el, res)
-    nv = S._view_set(S.render(body, verts, ncams, seed), ncams, truth, [None] * novel_views, {})
-    motion = S.novel_motion(seed, base, novel_poses)
-    posed_body = S.DressedBody(base) if pose is not None else body
+    dist = DISTANCE if distance is None else float(distance)
+    cams = look_at_orbit_cameras(TARGET, dist, INPUT_AZIMUTHS, INPUT_ELEVATION, FOV_DEG, res)
+    rgba = render(body, verts, cams, seed)
+    views = _view_set(rgba, cams, truth, [None] * 4, {})
+    az, el = novel_view_angles(novel_views)
+    ncams = synth_orbit_cameras(az, el, res)
+    nv = _view_set(render(body, verts, ncams, seed), ncams, truth, [None] * novel_views, {})
+    motion = novel_motion(seed, base, novel_poses)
+    posed_body = DressedBody(base) if pose is not None else body
     posed = posed_body.vertices(motion.rotations, torch.from_numpy(motion.root_rotation), torch.from_numpy(motion.root_translation))
-    k = len(S.POSE_AZIMUTHS)
-    cams1 = S.synth_orbit_cameras(S.POSE_AZIMUTHS, S.INPUT_ELEVATION, res)
+    k = len(POSE_AZIMUTHS)
+    cams1 = synth_orbit_cameras(POSE_AZIMUTHS, INPUT_ELEVATION, res)
     pcams = Cameras(cams1.viewmats.repeat(novel_poses, 1, 1), cams1.Ks.repeat(novel_poses, 1, 1), res, res)
-    prgba = S.render(posed_body, np.repeat(posed, k, axis=0), pcams, seed)
-    npose = S._view_set(prgba, pcams, S._body_params(base, None), [t for t in range(novel_poses) for _ in range(k)], {})
+    prgba = render(posed_body, np.repeat(posed, k, axis=0), pcams, seed)
+    npose = _view_set(prgba, pcams, _body_params(base, None), [t for t in range(novel_poses) for _ in range(k)], {})
     rows = np.nonzero(views.masks.max(axis=(0, 2)) > 0.5)[0]
     info = {"fill": float((rows.max() - rows.min() + 1) / res) if rows.size else 0.0,
-            "hand_clearance_m": S.hand_clearance(spec)}  # fmt: skip
+            "hand_clearance_m": hand_clearance(spec)}  # fmt: skip
     return Subject(int(seed), views, nv, npose, motion, info)
 
 
@@ -140,7 +154,7 @@ def misregister_deg(views: ViewSet, degrees: float, rng: np.random.Generator) ->
     that saw the image (an orbit about the vertical axis through the synth rig's target)."""
     import torch
 
-    from dlacli.stages.synth import TARGET
+    from dlacli.data.cameras import TARGET
 
     w2c = views.cameras.viewmats.double().numpy().copy()
     t = np.asarray(TARGET, np.float64)
@@ -173,7 +187,7 @@ def extreme_pose(spec, degrees: float) -> np.ndarray:
     """The relaxed pose plus both arms raised, one leg stepping and the spine bent, `degrees` each
     (legs 0.6x, knee 0.8x, spine 0.25x)."""
     from dlacli.body.model import get_body_model
-    from dlacli.stages.synth import _Pose
+    from dlacli.data.subject import _Pose
 
     p = _Pose(get_body_model().bone_labels, spec.rotations)
     a = math.radians(degrees)
@@ -188,7 +202,7 @@ def extreme_pose(spec, degrees: float) -> np.ndarray:
 def self_contact(spec, degrees: float) -> np.ndarray:
     """The relaxed pose with both upper arms brought `degrees` further down against the torso."""
     from dlacli.body.model import get_body_model
-    from dlacli.stages.synth import _Pose
+    from dlacli.data.subject import _Pose
 
     p = _Pose(get_body_model().bone_labels, spec.rotations)
     for side, s in (("L", 1.0), ("R", -1.0)):
@@ -328,7 +342,7 @@ def run(seeds: list[int], methods: list[MethodSpec], perturbations: list[str] | 
 
 
 def _rig_distance() -> float:
-    from dlacli.stages.synth import DISTANCE
+    from dlacli.data.cameras import DISTANCE
 
     return DISTANCE
 

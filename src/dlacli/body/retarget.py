@@ -34,6 +34,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from dlacli.errors import DlaInputError
+from dlacli.geometry import (
+    axis_angle_to_quat,
+    matrix_to_axis_angle,
+    quat_normalize,
+    quat_slerp,
+    quat_to_axis_angle,
+    rotation_between,
+)
 from dlacli.kinematics import forward_kinematics, rest_positions
 from dlacli.types import MAX_FRAMES, Motion, SkeletonMotion
 
@@ -160,22 +168,6 @@ def match_joints(names: list[str], dialect: str = "") -> tuple[str, dict[int, st
     return best, unique
 
 
-def _shortest_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """[3, 3] rotation turning direction a [3] onto direction b [3] about a x b."""
-    a = a / np.linalg.norm(a)
-    b = b / np.linalg.norm(b)
-    v = np.cross(a, b)
-    c = float(np.dot(a, b))
-    if c < -1.0 + 1e-9:  # opposite: turn 180 degrees about any axis perpendicular to a
-        axis = np.cross(a, [1.0, 0.0, 0.0])
-        if np.linalg.norm(axis) < 1e-6:
-            axis = np.cross(a, [0.0, 1.0, 0.0])
-        axis /= np.linalg.norm(axis)
-        return 2.0 * np.outer(axis, axis) - np.eye(3)
-    k = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-    return np.eye(3) + k + k @ k / (1.0 + c)
-
-
 def _frame(up: np.ndarray, left: np.ndarray) -> np.ndarray:
     """[3, 3] orthonormal frame with columns (left, forward, up) from rough up and left vectors."""
     z = up / np.linalg.norm(up)
@@ -249,7 +241,7 @@ def rest_corrections(skel: SkeletonMotion, rig: AnnyRig, mapped: dict[int, str])
                 p = int(skel.parents[p])
             q[s] = q[p] if p >= 0 else q_torso
         else:
-            q[s] = _shortest_rotation(d_src, d_dst)
+            q[s] = rotation_between(d_src, d_dst)
     return q
 
 
@@ -367,49 +359,8 @@ def _scale(skel: SkeletonMotion, rig: AnnyRig, mapped: dict[int, str]) -> float:
     return float(np.mean(ratios)) if ratios else 1.0
 
 
-def matrix_to_axis_angle(m: np.ndarray) -> np.ndarray:
-    """[..., 3, 3] rotation matrices -> [..., 3] axis-angles (radians, angle in [0, pi])."""
-    from scipy.spatial.transform import Rotation
-
-    shape = m.shape[:-2]
-    return Rotation.from_matrix(m.reshape(-1, 3, 3)).as_rotvec().reshape(shape + (3,))
-
-
 # ---------------------------------------------------------------------------------------------
 # frame-rate resampling
-
-
-def _aa_to_quat(aa: np.ndarray) -> np.ndarray:
-    """[..., 3] axis-angle -> [..., 4] (w, x, y, z)."""
-    theta = np.linalg.norm(aa, axis=-1, keepdims=True)
-    half = 0.5 * theta
-    scale = np.where(theta < 1e-8, 0.5 - theta**2 / 48.0, np.sin(half) / np.where(theta < 1e-8, 1.0, theta))
-    return np.concatenate([np.cos(half), aa * scale], axis=-1)
-
-
-def _quat_to_aa(q: np.ndarray) -> np.ndarray:
-    """[..., 4] (w, x, y, z) -> [..., 3] axis-angle with angle in [0, pi]."""
-    q = q * np.where(q[..., :1] < 0, -1.0, 1.0)
-    v = q[..., 1:]
-    s = np.linalg.norm(v, axis=-1, keepdims=True)
-    angle = 2.0 * np.arctan2(s, q[..., :1])
-    factor = np.where(s < 1e-8, 2.0, angle / np.where(s < 1e-8, 1.0, s))
-    return v * factor
-
-
-def slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Shortest-path spherical interpolation: q0, q1 [..., 4] unit (w, x, y, z), w [...] in [0, 1]."""
-    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
-    q1 = np.where(dot < 0, -q1, q1)
-    dot = np.abs(dot).clip(max=1.0)
-    w = w[..., None]
-    theta = np.arccos(dot)
-    sin = np.sin(theta)
-    near = sin < 1e-6
-    a = np.where(near, 1.0 - w, np.sin((1.0 - w) * theta) / np.where(near, 1.0, sin))
-    b = np.where(near, w, np.sin(w * theta) / np.where(near, 1.0, sin))
-    out = a * q0 + b * q1
-    return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
 
 def resample_motion(motion: Motion, fps: float) -> Motion:
@@ -434,11 +385,11 @@ def resample_motion(motion: Motion, fps: float) -> Motion:
     w = np.where(w < 1e-9, 0.0, w)
 
     def rot(aa: np.ndarray) -> np.ndarray:  # [T, ..., 3]
-        q = _aa_to_quat(np.asarray(aa, dtype=np.float64))
+        q = axis_angle_to_quat(np.asarray(aa, dtype=np.float64))
         extra = (1,) * (q.ndim - 2)
-        out = slerp(q[i0], q[i1], w.reshape((-1,) + extra))
+        out = quat_normalize(quat_slerp(q[i0], q[i1], w.reshape((-1,) + extra + (1,)), shortest=True))
         exact = (w == 0).reshape((-1,) + extra + (1,))
-        return np.where(exact[..., :1], np.asarray(aa, dtype=np.float64)[i0], _quat_to_aa(out))
+        return np.where(exact[..., :1], np.asarray(aa, dtype=np.float64)[i0], quat_to_axis_angle(out))
 
     trans = np.asarray(motion.root_translation, dtype=np.float64)
     trans = (1.0 - w)[:, None] * trans[i0] + w[:, None] * trans[i1]

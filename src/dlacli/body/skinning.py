@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import torch
 
-from dlacli.body.rotations import matrix_to_quat, quat_multiply, quat_normalize
+from dlacli.geometry import matrix_to_quat, quat_multiply, quat_normalize
 
 
 def skin_gaussians(

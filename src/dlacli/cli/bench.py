@@ -152,8 +152,9 @@ def accuracy(
     and novel view & pose. LPIPS is absent: it needs AlexNet weights dla does not ship."""
     from dlacli.bench.accuracy import run
     from dlacli.bench.report import report_markdown
+    from dlacli.data.appearance import APPEARANCES
+    from dlacli.data.subject import WARDROBES
     from dlacli.stages.methods import parse_methods
-    from dlacli.stages.synth import APPEARANCES, WARDROBES
 
     specs = parse_methods(methods)
     _names(appearance, "--appearance", APPEARANCES)
@@ -185,11 +186,12 @@ def regions(
     from dlacli.bench.regions import REGIONS, error_picture, pixel_regions, region_psnr
     from dlacli.bench.score import render_split
     from dlacli.body.model import get_body_model
+    from dlacli.data.synth import synth
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_path, check_outputs
     from dlacli.io.views import read_views
+    from dlacli.data.synth import synth
     from dlacli.stages.methods import make_spec
-    from dlacli.stages.synth import synth
 
     if output is not None and output.suffix.lower() != ".png":
         raise DlaInputError(output, "the error picture is a .png file")

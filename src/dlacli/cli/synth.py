@@ -87,7 +87,7 @@ def synth(
     given = dict(res=res, novel_views=novel_views, novel_poses=novel_poses, appearance=appearance, wardrobe=wardrobe)
     given = {key: value for key, value in given.items() if value is not None}
     if seeds is not None:
-        from dlacli.stages.synth_dataset import DatasetSettings, motion_files, synth_dataset
+        from dlacli.data.dataset import DatasetSettings, motion_files, synth_dataset
 
         subjects = parse_seeds(seeds)
         settings = DatasetSettings(**given, motions=motion_files(motions or []))
@@ -99,9 +99,9 @@ def synth(
     if jobs != 1:
         raise DlaInputError("--jobs", "is for dataset mode (--seeds)")
     from dlacli.cli.progress import status
+    from dlacli.data.synth import SUBJECT_LAYOUT
+    from dlacli.data.synth import synth as run
     from dlacli.io.atomic import check_outputs
-    from dlacli.stages.synth import SUBJECT_LAYOUT
-    from dlacli.stages.synth import synth as run
 
     check_outputs(folders=[(output, SUBJECT_LAYOUT)])
     with status("dla synth") as update:

@@ -34,7 +34,7 @@ def _summarizer(path: Path) -> Callable[[Path], dict[str, Any]]:
 
         return summarize_splat
     if suffix in (".usd", ".usda", ".usdc"):
-        from dlacli.io.usd import summarize_usd
+        from dlacli.io.usd_read import summarize_usd
 
         return summarize_usd
     if suffix == ".npz":

@@ -1,4 +1,7 @@
-"""Animated Gaussians as OpenUSD (formats/usd.md). The only module that imports `pxr`.
+"""Animated Gaussians as OpenUSD (formats/usd.md): the stage conventions and the writer.
+
+pxr is imported here, in dlacli.io.usd_read (reading back, summaries, validation) and in
+dlacli.io.usd_rig (the rigged asset), lazily, and nowhere else.
 
 `/Avatar` (Xform, the default prim) holds, by schema:
 - `points` -> `/Avatar/Points`: UsdGeom.Points (colour per point through `primvars:displayColor`,
@@ -12,20 +15,20 @@
 `tolerance` > 0 compacts the time samples (dlacli.io.usd_compact): the points and the instancer
 are split into rigid parts (`/Avatar/Points/Part000`, ... each with its own time-sampled
 `xformOp:transform` and `dla:indices`), and samples that USD's interpolation reproduces within
-the tolerance are left out. `read_usd` reads every layout back, including files written before
-the points schema existed.
+the tolerance are left out. `dlacli.io.usd_read.read_usd` reads every layout back, including
+files written before the points schema existed.
 
 Quaternions are (w, x, y, z) everywhere in dla; `Vt.Quat*Array.FromNumpy` and `numpy.asarray` on
-those arrays use (x, y, z, w). Only `_wxyz_to_xyzw` / `_xyzw_to_wxyz` below reorder.
+those arrays use (x, y, z, w). Only `dlacli.geometry.quat_wxyz_to_xyzw` / `quat_xyzw_to_wxyz` reorder.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
-from dataclasses import dataclass
+import sys
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -48,64 +51,100 @@ PARTICLE_FIELD_EXTENT_SIGMAS = 3.0  # the splats' extent covers 3 standard devia
 MAX_TOLERANCE = 1.0  # metres; compaction tolerances above this are refused
 PRIM_TYPES = {"instancer": "PointInstancer", "points": "Points", "particlefield": "ParticleField3DGaussianSplat"}
 PATHS = {"instancer": INSTANCER, "points": POINTS, "particlefield": SPLATS}
+MAX_QUOTE = 60  # characters of a file's content an error line quotes (escaped, then cut)
 
 
-@dataclass
-class UsdAnimation:
-    """What `read_usd` returns: T frames of N Gaussians."""
+# --------------------------------------------------------------------------------------------
+# pxr's diagnostics: warnings off the terminal, errors as one line
 
-    fps: float
-    start_time_code: float
-    end_time_code: float
-    time_codes: np.ndarray  # [T] the time code of each frame
-    positions: np.ndarray  # [T, N, 3] float32, metres
-    quats: np.ndarray  # [T, N, 4] float32 (w, x, y, z), unit (identity from the points schema)
-    scales: np.ndarray  # [T, N, 3] float32 standard deviations, metres (points: width / 2, isotropic)
-    rgb: np.ndarray  # [N, 3] or [T, N, 3] float32 in [0, 1]
-    opacities: np.ndarray  # [N] or [T, N] float32 in [0, 1]
-    schema: str  # "points", "instancer", "particlefield", "both" or "instancer+particlefield" (older files)
-    sh: np.ndarray | None = None  # [N, K, 3] float32, from the particle field when present
 
-    @property
-    def num_frames(self) -> int:
-        return self.positions.shape[0]
+@contextlib.contextmanager
+def pxr_quiet():
+    """pxr's own warnings and status lines (e.g. `Warning: in _HelperGetNumericValueFromString ...`
+    for an out-of-range integer literal) stay off the terminal, on runs that fail and on runs that
+    succeed: what matters reaches the user as dla's one-line errors. pxr's errors still raise.
+    Also a decorator (`@pxr_quiet()`)."""
+    from pxr import Tf
+
+    trap_type = getattr(Tf, "DiagnosticTrap", None)
+    if trap_type is None:  # a usd-core without Tf.DiagnosticTrap prints them on file descriptor 2
+        with _stderr_silenced():
+            yield
+        return
+    with trap_type() as trap:
+        try:
+            yield
+        finally:
+            trap.Clear()  # dismissed, not reposted when the trap closes
+
+
+@contextlib.contextmanager
+def _stderr_silenced():
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def excerpt(value, limit: int = MAX_QUOTE) -> str:
+    """`value` as an error line quotes it: a str in quotes, anything else as its repr, characters
+    that are not printable escaped (`\\n`, `\\x1b`), cut after `limit` characters with the full
+    length noted: "'99999...' (20,000 characters)"."""
+    if isinstance(value, str):
+        return clipped(value, limit, quoted=True)
+    return clipped(repr(value), limit)
+
+
+def clipped(text: str, limit: int = 2 * MAX_QUOTE, quoted: bool = False) -> str:
+    """`text` (a name from a file, a library's message) escaped and cut as `excerpt` does, in
+    quotes or not."""
+    shown, size = [], 0
+    for ch in text:
+        esc = ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii")
+        if quoted and ch in "'\\":
+            esc = "\\" + ch
+        if size + len(esc) > limit:
+            cut = "".join(shown) + "..."
+            return (f"'{cut}'" if quoted else cut) + f" ({len(text):,} characters)"
+        shown.append(esc)
+        size += len(esc)
+    return f"'{''.join(shown)}'" if quoted else "".join(shown)
+
+
+def tf_message(err: BaseException) -> str:
+    """The human part of a pxr error ("Error in 'Func' at line N in file F : 'message'"), one line,
+    escaped; what it quotes from a file (a 20 KB literal, a long prim name) cut to excerpts."""
+    text = " ".join(str(err).split())
+    found = [m.strip() for m in re.findall(r" : '(.*?)'(?= Error in |$)", text)] or [text]
+    found = [m for m in dict.fromkeys(found) if not any(m != other and m in other for other in found)]
+    message = "; ".join(found)  # each message once, the longest form (pxr repeats some with a line number)
+    message = re.sub(rf"'([^']{{{MAX_QUOTE + 1},}})'", lambda m: excerpt(m.group(1)), message)
+    message = re.sub(rf"[^\s']{{{2 * MAX_QUOTE + 1},}}", lambda m: clipped(m.group(0), MAX_QUOTE), message)
+    return clipped(message, 5 * MAX_QUOTE)
+
+
+def export_layer(layer, tmp: Path, path: Path, fmt: str) -> None:
+    """Export a layer to `tmp`, the temporary file of `path`'s atomic write. pxr's failures to write
+    (the disk full, the file-size limit) are DlaInputError `path: cannot write (...)`."""
+    try:
+        with pxr_quiet():
+            written = layer.Export(str(tmp), "", {"format": fmt})
+    except Exception as err:  # pxr.Tf.ErrorException
+        reason = re.search(r"writing file: (.*?)'", str(err))  # pxr quotes the OS error
+        problem = clipped(reason.group(1), MAX_QUOTE) if reason else tf_message(err)
+        raise DlaInputError(path, f"cannot write ({problem})") from None
+    if not written:
+        raise DlaInputError(path, "cannot write (pxr's export failed)")
 
 
 # --------------------------------------------------------------------------------------------
 # numpy helpers (functional core)
-
-
-def _wxyz_to_xyzw(q: np.ndarray) -> np.ndarray:
-    """[..., 4] (w, x, y, z) -> [..., 4] (x, y, z, w)."""
-    return np.concatenate([q[..., 1:], q[..., :1]], axis=-1)
-
-
-def _xyzw_to_wxyz(q: np.ndarray) -> np.ndarray:
-    """[..., 4] (x, y, z, w) -> [..., 4] (w, x, y, z)."""
-    return np.concatenate([q[..., 3:], q[..., :3]], axis=-1)
-
-
-def _normalized(q: np.ndarray) -> np.ndarray:
-    """[..., 4] -> [..., 4] unit length (zero rows stay zero)."""
-    norm = np.sqrt(np.einsum("...i,...i->...", q, q))[..., None]
-    return q / np.maximum(norm, np.finfo(q.dtype).tiny)
-
-
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """[..., 4] unit (w, x, y, z) -> [..., 3, 3] rotation matrices."""
-    return np.stack([np.stack(row, -1) for row in _rotation_rows(q)], -2)
-
-
-def _rotation_rows(q: np.ndarray) -> list[list[np.ndarray]]:
-    """[..., 4] unit (w, x, y, z) -> R[i][j] as 9 arrays [...] (elementwise, no [..., 3, 3] temporaries)."""
-    w, x, y, z = (q[..., k] for k in range(4))
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
-    return [
-        [1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)],
-        [2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)],
-        [2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)],
-    ]
 
 
 def instance_extent(
@@ -120,7 +159,9 @@ def instance_extent(
     instance of a prototype whose extent is that cube): half size along axis i = sum_j |R_ij| s_j.
     shape "ellipsoid": the unit sphere, tight: half size along axis i = sqrt(sum_j (R_ij s_j)^2).
     """
-    rows = _rotation_rows(quats)
+    from dlacli.geometry import quat_rotation_rows
+
+    rows = quat_rotation_rows(quats)
     s = [scales[..., j] for j in range(3)]
     if shape == "box":
         half = [sum(np.abs(rows[i][j]) * s[j] for j in range(3)) for i in range(3)]
@@ -157,6 +198,7 @@ def point_widths(scales: np.ndarray) -> np.ndarray:
 # writing
 
 
+@pxr_quiet()
 def write_usd(
     path: str | os.PathLike,
     positions,  # [T, N, 3] metres
@@ -199,9 +241,11 @@ def write_usd(
         sh = _to_numpy("sh", sh, [(n, None, 3)])
         if sh.shape[1] not in (1, 4, 9, 16):
             raise DlaInputError("sh", f"{sh.shape[1]} coefficients per channel is not (d+1)^2, d = 0..3")
+    from dlacli.geometry import quat_normalize
+
     if np.any(np.all(quats == 0, axis=-1)):
         raise DlaInputError("quats", "contains a zero quaternion")
-    quats = _normalized(quats)
+    quats = quat_normalize(quats, float(np.finfo(quats.dtype).tiny))
     if np.any(scales < 0):
         raise DlaInputError("scales", "contains negative values")
     scales = np.broadcast_to(scales, (t, n, 3))  # [T, N, 3]
@@ -247,8 +291,7 @@ def write_usd(
 
     fmt = "usda" if path.suffix.lower() == ".usda" else "usdc"
     with atomic_path(path) as tmp:
-        if not root.Export(str(tmp), "", {"format": fmt}):
-            raise OSError(f"{path}: USD export failed")
+        export_layer(root, tmp, path, fmt)
 
 
 def _parts(positions, quats, sizes, scales, tolerance, quat_dtype, rigid: bool):
@@ -323,6 +366,8 @@ def _write_group(stage, kind: str, parts, colours, times) -> None:
 def _define_instancer(stage, path: str, part, times):
     from pxr import Gf, UsdGeom, Vt
 
+    from dlacli.geometry import quat_wxyz_to_xyzw
+
     inst = UsdGeom.PointInstancer.Define(stage, path)
     UsdGeom.Scope.Define(stage, f"{path}/{PROTOTYPE.split('/')[0]}")
     sphere = UsdGeom.Sphere.Define(stage, f"{path}/{PROTOTYPE}")
@@ -331,7 +376,7 @@ def _define_instancer(stage, path: str, part, times):
     inst.CreatePrototypesRel().SetTargets([sphere.GetPath()])
     inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.zeros(len(part.indices), dtype=np.int32)))
     _set_track(inst.CreatePositionsAttr(), part.positions, Vt.Vec3fArray, times)
-    _set_track(inst.CreateOrientationsAttr(), part.quats, Vt.QuathArray, times, lambda q: _wxyz_to_xyzw(q).astype(np.float16))
+    _set_track(inst.CreateOrientationsAttr(), part.quats, Vt.QuathArray, times, lambda q: quat_wxyz_to_xyzw(q).astype(np.float16))
     _set_track(inst.CreateScalesAttr(), part.sizes, Vt.Vec3fArray, times)
     return inst
 
@@ -378,6 +423,8 @@ def _write_extents(geom, kind: str, times) -> None:
     computes (the quaternions as stored, unnormalised); points: the points +- width / 2."""
     from pxr import Vt
 
+    from dlacli.geometry import quat_xyzw_to_wxyz
+
     prim = geom.GetPrim()
     names = ("positions", "orientations", "scales") if kind == "instancer" else ("points", "widths")
     attrs = [prim.GetAttribute(name) for name in names]
@@ -388,7 +435,7 @@ def _write_extents(geom, kind: str, times) -> None:
         if values[0].size == 0:
             return
         if kind == "instancer":
-            box = instance_extent(values[0], _xyzw_to_wxyz(values[1]), values[2])
+            box = instance_extent(values[0], quat_xyzw_to_wxyz(values[1]), values[2])
         else:
             half = values[1][:, None] / 2
             box = np.stack([(values[0] - half).min(axis=0), (values[0] + half).max(axis=0)])
@@ -401,9 +448,11 @@ def _write_extents(geom, kind: str, times) -> None:
 def _write_splats(stage, splat_cls, part, opacities, rgb, sh, times):
     from pxr import Vt
 
+    from dlacli.geometry import quat_normalize, quat_wxyz_to_xyzw, quat_xyzw_to_wxyz
+
     splats = splat_cls.Define(stage, SPLATS)
     _set_track(splats.CreatePositionsAttr(), part.positions, Vt.Vec3fArray, times)
-    _set_track(splats.CreateOrientationsAttr(), part.quats, Vt.QuatfArray, times, lambda q: _wxyz_to_xyzw(q).astype(np.float32))
+    _set_track(splats.CreateOrientationsAttr(), part.quats, Vt.QuatfArray, times, lambda q: quat_wxyz_to_xyzw(q).astype(np.float32))
     _set_track(splats.CreateScalesAttr(), part.sizes, Vt.Vec3fArray, times)
     # extent at each frame of the geometry, from the values pxr returns there
     attrs = [splats.GetPrim().GetAttribute(a) for a in ("positions", "orientations", "scales")]
@@ -413,7 +462,8 @@ def _write_splats(stage, splat_cls, part, opacities, rgb, sh, times):
         pos, rot, scl = (np.asarray(a.Get(time), dtype=np.float32) for a in attrs)
         if pos.size == 0:
             break
-        box = instance_extent(pos, _normalized(_xyzw_to_wxyz(rot)), PARTICLE_FIELD_EXTENT_SIGMAS * scl, "ellipsoid")
+        unit = quat_normalize(quat_xyzw_to_wxyz(rot), float(np.finfo(rot.dtype).tiny))
+        box = instance_extent(pos, unit, PARTICLE_FIELD_EXTENT_SIGMAS * scl, "ellipsoid")
         extent.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(box)), *([time] if sampled else []))
     _set_maybe_timed(splats.CreateOpacitiesAttr(), opacities, Vt.FloatArray, times, timed=opacities.ndim == 2)
     if sh is None:
@@ -424,313 +474,3 @@ def _write_splats(stage, splat_cls, part, opacities, rgb, sh, times):
     coeffs = np.ascontiguousarray(sh.reshape(*sh.shape[:-3], -1, 3), dtype=np.float32)  # [(T,) N * K, 3]
     _set_maybe_timed(splats.CreateRadianceSphericalHarmonicsCoefficientsAttr(), coeffs, Vt.Vec3fArray, times, timed)
     return splats
-
-
-# --------------------------------------------------------------------------------------------
-# reading
-
-
-def _open_stage(path: Path):
-    from pxr import Usd
-
-    from dlacli.io.files import check_input
-
-    check_input(path)
-    if _encoding(path) == "usda":
-        _check_usda_text(path)
-    if path.suffix.lower() not in SUFFIXES:
-        raise DlaInputError(path, f"unknown USD suffix {path.suffix!r} (use .usd, .usda or .usdc)")
-    try:
-        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
-    except Exception as err:  # pxr.Tf.ErrorException and friends
-        raise DlaInputError(path, f"not a readable USD file ({_tf_message(err)})") from None
-    if stage is None:
-        raise DlaInputError(path, "not a readable USD file")
-    return stage
-
-
-def _tf_message(err: BaseException) -> str:
-    """The human part of a pxr error ("Error in 'Func' at line N in file F : 'message'"), one line."""
-    text = " ".join(str(err).split())
-    found = re.findall(r" : '(.*?)'(?= Error in |$)", text)
-    return "; ".join(found) if found else text[:300]
-
-
-MAX_USDA_DEPTH = 256  # USD's text parser recurses per nesting level and crashes (SIGSEGV) far below 10^5
-
-
-def _check_usda_text(path: Path) -> None:
-    """A text layer must be UTF-8 and nest brackets at most MAX_USDA_DEPTH deep before pxr parses it
-    (counted over the raw bytes: brackets inside strings only make the count larger)."""
-    from dlacli.io.files import MAX_TEXT_BYTES, read_bytes
-
-    data = read_bytes(path, MAX_TEXT_BYTES)
-    try:
-        data.decode("utf-8")
-    except UnicodeDecodeError as err:
-        raise DlaInputError(path, f"is not UTF-8 text (byte {err.start})") from None
-    step = np.zeros(256, np.int64)
-    step[list(b"([{")], step[list(b")]}")] = 1, -1
-    depth, chunk = 0, 1 << 24  # 16 MiB at a time: memory stays bounded for large layers
-    for start in range(0, len(data), chunk):
-        running = depth + np.cumsum(step[np.frombuffer(data, np.uint8, min(chunk, len(data) - start), start)])
-        if running.size and int(running.max()) > MAX_USDA_DEPTH:
-            raise DlaInputError(path, f"nests brackets deeper than {MAX_USDA_DEPTH} levels; not a USD layer dla reads")
-        depth = int(running[-1]) if running.size else depth
-
-
-def _encoding(path: Path) -> str:
-    with open(path, "rb") as f:
-        head = f.read(8)
-    if head.startswith(b"PXR-USDC"):
-        return "usdc"
-    if head.startswith(b"#usda"):
-        return "usda"
-    if head.startswith(b"PK"):
-        return "usdz"
-    return "unknown"
-
-
-def _array(attr, time, dtype=np.float32) -> np.ndarray | None:
-    """attr's value at time (None: the default) as an array, or None when it has none."""
-    from pxr import Usd
-
-    value = (attr.Get(Usd.TimeCode.Default() if time is None else time)) if attr else None
-    return None if value is None else np.asarray(value, dtype=dtype)
-
-
-def _schema_prims(stage) -> tuple[dict[str, list], str | None]:
-    """({kind: [part prims]} for the kinds present, schema name or None). A kind's prim is the
-    geometry itself, or an Xform whose children of that type are its parts (compact files)."""
-    found = {}
-    for kind, path in PATHS.items():
-        prim = stage.GetPrimAtPath(path)
-        if not prim:
-            continue
-        if prim.GetTypeName() == PRIM_TYPES[kind]:
-            found[kind] = [prim]
-        elif prim.GetTypeName() == "Xform":
-            parts = [c for c in prim.GetChildren() if c.GetTypeName() == PRIM_TYPES[kind]]
-            if parts:
-                found[kind] = parts
-    kinds = tuple(k for k in ("points", "instancer", "particlefield") if k in found)
-    names = {("points", "particlefield"): "both", ("instancer", "particlefield"): "instancer+particlefield"}
-    name = names.get(kinds, "+".join(kinds)) if kinds else None
-    return found, name
-
-
-def _frame_times(stage, prims) -> list[float]:
-    """The time code of each frame: every integer time code of the stage's range (compact files
-    leave samples out), else the union of the geometry's position samples."""
-    if stage.HasAuthoredTimeCodeRange():
-        start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()
-        if end >= start and end - start < 1e6:
-            return [start + i for i in range(int(np.floor(end - start)) + 1)]
-    samples = sorted({s for p in prims for s in p.GetAttribute(_position_name(p)).GetTimeSamples()})
-    return samples
-
-
-def _position_name(prim) -> str:
-    return "points" if prim.GetTypeName() == "Points" else "positions"
-
-
-def _part_indices(path: Path, prims, n_of) -> list[np.ndarray]:
-    """Each part's Gaussian indices (`dla:indices`, or all in order for a single prim); together
-    they must be a permutation of 0..N-1."""
-    if len(prims) == 1 and not prims[0].GetAttribute(INDICES):
-        return [np.arange(n_of(prims[0]))]
-    out = []
-    for prim in prims:
-        value = _array(prim.GetAttribute(INDICES), None, np.int64)
-        if value is None or value.size != n_of(prim):
-            raise DlaInputError(path, f"{prim.GetPath()}.{INDICES} is missing or does not match its points")
-        out.append(value)
-    allidx = np.concatenate(out)
-    if not np.array_equal(np.sort(allidx), np.arange(allidx.size)):
-        raise DlaInputError(path, f"the parts' {INDICES} are not a permutation of 0..{allidx.size - 1}")
-    return out
-
-
-def _read_parts(path: Path, prims, times) -> dict[str, np.ndarray]:
-    """World positions [T, N, 3], quats [T, N, 4] (w, x, y, z) and scales [T, N, 3] of one kind's
-    parts, each composed with its prim's local-to-world transform at that time."""
-    from pxr import Usd, UsdGeom
-
-    from dlacli.geometry import matrix_to_quat, quat_multiply
-
-    points = prims[0].GetTypeName() == "Points"
-    tcs = [Usd.TimeCode(s) for s in times] or [Usd.TimeCode.Default()]
-
-    def n_of(prim) -> int:
-        attr = prim.GetAttribute(_position_name(prim))
-        samples = attr.GetTimeSamples()
-        value = attr.Get(samples[0] if samples else Usd.TimeCode.Default())
-        return 0 if value is None else len(value)
-
-    indices = _part_indices(path, prims, n_of)
-    n, t = sum(len(i) for i in indices), len(tcs)
-    pos = np.empty((t, n, 3), np.float32)
-    quat = np.zeros((t, n, 4), np.float32)
-    quat[..., 0] = 1
-    scale = np.empty((t, n, 3), np.float32)
-    for prim, idx in zip(prims, indices):
-        xformable = UsdGeom.Xformable(prim)
-
-        def frames(name: str, width: int, prim=prim, idx=idx) -> np.ndarray:  # [T, n, width]
-            attr = prim.GetAttribute(name)
-            out = []
-            for time in tcs:
-                arr = _array(attr, time)
-                if arr is None:
-                    raise DlaInputError(path, f"{prim.GetPath()}.{name} has no value")
-                if arr.size != width * len(idx):
-                    raise DlaInputError(path, f"{prim.GetPath()}.{name} has {arr.size // width} entries for {len(idx)} points")
-                out.append(arr.reshape(-1, width))
-            return np.stack(out)
-
-        local = frames(_position_name(prim), 3)
-        m = np.stack([np.asarray(xformable.ComputeLocalToWorldTransform(time)) for time in tcs])  # [T, 4, 4]
-        world = np.einsum("tni,tij->tnj", local.astype(np.float64), m[:, :3, :3]) + m[:, None, 3, :3]
-        pos[:, idx] = world
-        if points:
-            widths = frames("widths", 1) if prim.GetAttribute("widths").HasValue() else np.full((t, len(idx), 1), 2.0)
-            scale[:, idx] = widths / 2
-            continue
-        q = _normalized(_xyzw_to_wxyz(frames("orientations", 4)))  # [T, n, 4] in the prim's frame
-        if not np.allclose(m[:, :3, :3], np.eye(3)):
-            r = np.swapaxes(m[:, :3, :3], 1, 2)  # column-vector rotation of each frame
-            r = r / np.linalg.norm(r, axis=1, keepdims=True)
-            q = quat_multiply(np.broadcast_to(matrix_to_quat(r)[:, None], q.shape), q.astype(np.float64))
-        quat[:, idx] = _normalized(np.asarray(q, np.float32))
-        scale[:, idx] = frames("scales", 3) if prim.GetAttribute("scales").HasValue() else 1.0
-    return {"positions": pos, "quats": quat, "scales": scale, "indices": indices}
-
-
-def _primvar_frames(path: Path, prims, indices, name: str, width: int, times, n: int) -> np.ndarray | None:
-    """[N, width], or [T, N, width] when time-sampled, of a per-point primvar over the parts."""
-    from pxr import Usd
-
-    attrs = [p.GetAttribute(name) for p in prims]
-    if not all(a and a.HasValue() for a in attrs):
-        return None
-    timed = any(a.GetNumTimeSamples() > 0 for a in attrs)
-    tcs = [Usd.TimeCode(s) for s in times] if timed else [Usd.TimeCode.Default()]
-    out = np.empty((len(tcs), n, width), np.float32)
-    for attr, idx in zip(attrs, indices):
-        for k, time in enumerate(tcs):
-            arr = _array(attr, time)
-            if arr is None or arr.size != width * len(idx):
-                raise DlaInputError(path, f"{attr.GetPath()} has missing or uneven values")
-            out[k, idx] = arr.reshape(-1, width)
-    return out if timed else out[0]
-
-
-def read_usd(path: str | os.PathLike) -> UsdAnimation:
-    """Read a dla USD file back (any schema and layout), one frame per time code of the stage's
-    range, at which pxr interpolates between the samples a compact file kept. Geometry comes from
-    /Avatar/Splats when present (full float precision), else /Avatar/Gaussians (quath
-    orientations), else /Avatar/Points (no orientations: identity rotations, isotropic scales
-    width / 2)."""
-    path = Path(path)
-    stage = _open_stage(path)
-    fmt = stage.GetRootLayer().customLayerData.get(FORMAT_KEY)
-    if fmt != FORMAT:
-        raise DlaInputError(path, f"customLayerData {FORMAT_KEY!r} is {fmt!r}, expected {FORMAT!r}")
-    found, schema = _schema_prims(stage)
-    if schema is None:
-        raise DlaInputError(path, f"no Gaussians: none of {POINTS}, {INSTANCER}, {SPLATS} (nor parts under them)")
-    kind = next(k for k in ("particlefield", "instancer", "points") if k in found)
-    times = _frame_times(stage, found[kind])
-    geom = _read_parts(path, found[kind], times)
-    n = geom["positions"].shape[1]
-
-    sh = opacities = None
-    if kind == "particlefield":
-        splats = found[kind][0]
-        opacities = _primvar_frames(path, [splats], geom["indices"], "opacities", 1, times, n)
-        coeffs = _array(splats.GetAttribute("radiance:sphericalHarmonicsCoefficients"), None)
-        degree = splats.GetAttribute("radiance:sphericalHarmonicsDegree").Get()
-        k = (int(degree) + 1) ** 2 if degree is not None else 1
-        if coeffs is not None and coeffs.size == 3 * n * k:
-            sh = coeffs.reshape(n, k, 3)
-    colour_kind = next((k for k in ("points", "instancer") if k in found), None)
-    rgb = None
-    if colour_kind is not None:
-        prims = found[colour_kind]
-        indices = geom["indices"] if colour_kind == kind else _read_parts(path, prims, times[:1])["indices"]
-        if sum(len(i) for i in indices) != n:
-            raise DlaInputError(path, f"{PATHS[colour_kind]} holds {sum(len(i) for i in indices)} points for {n} Gaussians")
-        rgb = _primvar_frames(path, prims, indices, "primvars:displayColor", 3, times, n)
-        if opacities is None:
-            opacities = _primvar_frames(path, prims, indices, "primvars:displayOpacity", 1, times, n)
-    if rgb is None:
-        rgb = np.clip(sh[:, 0] * SH_C0 + 0.5, 0, 1) if sh is not None else np.full((n, 3), 0.5, np.float32)
-    opacities = np.ones(n, np.float32) if opacities is None else opacities[..., 0]
-    return UsdAnimation(
-        fps=float(stage.GetTimeCodesPerSecond()),
-        start_time_code=float(stage.GetStartTimeCode()),
-        end_time_code=float(stage.GetEndTimeCode()),
-        time_codes=np.asarray(times if times else [stage.GetStartTimeCode()], dtype=np.float64),
-        positions=geom["positions"],
-        quats=geom["quats"],
-        scales=geom["scales"],
-        rgb=np.asarray(rgb, np.float32),
-        opacities=np.asarray(opacities, np.float32),
-        schema=schema,
-        sh=sh,
-    )
-
-
-def summarize_usd(path: str | os.PathLike) -> dict[str, Any]:
-    """JSON-able summary of any USD file (used by `dla info`); dla files also say their format."""
-    from pxr import UsdGeom
-
-    path = Path(path)
-    stage = _open_stage(path)
-    prims, time_sampled = [], []
-    instances = None
-    for prim in stage.Traverse():
-        prims.append(f"{prim.GetPath()} ({prim.GetTypeName() or 'untyped'})")
-        for attr in prim.GetAttributes():
-            if attr.GetNumTimeSamples() > 0:
-                time_sampled.append(str(attr.GetPath()))
-    found, schema = _schema_prims(stage)
-    if found:
-        instances = 0
-        for prim in next(iter(found.values())):
-            attr = prim.GetAttribute(_position_name(prim))
-            samples = attr.GetTimeSamples()
-            value = attr.Get(samples[0]) if samples else attr.Get()
-            instances += len(value) if value is not None else 0
-    start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()
-    return {
-        "kind": "usd",
-        "format": stage.GetRootLayer().customLayerData.get(FORMAT_KEY),
-        "encoding": _encoding(path),
-        "up_axis": str(UsdGeom.GetStageUpAxis(stage)),
-        "meters_per_unit": float(UsdGeom.GetStageMetersPerUnit(stage)),
-        "fps": float(stage.GetTimeCodesPerSecond()),
-        "start_time_code": float(start),
-        "end_time_code": float(end),
-        "frames": int(round(end - start)) + 1 if stage.HasAuthoredTimeCodeRange() else 1,
-        "instances": instances,
-        "parts": max((len(v) for v in found.values()), default=0),
-        "prims": prims,
-        "time_sampled": time_sampled,
-        "schema": schema,
-    }
-
-
-def validate_usd(path: str | os.PathLike) -> list[str]:
-    """Run every registered `pxr.UsdValidation` validator; the messages of all errors (not warnings)."""
-    from pxr import UsdValidation
-
-    stage = _open_stage(Path(path))
-    registry = UsdValidation.ValidationRegistry()
-    context = UsdValidation.ValidationContext(registry.GetOrLoadAllValidators())
-    errors = context.Validate(stage)
-    return [
-        err.GetErrorAsString()
-        for err in errors
-        if err.GetType() == UsdValidation.ValidationErrorType.Error
-    ]

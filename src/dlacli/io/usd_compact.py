@@ -1,15 +1,17 @@
-"""Compact time samples for dla's USD files (formats/usd.md "Compaction"); numpy only, no pxr.
+"""Compact time samples for dla's USD files (formats/usd.md "Compaction"); numpy, no pxr.
 
 Two reductions, each checked against the full animation at every frame:
 
-1. **Rigid parts** (`split_parts`, `rigid_motion`): the Gaussians are grouped by how they move
-   (k-means over their trajectories, then rigid reassignment); each part gets one rigid transform
-   per frame (a Kabsch fit), stored exactly at every frame as the part prim's `xformOp:transform`,
-   and its Gaussians are stored in the part's own frame, where a limb's Gaussians barely move.
+1. **Rigid parts** (`split_parts`, `dlacli.geometry.rigid_motion`): the Gaussians are grouped by
+   how they move (k-means over their trajectories, then rigid reassignment); each part gets one
+   rigid transform per frame (a Kabsch fit), stored exactly at every frame as the part prim's
+   `xformOp:transform`, and its Gaussians are stored in the part's own frame, where a limb's
+   Gaussians barely move.
 2. **Keyframe reduction** (`keep_frames`): a time sample of a part's positions, orientations or
    sizes is left out when USD's interpolation between the kept neighbouring samples (linear for
-   points and floats, slerp for quaternions, `Usd.InterpolationTypeLinear`) reproduces every
-   Gaussian of the part within the tolerance at that frame. The first and last frames are kept.
+   points and floats, slerp for quaternions (`dlacli.geometry.quat_slerp`),
+   `Usd.InterpolationTypeLinear`) reproduces every Gaussian of the part within the tolerance at
+   that frame. The first and last frames are kept.
    A track whose every frame is within tolerance of frame 0 is written once, not time-sampled.
 
 Tolerance (one number, `tol` metres, 0 = exact): the 1-sigma ellipsoid of every Gaussian moves
@@ -24,6 +26,15 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+
+from dlacli.geometry import (
+    matrix_to_quat,
+    quat_conjugate,
+    quat_continuous_signs,
+    quat_multiply,
+    quat_slerp,
+    rigid_motion,
+)
 
 SIZE_REL = 0.02  # relative tolerance of scales / widths whenever tol > 0
 GAUSSIANS_PER_PART = 2048  # parts = clip(N // GAUSSIANS_PER_PART, 1, MAX_PARTS)
@@ -53,7 +64,7 @@ class Track:
         t0, t1 = self.frames[k], self.frames[k + 1]
         alpha = (t - t0) / (t1 - t0)
         a, b = self.values[k].astype(np.float64), self.values[k + 1].astype(np.float64)
-        return slerp(a, b, alpha) if kind == "slerp" else a + (b - a) * alpha
+        return quat_slerp(a, b, alpha) if kind == "slerp" else a + (b - a) * alpha
 
 
 @dataclass
@@ -68,35 +79,7 @@ class Part:
 
 
 # --------------------------------------------------------------------------------------------
-# interpolation and errors
-
-
-def slerp(a: np.ndarray, b: np.ndarray, alpha: float) -> np.ndarray:
-    """[..., 4] unit quaternions with <a, b> >= 0 -> [..., 4] spherical interpolation (GfSlerp)."""
-    phi = 2 * np.arctan2(np.linalg.norm(a - b, axis=-1), np.linalg.norm(a + b, axis=-1))[..., None]
-    small = phi < 1e-6
-    sin_phi = np.where(small, 1.0, np.sin(phi))
-    wa = np.where(small, 1 - alpha, np.sin((1 - alpha) * phi) / sin_phi)
-    wb = np.where(small, alpha, np.sin(alpha * phi) / sin_phi)
-    return wa * a + wb * b
-
-
-def rotation_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """[..., 4] x2 quaternions -> [...] angle (radians) of the rotation between them (sign-blind)."""
-    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
-    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
-    b = np.where(np.sum(a * b, axis=-1, keepdims=True) < 0, -b, b)
-    return 4 * np.arctan2(np.linalg.norm(a - b, axis=-1), np.linalg.norm(a + b, axis=-1))
-
-
-def continuous_signs(q: np.ndarray) -> np.ndarray:
-    """[T, n, 4] -> the same rotations with <q[t], q[t-1]> >= 0 (q and -q are one rotation), so
-    interpolating neighbouring samples takes the short way."""
-    q = q.copy()
-    for t in range(1, q.shape[0]):
-        dot = np.einsum("nd,nd->n", q[t].astype(np.float32), q[t - 1].astype(np.float32))
-        q[t] *= np.where(dot < 0, -1, 1).astype(q.dtype)[:, None]
-    return q
+# interpolation errors
 
 
 def _weights(k: int, j: int, dtype=np.float32) -> np.ndarray:
@@ -137,7 +120,7 @@ def slerp_check(stored: np.ndarray, truth: np.ndarray, tol_rad: np.ndarray) -> C
         a, b = stored[k], stored[j]
         if np.any(np.einsum("nd,nd->n", a, b) < 0):
             return False
-        mid = slerp(a, b, _weights(k, j, np.float64))  # [j-k-1, n, 4]
+        mid = quat_slerp(a, b, _weights(k, j, np.float64))  # [j-k-1, n, 4]
         return bool(np.all(np.abs(np.einsum("mnd,mnd->mn", mid, truth[k + 1 : j])) >= min_dot))
 
     return ok
@@ -269,23 +252,6 @@ def _best_rigid_part(frames: np.ndarray, motions: list) -> np.ndarray:
     return np.asarray(live, np.int64)[np.argmin(cost, axis=1)]
 
 
-def rigid_motion(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """positions [T, n, 3] -> (R [T, 3, 3], c [T, 3]) float64, the rotation and translation that
-    best carry frame 0's shape (about its centroid) onto frame t's (Kabsch, no reflection):
-    p_t ~ R_t (p_0 - mean_0) + c_t. R_0 = I, c_t = mean_t."""
-    p = positions.astype(np.float64)
-    mean = p.mean(axis=1)  # [T, 3]
-    a = p[0] - mean[0]  # [n, 3]
-    h = np.einsum("ni,tnj->tij", a, p - mean[:, None])  # [T, 3, 3] cross-covariance
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.einsum("tji,tkj->tik", vt, u)))  # det(V U^T)
-    fix = np.ones((p.shape[0], 3))
-    fix[:, 2] = np.where(d == 0, 1, d)
-    r = np.einsum("tji,tj,tkj->tik", vt, fix, u)  # V diag(1, 1, d) U^T
-    r[0] = np.eye(3)
-    return r, mean
-
-
 def usd_matrix(r: np.ndarray, c: np.ndarray) -> np.ndarray:
     """(R [T, 3, 3], c [T, 3]) -> [T, 4, 4] in USD's row-vector form: p_world = (p_local, 1) M."""
     m = np.zeros((r.shape[0], 4, 4))
@@ -306,8 +272,6 @@ def compact(
     parts: bool = True,
 ) -> list[Part]:
     """The compact tracks of one schema's prim(s); `parts=False` keeps one world-space part."""
-    from dlacli.geometry import matrix_to_quat, quat_conjugate, quat_multiply
-
     t, n = positions.shape[:2]
     n_parts = int(np.clip(n // GAUSSIANS_PER_PART, 1, MAX_PARTS)) if parts else 1
     labels = split_parts(positions, n_parts) if n_parts > 1 else np.zeros(n, np.int64)
@@ -333,7 +297,7 @@ def compact(
             if parts:
                 q_part = matrix_to_quat(r)  # [T, 4]
                 q = quat_multiply(np.broadcast_to(quat_conjugate(q_part)[:, None], q.shape), q)
-            written = continuous_signs(q.astype(quat_dtype))  # [T, n, 4] as the file holds them
+            written = quat_continuous_signs(q.astype(quat_dtype))  # [T, n, 4] as the file holds them
             unit = written.astype(np.float64)
             unit /= np.linalg.norm(unit, axis=-1, keepdims=True)
             tol_rad = tol / np.maximum(sigma_max[:, idx].max(axis=0), 1e-12)  # [n], the largest sigma over time

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.io.usd import AVATAR, FORMAT_KEY, SUFFIXES  # one USD stage convention for both writers
+from dlacli.io.usd import AVATAR, FORMAT_KEY, SUFFIXES, export_layer, pxr_quiet  # one USD convention for both writers
 from dlacli.types import srgb_to_linear
 
 FORMAT = "dla.usd-rig/1"
@@ -108,13 +108,14 @@ def _check(asset: RigAsset) -> None:
         assert asset.fps is not None and asset.fps > 0, asset.fps
 
 
+@pxr_quiet()
 def write_rig_usd(path: str | os.PathLike, asset: RigAsset) -> Path:
     """Write the UsdSkel asset (binary for .usdc/.usd, text for .usda) and its texture PNG beside
     it, both atomically and together (one output group). Returns the texture's path."""
     from PIL import Image
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
 
-    from dlacli.geometry import matrix_to_quat
+    from dlacli.geometry import matrix_to_quat, quat_wxyz_to_xyzw
     from dlacli.io.atomic import atomic_path, output_group
 
     path = Path(path)
@@ -203,7 +204,7 @@ def write_rig_usd(path: str | os.PathLike, asset: RigAsset) -> Path:
         anim.CreateJointsAttr(tokens)
         tr_attr, rot_attr = anim.CreateTranslationsAttr(), anim.CreateRotationsAttr()
         anim.CreateScalesAttr().Set(Vt.Vec3hArray.FromNumpy(np.ones((len(paths), 3), np.float16)))
-        xyzw = np.ascontiguousarray(np.concatenate([quats[..., 1:], quats[..., :1]], axis=-1), np.float32)
+        xyzw = np.ascontiguousarray(quat_wxyz_to_xyzw(quats), np.float32)
         for i in range(t):
             time = Usd.TimeCode(float(i))
             tr_attr.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(local[i, :, :3, 3], np.float32)), time)
@@ -215,6 +216,5 @@ def write_rig_usd(path: str | os.PathLike, asset: RigAsset) -> Path:
         with atomic_path(tex_path) as tmp:
             Image.fromarray(asset.texture, "RGB").save(tmp, format="PNG", optimize=True)
         with atomic_path(path) as tmp:
-            if not stage.GetRootLayer().Export(str(tmp), "", {"format": fmt}):
-                raise OSError(f"{path}: USD export failed")
+            export_layer(stage.GetRootLayer(), tmp, path, fmt)
     return tex_path

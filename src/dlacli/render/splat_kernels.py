@@ -32,6 +32,8 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from dlacli.render.radix_sort import radix_argsort_u32
+
 # numba's OpenMP thread pool and torch's are separate runtimes sharing the same few cores; their
 # busy-waiting threads starve each other (2 cores: 2k Gaussians at 128^2 took ~50 ms instead of
 # ~2.5 ms). Wait passively unless the user chose otherwise; numba's libgomp reads this when it
@@ -48,27 +50,6 @@ SIGMA_MARGIN = 0.05
 NPARAM = 16
 NGRAD = 10  # d mean2d (2), d conic (3), d opacity (1), d colour (4)
 BATCH = 32  # list entries copied at once into a small local buffer (many loads in flight)
-
-
-@njit(cache=True, nogil=True)
-def _radix_argsort_u32(keys):  # keys: [M] uint32 -> [M] int64 stable ascending order
-    m = keys.shape[0]
-    order = np.arange(m)
-    tmp = np.empty(m, dtype=np.int64)
-    counts = np.empty(2049, dtype=np.int64)
-    for shift in (0, 11, 22):
-        counts[:] = 0
-        for i in range(m):
-            counts[((keys[order[i]] >> shift) & 2047) + 1] += 1
-        for d in range(2048):
-            counts[d + 1] += counts[d]
-        for i in range(m):
-            o = order[i]
-            d = (keys[o] >> shift) & 2047
-            tmp[counts[d]] = o
-            counts[d] += 1
-        order, tmp = tmp, order
-    return order
 
 
 @njit(parallel=True, cache=True)
@@ -158,7 +139,7 @@ def _depth_order(radii, depth_keys):
         keys = np.empty(m, dtype=np.uint32)
         for i in range(m):
             keys[i] = depth_keys[c, vis[i]]
-        order = _radix_argsort_u32(keys)
+        order = radix_argsort_u32(keys)
         for i in range(m):
             out[s] = c * n + vis[order[i]]
             s += 1

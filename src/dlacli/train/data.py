@@ -71,7 +71,7 @@ class _Subject:
 
 def _discover(root: Path) -> list[tuple[int | None, str, Path]]:
     """(seed or None, folder name, folder) of every subject under `root`, in manifest order."""
-    from dlacli.stages.synth_dataset import MANIFEST, read_manifest
+    from dlacli.data.dataset import MANIFEST, read_manifest
 
     if (root / MANIFEST).is_file():
         manifest = read_manifest(root / MANIFEST)

@@ -1,6 +1,6 @@
 """`dla synth --seeds`: many synthetic subjects in one dataset folder with a manifest
 (formats/dataset.md), written by parallel processes and resumable; each subject is
-`dlacli.stages.synth.synth` with the dataset's settings."""
+`dlacli.data.synth.synth` with the dataset's settings."""
 
 from __future__ import annotations
 
@@ -13,8 +13,9 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
+from dlacli.data.cameras import POSE_AZIMUTHS
+from dlacli.data.synth import SUBJECT_LAYOUT, _check_options, synth
 from dlacli.errors import DlaInputError
-from dlacli.stages.synth import POSE_AZIMUTHS, SUBJECT_LAYOUT, _check_options, synth
 
 Progress = Callable[[str], None]
 
