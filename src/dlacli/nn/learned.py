@@ -68,14 +68,6 @@ def learned_config(preset: str = "tiny", variant: str = "full") -> LearnedConfig
     return LearnedConfig(u, e, g, gaussians=GAUSSIANS[preset], preset=preset, variant=variant)
 
 
-def scaled_cameras(cameras: Cameras, size: int) -> Cameras:
-    """The same cameras for size x size images (square views: intrinsics scale by size / width)."""
-    f = size / cameras.width
-    ks = cameras.Ks.clone()
-    ks[:, :2, :] *= f
-    return Cameras(cameras.viewmats.clone(), ks, size, size)
-
-
 def subject_depth(cameras: Cameras, vertices: torch.Tensor) -> torch.Tensor:
     """[C] distance from each camera centre to the centre of the body's bounding box (metres)."""
     from dlacli.geometry import camera_centers
@@ -97,7 +89,7 @@ def output_rays(cameras: Cameras, side: int) -> tuple[torch.Tensor, torch.Tensor
     """World rays through the centres of the U-Net's side x side output pixels: [V, h, w, 3] x 2."""
     from dlacli.geometry import pixel_rays
 
-    return pixel_rays(scaled_cameras(cameras.to(dtype=torch.float32), side))
+    return pixel_rays(cameras.to(dtype=torch.float32).resized(side, side))
 
 
 def conditioning(vertices: torch.Tensor, rest_vertices, eye, resolution: int, pose=None) -> torch.Tensor:

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from dlacli.errors import DlaInputError
-from dlacli.nn.learned import DECODER, ENCODER, LearnedAvatarNet, conditioning, scaled_cameras, subject_depth
+from dlacli.nn.learned import DECODER, ENCODER, LearnedAvatarNet, conditioning, subject_depth
 
 # checkpoints written before the network moved to nn/ name dlacli.stages.learned.LearnedAvatarNet
 # and .LearnedConfig: both stay importable from here (avatar/checkpoint.py rebuilds by dotted name)
@@ -33,7 +33,7 @@ def input_tensors(views: ViewSet, size: int) -> tuple[torch.Tensor, torch.Tensor
     if h != size:
         x = nnf.interpolate(x, size=(size, size), mode="area" if h > size else "bilinear")
     x = x.clamp(0.0, 1.0)
-    return x[:, :3].contiguous(), x[:, 3:].contiguous(), scaled_cameras(views.cameras, size)
+    return x[:, :3].contiguous(), x[:, 3:].contiguous(), views.cameras.resized(size, size)
 
 
 def load_learned(checkpoint: str, where: str = "--checkpoint"):

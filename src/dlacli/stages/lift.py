@@ -64,12 +64,6 @@ class LiftConfig:
 # ------------------------------------------------------------------------------ a. unstructured
 
 
-def _scaled_cameras(cameras: Cameras, factor: float, width: int, height: int) -> Cameras:
-    ks = cameras.Ks.clone()
-    ks[:, :2, :] *= factor
-    return Cameras(cameras.viewmats.clone(), ks, width, height)
-
-
 def _block_mean(x: np.ndarray, s: int) -> np.ndarray:
     """[H, W, ...] -> [H // s, W // s, ...] mean over s x s blocks (crops the remainder)."""
     h, w = x.shape[0] // s * s, x.shape[1] // s * s
@@ -129,7 +123,7 @@ def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128
     h, w = views.masks.shape[1:]
     stride = max(1, int(round(max(h, w) / grid)))
     gh, gw = h // stride, w // stride
-    cams = _scaled_cameras(views.cameras, 1.0 / stride, gw, gh)
+    cams = views.cameras.resized(gw, gh, scale=1.0 / stride)  # blocks of stride pixels, the remainder cropped
     body = rasterize(vertices, faces, cams)
     centre = vertices.mean(axis=0)
     radius = float(np.linalg.norm(vertices - centre, axis=1).max()) + 0.4
@@ -380,10 +374,7 @@ def _resized_targets(views: ViewSet, max_size: int):
     if (rh, rw) != (h, w):
         x = nnf.interpolate(x, size=(rh, rw), mode="bilinear", antialias=True, align_corners=False)
     x = x.permute(0, 2, 3, 1).clamp(0.0, 1.0)
-    ks = views.cameras.Ks.clone()
-    ks[:, 0, :] *= rw / w
-    ks[:, 1, :] *= rh / h
-    return x[..., :3].contiguous(), x[..., 3].contiguous(), Cameras(views.cameras.viewmats, ks, rw, rh)
+    return x[..., :3].contiguous(), x[..., 3].contiguous(), views.cameras.resized(rw, rh)
 
 
 def _mean(x: torch.Tensor, rows: int = 1024) -> torch.Tensor:

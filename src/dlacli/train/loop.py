@@ -142,7 +142,7 @@ class GeneratorLoss(nn.Module):
         from dlacli.nn.encoder import kl_divergence
         from dlacli.nn.losses import perceptual_loss
         from dlacli.render.splat import render_gaussians
-        from dlacli.nn.learned import conditioning, scaled_cameras, subject_depth
+        from dlacli.nn.learned import conditioning, subject_depth
         from dlacli.geometry import camera_centers
 
         net, cfg = self.net, self.cfg
@@ -163,14 +163,14 @@ class GeneratorLoss(nn.Module):
             from dlacli.types import Gaussians
 
             pg = Gaussians.from_rgb(g.means[b], g.quats[b], g.scales[b], g.opacities[b], g.rgb[b])
-            in_cams = scaled_cameras(it.input_cameras, size).to(device)
+            in_cams = it.input_cameras.resized(size, size).to(device)
             in_rgb = _resize(it.input_rgb, size).to(device)
             in_mask = _resize(it.input_mask, size).to(device)
             ug = render_gaussians(pg, in_cams)
             ug_l = (ug.rgb - in_rgb.permute(0, 2, 3, 1)).abs().mean() + (ug.alpha - in_mask[:, 0]).abs().mean()
             t_rgb = _resize(it.target_rgb, size).to(device)  # [T, 3, H, H]
             t_mask = _resize(it.target_mask, size).to(device)
-            t_cams = scaled_cameras(it.target_cameras, size).to(device)
+            t_cams = it.target_cameras.resized(size, size).to(device)
             same = [t for t, kind in enumerate(it.target_kind) if kind == "view"]
             if same:
                 sel = torch.tensor(same)
@@ -389,7 +389,7 @@ def train(data: str | os.PathLike, out: str | os.PathLike, cfg: TrainConfig, *, 
 def validate(net, data, size: int, seed: int = 0, subjects: int = 2):
     """Masked and whole-image PSNR and alpha IoU of the decoder's renders on validation items (the
     posterior mean, no noise), and a picture: ground truth above prediction per target."""
-    from dlacli.nn.learned import scaled_cameras, subject_depth
+    from dlacli.nn.learned import subject_depth
     from dlacli.stages.learned import render_targets
 
     net.eval()
@@ -399,7 +399,7 @@ def validate(net, data, size: int, seed: int = 0, subjects: int = 2):
         cams = it.input_cameras
         g, feats = net.reconstruct(it.input_rgb[None], [cams], subject_depth(cams, it.input_vertices)[None])
         mean, _ = net.encode(g, feats, net.uv_positions(it.input_vertices[None]))
-        t_cams = scaled_cameras(it.target_cameras, size)
+        t_cams = it.target_cameras.resized(size, size)
         for t in range(len(it.target_kind)):
             cam = type(t_cams)(t_cams.viewmats[t:t + 1], t_cams.Ks[t:t + 1], size, size)
             pred, alpha = render_targets(net, mean[0], it.target_vertices[t], it.rest_vertices, cam)
