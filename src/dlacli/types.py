@@ -168,8 +168,8 @@ class Cameras:
 
     def select(self, index) -> "Cameras":
         """The cameras at `index` (an int, a slice, a list or an index array), still batched [C']."""
-        if isinstance(index, int):
-            index = slice(index, index + 1)
+        if isinstance(index, (int, np.integer)):
+            index = slice(int(index), int(index) + 1)
         return Cameras(self.viewmats[index], self.Ks[index], self.width, self.height)
 
     def resized(self, width: int, height: int, scale: float | None = None) -> "Cameras":

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from dlacli.errors import DlaInputError
-from dlacli.nn.learned import DECODER, ENCODER, LearnedAvatarNet, conditioning, subject_depth
+from dlacli.nn.learned import DECODER, ENCODER, LearnedAvatarNet, subject_depth
 
 # checkpoints written before the network moved to nn/ name dlacli.stages.learned.LearnedAvatarNet
 # and .LearnedConfig: both stay importable from here (avatar/checkpoint.py rebuilds by dotted name)
@@ -47,29 +47,17 @@ def load_learned(checkpoint: str, where: str = "--checkpoint"):
 
 
 def render_targets(net: LearnedAvatarNet, z: torch.Tensor, vertices: torch.Tensor, rest, cameras: Cameras):
-    """Render the avatar z [C, r, r] on one posed body (vertices [V, 3]) from each camera, with
-    the F of that camera (a view-conditioned GPD decodes per camera) -> rgb [C, H, W, 3], alpha."""
+    """Render the avatar z [C, r, r] (differentiable in z) on one posed body (vertices [V, 3];
+    rest [V, 3] its zero pose) from C cameras, with the F of each camera when the GPD is
+    view-conditioned (avatar/posed.py) -> rgb [C, H, W, 3], alpha [C, H, W]."""
+    from dlacli.avatar.codec import Decoded
+    from dlacli.avatar.posed import PosedAvatar, render_posed
     from dlacli.geometry import camera_centers
-    from dlacli.render.splat import render_gaussians
 
-    from dlacli.avatar.codec import pose_conditioning
-
-    eyes = camera_centers(cameras.viewmats.float())
-    rgbs, alphas = [], []
-    trunk = net.gpd.trunk(z[None])
-    f_c = net.gpd.canonical(z[None], trunk=trunk)
-    pose = pose_conditioning(vertices.float(), np.asarray(rest), net.resolution) if net.conditioned else None
-    for c in range(len(cameras)):
-        fmap = f_c
-        if net.conditioned:
-            cond = conditioning(vertices, rest, eyes[c], net.resolution, pose)[None]
-            fmap = f_c + net.gpd.delta(z[None], cond, trunk=trunk)
-        g = net.gaussians(fmap, vertices[None]).item(0)
-        cam = Cameras(cameras.viewmats[c:c + 1], cameras.Ks[c:c + 1], cameras.width, cameras.height)
-        out = render_gaussians(g, cam)
-        rgbs.append(out.rgb[0])
-        alphas.append(out.alpha[0])
-    return torch.stack(rgbs), torch.stack(alphas)
+    eyes = camera_centers(cameras.viewmats.float())[None]  # [1, C, 3]
+    posed = PosedAvatar(Decoded.of(net, z, rest), net.samples, vertices[None].float(), eyes)
+    outs = [out for _, out in render_posed(posed, cameras)]
+    return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
 
 
 def lift_learned(views: ViewSet, checkpoint: str, steps: int = 0, lr: float = 0.02, render_size: int = 256,
