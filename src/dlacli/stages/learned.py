@@ -68,6 +68,7 @@ def lift_learned(views: ViewSet, checkpoint: str, steps: int = 0, lr: float = 0.
     from dlacli.body.model import get_body_model
     from dlacli.body.uv import UV_LAYOUT
     from dlacli.stages.lift import MAX_VIEWS, LiftResult, _resized_targets, sheet_and_novel_view
+    from dlacli.stages.refine import adam_refine
     from dlacli.types import Avatar
 
     if views.body is None:
@@ -89,16 +90,12 @@ def lift_learned(views: ViewSet, checkpoint: str, steps: int = 0, lr: float = 0.
     if steps > 0:
         t_rgb, t_mask, t_cams = _resized_targets(views, render_size)
         z.requires_grad_(True)
-        opt = torch.optim.Adam([z], lr=lr)
-        for i in range(steps):
-            opt.zero_grad(set_to_none=True)
+
+        def loss() -> torch.Tensor:
             pred, alpha = render_targets(net, z, verts, rest, t_cams)
-            loss = (pred - t_rgb).abs().mean() + (alpha - t_mask).abs().mean()
-            loss.backward()
-            opt.step()
-            history.append(float(loss.detach()))
-            if progress is not None:
-                progress(i, history[-1])
+            return (pred - t_rgb).abs().mean() + (alpha - t_mask).abs().mean()
+
+        history = adam_refine([z], loss, steps, lr, progress)
         z = z.detach()
     seconds = time.perf_counter() - t0
     with torch.no_grad():

@@ -438,6 +438,7 @@ def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConf
     L1 + w_mask * mask L1 + w_ssim * (1 - SSIM), Adam for cfg.steps steps.
     `progress(step, loss)` is called per step. Returns the refined map and the loss of every step."""
     from dlacli.nn.losses import ssim_map
+    from dlacli.stages.refine import adam_refine
 
     samples = samples or gm.make_samples(cfg.gaussians, cfg.seed)
     # F itself is optimised (the identity decoder's F = Z): its Gaussians are placed straight by
@@ -448,21 +449,17 @@ def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConf
     base = torch.from_numpy(fmap).float()
     delta = torch.zeros_like(base, requires_grad=True)
     step_scale = _CHANNEL_STEP.to(base)[:, None, None]
-    opt = torch.optim.Adam([delta], lr=cfg.lr)
-    history: list[float] = []
-    for step in range(cfg.steps):
-        opt.zero_grad(set_to_none=True)
+
+    def loss() -> torch.Tensor:
         (g,) = gm.gaussians_at_frames(base + delta * step_scale, samples, frames)
         rgb, alpha = _render(g, cams, colours)
-        loss = _mean((rgb - target_rgb).abs())
-        loss = loss + cfg.w_mask * _mean((alpha - target_mask).abs())
+        value = _mean((rgb - target_rgb).abs())
+        value = value + cfg.w_mask * _mean((alpha - target_mask).abs())
         if cfg.w_ssim:
-            loss = loss + cfg.w_ssim * (1.0 - _mean(ssim_map(rgb, target_rgb)))
-        loss.backward()
-        opt.step()
-        history.append(float(loss.detach()))
-        if progress is not None:
-            progress(step, history[-1])
+            value = value + cfg.w_ssim * (1.0 - _mean(ssim_map(rgb, target_rgb)))
+        return value
+
+    history = adam_refine([delta], loss, cfg.steps, cfg.lr, progress)
     return (base + delta.detach() * step_scale).numpy(), history
 
 
