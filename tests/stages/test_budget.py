@@ -117,7 +117,7 @@ def test_sampling_noise_is_half_the_difference_of_two_seeds(lifted):
 
 def test_lift_auto_records_its_choice_and_animate_auto_carries_it(lifted, tmp_path):
     from dlacli.io.avatar import read_avatar, write_avatar
-    from dlacli.stages.render import sample_settings
+    from dlacli.avatar.posed import sample_settings
     from dlacli.types import Cameras
 
     avatar, views = lifted

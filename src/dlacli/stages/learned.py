@@ -54,8 +54,8 @@ def render_targets(net: LearnedAvatarNet, z: torch.Tensor, vertices: torch.Tenso
     from dlacli.avatar.posed import PosedAvatar, render_posed
     from dlacli.geometry import camera_centers
 
-    eyes = camera_centers(cameras.viewmats.float())[None]  # [1, C, 3]
-    posed = PosedAvatar(Decoded.of(net, z, rest), net.samples, vertices[None].float(), eyes)
+    eyes = camera_centers(cameras.viewmats.float())[None].to(z.device)  # [1, C, 3]
+    posed = PosedAvatar(Decoded.of(net, z, rest), net.samples, vertices[None].float().to(z.device), eyes)
     outs = [out for _, out in render_posed(posed, cameras)]
     return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
 
