@@ -64,12 +64,6 @@ class Placed:
     rgb: torch.Tensor  # [N, 3] or [P, N, 3], in [0, 1]
     delta: torch.Tensor | None = None  # [P, 14, R, R] F_delta of each body's F; None: F = F_c
 
-    def gaussians(self) -> Gaussians:
-        """The batch [P, N] (`gaussian_map.posed_gaussians`)."""
-        p = self.means.shape[0]
-        opacities, rgb = self.opacities.expand(p, -1), self.rgb.expand(p, -1, -1)
-        return Gaussians.from_rgb(self.means, self.quats, self.scales, opacities, rgb)
-
     def item(self, p: int = 0) -> Gaussians:
         """The Gaussians [N] on body p."""
         opacities = self.opacities if self.opacities.ndim == 1 else self.opacities[p]
