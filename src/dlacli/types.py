@@ -168,6 +168,23 @@ class Cameras:
             self.viewmats.to(*args, **kwargs), self.Ks.to(*args, **kwargs), self.width, self.height
         )
 
+    def select(self, index) -> "Cameras":
+        """The cameras at `index` (an int, a slice, a list or an index array), still batched [C']."""
+        if isinstance(index, (int, np.integer)):
+            index = slice(int(index), int(index) + 1)
+        return Cameras(self.viewmats[index], self.Ks[index], self.width, self.height)
+
+    def resized(self, width: int, height: int, scale: float | None = None) -> "Cameras":
+        """The same cameras for images of width x height pixels: the intrinsics' first row (fx, cx)
+        times width / self.width and the second (fy, cy) times height / self.height (the same field
+        of view, pixel centres consistent), or both rows times `scale` where the new image is the
+        scaled one cropped (e.g. blocks of 1 / scale pixels, the remainder dropped)."""
+        sx, sy = (width / self.width, height / self.height) if scale is None else (scale, scale)
+        ks = self.Ks.clone()
+        ks[:, 0, :] *= sx
+        ks[:, 1, :] *= sy
+        return Cameras(self.viewmats.clone(), ks, int(width), int(height))
+
 
 PHENOTYPE_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")
 

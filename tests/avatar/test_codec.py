@@ -173,7 +173,7 @@ def test_pose_conditioned_decoder_is_decoded_per_frame(toys, tmp_path):
 
 
 def test_render_and_animate_default_to_the_recorded_samples():
-    from dlacli.stages.render import sample_settings
+    from dlacli.avatar.posed import sample_settings
 
     assert sample_settings(_avatar()) == (N, 3)
     assert sample_settings(_avatar(), 100, 7) == (100, 7)

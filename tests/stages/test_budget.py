@@ -117,7 +117,7 @@ def test_sampling_noise_is_half_the_difference_of_two_seeds(lifted):
 
 def test_lift_auto_records_its_choice_and_animate_auto_carries_it(lifted, tmp_path):
     from dlacli.io.avatar import read_avatar, write_avatar
-    from dlacli.stages.render import sample_settings
+    from dlacli.avatar.posed import sample_settings
     from dlacli.types import Cameras
 
     avatar, views = lifted
@@ -170,10 +170,8 @@ def test_cli_gaussians_auto(lifted, tmp_path, capsys):
     assert code == 0, err
     count = int(err.split("--gaussians auto: ")[1].split(" ")[0].replace(",", ""))
     assert count in LADDER
-    from dlacli.cli import options as cli_options
-    from dlacli.stages import render as stage_render
+    from dlacli.limits import MAX_GAUSSIANS
 
-    assert cli_options.MAX_GAUSSIANS == stage_render.MAX_GAUSSIANS  # written out in the CLI (no torch there)
-    for bad in ("1", "lots", str(stage_render.MAX_GAUSSIANS + 1)):
+    for bad in ("1", "lots", str(MAX_GAUSSIANS + 1)):
         code, _, err = _main(["render", tmp_path / "a.npz", "--turntable", 1, "--gaussians", bad, "-o", tmp_path / "x"], capsys)
         assert code == 2 and err.startswith("error: --gaussians:") and len(err.strip().splitlines()) == 1, err

@@ -159,7 +159,7 @@ def test_lbs_stays_close_to_dla_skinning(avatar, rig):
     mats = skinning_matrices(avatar, motion)
     errors, angles = [], []
     from dlacli.avatar import gaussian_map as gm
-    from dlacli.stages.render import sample_settings
+    from dlacli.avatar.posed import sample_settings
 
     samples = gm.make_samples(*sample_settings(avatar))
     dx = gm.lookup(torch.from_numpy(avatar.z), samples.uv)[:, gm.OFFSET].numpy()

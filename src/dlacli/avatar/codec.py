@@ -3,9 +3,10 @@
 Method (DESIGN.md §1, "Animate"): the Gaussian Parameter Decoder turns the latent Z into the UV
 Gaussian map F = F_c(Z) + F_delta(Z, pose maps, Plücker rays). F_c is the canonical part,
 computed once per avatar (and cacheable in avatar.npz); F_delta depends on the target pose and,
-for a view-conditioned decoder, on the camera. Callers never test method names: they ask the
-decoder what it needs (`pose_conditioned`, `view_conditioned`, `linear`) and call
-`canonical` once and `delta` per frame (and per camera when view-conditioned).
+for a view-conditioned decoder, on the camera. Callers never test method names: `Decoded` asks
+the decoder what it needs (`pose_conditioned`, `view_conditioned`, `linear`) and calls
+`canonical` once and `delta` per frame (and per camera when view-conditioned); the one path from
+a Decoded avatar to posed Gaussians is avatar/posed.py.
 
 The non-learned pair is one implementation of the same interface: encoder "unproject" (mesh
 unprojection, stages/lift.py) and decoder "identity" (F = Z: no delta, no checkpoint, linear).
@@ -49,6 +50,12 @@ class Decoder:
     def delta(self, z: torch.Tensor, pose: PoseConditioning | None, rays: torch.Tensor | None) -> torch.Tensor | None:
         """F_delta [14, R, R] for one pose (None unless pose_conditioned) and one camera's UV ray
         map [6, R, R] (None unless view_conditioned); None means zero."""
+        return None
+
+    def prepare(self, z: torch.Tensor):
+        """What `canonical` and every `delta` of one z share (a network's trunk), computed once per
+        `Decoded` and handed back to them as the keyword `prepared`; None (the default): nothing
+        is shared and they are called without it."""
         return None
 
     @property
@@ -212,14 +219,33 @@ class Decoded:
 
         if avatar.uv_layout != UV_LAYOUT:
             raise DlaInputError(where, f"uv_layout {avatar.uv_layout!r} is not one this version decodes ({UV_LAYOUT!r})")
-        self.decoder = resolve_decoder(avatar, where, checkpoint)
-        self.z = torch.from_numpy(np.ascontiguousarray(avatar.z, dtype=np.float32))
-        if avatar.canonical is not None and not self.decoder.linear:
-            self.f_c = torch.from_numpy(np.ascontiguousarray(avatar.canonical, dtype=np.float32))
-        else:
-            self.f_c = self.decoder.canonical(self.z)
-        self.phenotype = dict(avatar.body.phenotype)
-        self._rest: np.ndarray | None = None
+        decoder = resolve_decoder(avatar, where, checkpoint)
+        f_c = None
+        if avatar.canonical is not None and not decoder.linear:
+            f_c = torch.from_numpy(np.ascontiguousarray(avatar.canonical, dtype=np.float32))
+        z = torch.from_numpy(np.ascontiguousarray(avatar.z, dtype=np.float32))
+        self._bind(decoder, z, f_c, dict(avatar.body.phenotype), None)
+
+    @classmethod
+    def of(cls, decoder: Decoder, z: torch.Tensor, rest_vertices=None, phenotype: dict | None = None) -> "Decoded":
+        """A code z [C, H, W] that is no avatar file (yet): one being refined or trained (z may
+        require grad; F_c and every F is differentiable in it). The body's zero-pose vertices
+        rest_vertices [V, 3] (or its phenotype, to compute them) serve pose conditioning."""
+        out = cls.__new__(cls)
+        out._bind(decoder, z, None, dict(phenotype or {}), rest_vertices)
+        return out
+
+    def _bind(self, decoder: Decoder, z: torch.Tensor, f_c: torch.Tensor | None, phenotype: dict, rest) -> None:
+        self.decoder, self.z, self.phenotype = decoder, z, phenotype
+        self._rest: np.ndarray | None = None if rest is None else np.asarray(rest)
+        self._prepared: tuple | None = None  # (decoder.prepare(z),) once asked for
+        self.f_c = f_c if f_c is not None else decoder.canonical(z, **self._shared())
+
+    def _shared(self) -> dict:
+        """The keyword arguments `canonical` / `delta` take: what `prepare` shared, if anything."""
+        if self._prepared is None:
+            self._prepared = (self.decoder.prepare(self.z),)
+        return {} if self._prepared[0] is None else {"prepared": self._prepared[0]}
 
     @property
     def conditioned(self) -> bool:
@@ -246,10 +272,16 @@ class Decoded:
             return None
         return uv_rays(vertices, eye, self.resolution)
 
+    def delta(self, pose: PoseConditioning | None = None, rays: torch.Tensor | None = None) -> torch.Tensor | None:
+        """F_delta [14, R, R] for a pose and a camera's UV rays (each passed on only when the
+        decoder is conditioned on it); None for an unconditioned decoder, or a zero delta."""
+        if not self.decoder.conditioned:
+            return None
+        pose = pose if self.decoder.pose_conditioned else None
+        rays = rays if self.decoder.view_conditioned else None
+        return self.decoder.delta(self.z, pose, rays, **self._shared())
+
     def at(self, pose: PoseConditioning | None = None, rays: torch.Tensor | None = None) -> torch.Tensor:
         """F [14, R, R] = F_c + F_delta(pose, rays); F_c itself for an unconditioned decoder."""
-        if not self.decoder.conditioned:
-            return self.f_c
-        d = self.decoder.delta(self.z, pose if self.decoder.pose_conditioned else None,
-                               rays if self.decoder.view_conditioned else None)  # fmt: skip
+        d = self.delta(pose, rays)
         return self.f_c if d is None else self.f_c + d

@@ -25,7 +25,7 @@ import torch.nn.functional as nnf
 
 from dlacli.errors import DlaInputError
 from dlacli.limits import DEFAULT_GAUSSIANS
-from dlacli.types import Gaussians, rgb_to_sh0
+from dlacli.types import Gaussians
 
 CHANNELS = 14
 OPACITY, RGB, OFFSET, ROTATION, LOG_SCALE = (

@@ -254,7 +254,7 @@ def visible_gaussians(avatar: Avatar) -> int:
 
     from dlacli.avatar import gaussian_map as gm
     from dlacli.avatar.codec import Decoded
-    from dlacli.stages.render import sample_settings
+    from dlacli.avatar.posed import sample_settings
 
     samples = gm.make_samples(*sample_settings(avatar))
     logits = gm.lookup(Decoded(avatar).f_c[gm.OPACITY], samples.uv)[:, 0]

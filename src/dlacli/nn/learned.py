@@ -3,13 +3,15 @@
     views (4 x RGB + Plücker rays)  --U-Net G-->  pixel-aligned Gaussians in the input pose (+ features)
         --encoder F (cross-attention, queries on the posed body's UV map)-->  latent Z [C, r, r]
         --GPD-->  F = F_c(Z) + F_delta(Z, target pose maps, target camera rays)  [14, R, R]
-        --avatar.gaussian_map (skinning, tangent frames)-->  Gaussians  --splat-->  images
+        --avatar.posed (skinning on tangent frames, avatar/gaussian_map)-->  Gaussians  --splat-->  images
 
 `LearnedAvatarNet` holds the three networks (nn/unet.py, nn/encoder.py, nn/gpd.py) and is the
 codec's decoder "gpd" (avatar/codec.py): one checkpoint (avatar/checkpoint.py) holds all three, its
 hash is what a learned avatar records, and `dla animate` / `render` / `edit` decode the avatar's
 Z through it. The training loop (dlacli.train) and the learned lift (stages/learned.py) call the
-same batched pieces: `reconstruct`, `encode`, `decode`.
+same batched pieces, `reconstruct` and `encode`, and decode Z as every avatar is decoded: the
+codec's `Decoded.of(net, z)` placed by avatar/posed.py (`prepare` shares the GPD trunk between
+F_c and every F_delta). `decode` is the GPD's batched form (z [B], cond [B]).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from dlacli.nn.gpd import GaussianParameterDecoder, GPDConfig
 from dlacli.nn.gpd import preset as gpd_preset
 from dlacli.nn.unet import PixelGaussians, ReconstructionUNet, UNetConfig, pixel_gaussians
 from dlacli.nn.unet import preset as unet_preset
-from dlacli.types import Cameras, Gaussians
+from dlacli.types import Cameras
 
 ENCODER, DECODER = "learned", "gpd"
 PRESET_NAMES = ("tiny", "small", "paper")
@@ -68,14 +70,6 @@ def learned_config(preset: str = "tiny", variant: str = "full") -> LearnedConfig
     return LearnedConfig(u, e, g, gaussians=GAUSSIANS[preset], preset=preset, variant=variant)
 
 
-def scaled_cameras(cameras: Cameras, size: int) -> Cameras:
-    """The same cameras for size x size images (square views: intrinsics scale by size / width)."""
-    f = size / cameras.width
-    ks = cameras.Ks.clone()
-    ks[:, :2, :] *= f
-    return Cameras(cameras.viewmats.clone(), ks, size, size)
-
-
 def subject_depth(cameras: Cameras, vertices: torch.Tensor) -> torch.Tensor:
     """[C] distance from each camera centre to the centre of the body's bounding box (metres)."""
     from dlacli.geometry import camera_centers
@@ -97,7 +91,7 @@ def output_rays(cameras: Cameras, side: int) -> tuple[torch.Tensor, torch.Tensor
     """World rays through the centres of the U-Net's side x side output pixels: [V, h, w, 3] x 2."""
     from dlacli.geometry import pixel_rays
 
-    return pixel_rays(scaled_cameras(cameras.to(dtype=torch.float32), side))
+    return pixel_rays(cameras.to(dtype=torch.float32).resized(side, side))
 
 
 def conditioning(vertices: torch.Tensor, rest_vertices, eye, resolution: int, pose=None) -> torch.Tensor:
@@ -135,7 +129,6 @@ class LearnedAvatarNet(nn.Module, Decoder):
         self.view_conditioned = bool(config.gpd.view_conditioned)
         self.resolution = int(config.gpd.out_resolution)
         self._samples: gm.Samples | None = None
-        self._trunk_cache: tuple | None = None
 
     # ------------------------------------------------------------------ the batched pieces
     @property
@@ -184,27 +177,18 @@ class LearnedAvatarNet(nn.Module, Decoder):
         d = self.gpd.delta(z, cond, trunk=trunk)
         return f_c + d, d
 
-    def gaussians(self, fmap: torch.Tensor, vertices: torch.Tensor) -> Gaussians:
-        """World Gaussians of maps F [P, 14, R, R] on posed bodies [P, V, 3] (batch [P, N])."""
-        frames = gm.sample_frames(vertices.float(), self.samples)
-        return gm.posed_gaussians(fmap, self.samples, frames)
-
     # ------------------------------------------------------------------ the codec's Decoder
-    def _trunk(self, z: torch.Tensor):
-        """The GPD trunk of one avatar's z [C, r, r], cached while z is unchanged and grad is off."""
-        key = (z.data_ptr(), z._version, tuple(z.shape))
-        if torch.is_grad_enabled() or self._trunk_cache is None or self._trunk_cache[0] != key:
-            trunk = self.gpd.trunk(z[None])
-            if torch.is_grad_enabled():
-                return trunk
-            self._trunk_cache = (key, trunk)
-        return self._trunk_cache[1]
-
-    def canonical(self, z: torch.Tensor) -> torch.Tensor:
+    def prepare(self, z: torch.Tensor):
+        """The GPD trunk of one avatar's z [C, r, r]: F_c and every F_delta start from it."""
         self._check_z(z)
-        return self.gpd.canonical(z[None], trunk=self._trunk(z))[0]
+        return self.gpd.trunk(z[None])
 
-    def delta(self, z: torch.Tensor, pose: PoseConditioning | None, rays: torch.Tensor | None) -> torch.Tensor | None:
+    def canonical(self, z: torch.Tensor, prepared=None) -> torch.Tensor:
+        self._check_z(z)
+        trunk = self.prepare(z) if prepared is None else prepared
+        return self.gpd.canonical(z[None], trunk=trunk)[0]
+
+    def delta(self, z: torch.Tensor, pose: PoseConditioning | None, rays: torch.Tensor | None, prepared=None):
         if not self.conditioned:
             return None
         r = self.resolution
@@ -213,7 +197,7 @@ class LearnedAvatarNet(nn.Module, Decoder):
         nrm = pose.normals if pose is not None else zeros3
         ray = rays if rays is not None else torch.zeros(6, r, r, dtype=z.dtype, device=z.device)
         cond = torch.cat([rel, nrm, ray], dim=0).to(z)[None]
-        return self.gpd.delta(z[None], cond, trunk=self._trunk(z))[0]
+        return self.gpd.delta(z[None], cond, trunk=self.prepare(z) if prepared is None else prepared)[0]
 
     def _check_z(self, z: torch.Tensor) -> None:
         want = (self.config.encoder.latent_channels, self.config.encoder.uv_resolution, self.config.encoder.uv_resolution)

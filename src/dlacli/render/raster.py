@@ -239,13 +239,6 @@ def vertex_normals(vertices, faces) -> np.ndarray:
     return out if batched else out[0]
 
 
-def _scaled(cameras: Cameras, factor: int) -> Cameras:
-    """The same cameras with an image `factor` times larger (pixel centres stay consistent)."""
-    ks = cameras.Ks.clone()
-    ks[:, :2, :] *= factor
-    return Cameras(cameras.viewmats, ks, cameras.width * factor, cameras.height * factor)
-
-
 def render_mesh(
     vertices,
     faces,
@@ -288,7 +281,7 @@ def render_mesh(
     if not 0.0 <= ambient <= 1.0:
         raise DlaInputError("ambient", f"must be in [0, 1], got {ambient}")
     _check_cameras(cameras)
-    hi = _scaled(cameras, aa)
+    hi = cameras.resized(cameras.width * aa, cameras.height * aa)
     verts_cam, intr = _camera_vertices(verts, hi)
     faces = _check_faces(faces, verts_cam.shape[1])
     fid, bary, _ = _raster_core(verts_cam, faces, intr, hi.width, hi.height, float(near), False)

@@ -2,7 +2,8 @@
 
 The Gaussian map F is decoded once (identity decoder: F = Z, so the canonical part is F itself),
 Gaussians are drawn at fixed surface samples (avatar/gaussian_map.py), and each frame only
-recomputes the posed body's tangent frames and the skinning x = T + R dx, R_g = R dR, s = S ds.
+recomputes the posed body's tangent frames and the skinning x = T + R dx, R_g = R dR, s = S ds
+(avatar/posed.py: a conditioned decoder's F is decoded per frame there).
 """
 
 from __future__ import annotations
@@ -70,9 +71,9 @@ def pose_avatar(
     USD_VIEW_AZIMUTH when it is view-conditioned (formats/usd.md: a USD file has no camera), and
     then colours and opacities are per frame too. Count and seed default to the avatar's own;
     frames x count is at most limits.MAX_GAUSSIAN_FRAMES (the arrays of every frame are held)."""
-    from dlacli.body.model import get_body_model
     from dlacli.avatar.codec import Decoded
-    from dlacli.stages.render import sample_settings
+    from dlacli.avatar.posed import PosedAvatar, sample_settings
+    from dlacli.body.model import get_body_model
 
     count, seed = sample_settings(avatar, n_gaussians, seed)
     if motion.num_frames * count > MAX_GAUSSIAN_FRAMES:
@@ -89,29 +90,22 @@ def pose_avatar(
     if decoded.conditioned:
         out.update(rgb=np.empty((t_total, n, 3), np.float32), alpha=np.empty((t_total, n), np.float32))
     pelvis = np.empty((t_total, 3), np.float32)
-    opacity = rgb = None
+    placed = None
     for start in range(0, t_total, batch):
         sel = np.arange(start, min(start + batch, t_total))
         body = model.forward_motion(avatar.body.phenotype, motion, frames=sel)
-        frames = gm.sample_frames(body.vertices, samples)
-        if not decoded.conditioned:
-            means, quats, scales, opacity, rgb = gm.skinned_params(decoded.at(), samples, frames)
-            out["pos"][sel], out["quat"][sel], out["scale"][sel] = means.numpy(), quats.numpy(), scales.numpy()
-        else:
-            for k, t in enumerate(sel):
-                verts = body.vertices[k]  # [V, 3]
-                rays = decoded.rays(verts, usd_view_eye(body.bone_heads[k, 0])) if decoded.decoder.view_conditioned else None
-                fmap = decoded.at(decoded.pose(verts), rays)
-                one = tuple(f[k : k + 1] for f in frames)
-                means, quats, scales, opacity, rgb = gm.skinned_params(fmap, samples, one)
-                out["pos"][t], out["quat"][t], out["scale"][t] = means[0].numpy(), quats[0].numpy(), scales[0].numpy()
-                out["rgb"][t], out["alpha"][t] = rgb.numpy(), opacity.numpy()
+        placed = PosedAvatar(decoded, samples, body.vertices, usd_view_eyes(body.bone_heads[:, 0])).all()
+        parts = {"pos": placed.means, "quat": placed.quats, "scale": placed.scales}
+        if decoded.conditioned:  # colours and opacities per frame too
+            parts.update(rgb=placed.rgb, alpha=placed.opacities)
+        for key, x in parts.items():
+            out[key][sel] = x.numpy()
         pelvis[sel] = body.bone_heads[:, 0].numpy()
         if progress is not None:
             progress(int(sel[-1]) + 1, t_total)
-    if decoded.conditioned:
-        return Animation(out["pos"], out["quat"], out["scale"], out["alpha"], out["rgb"], pelvis, motion.fps)
-    return Animation(out["pos"], out["quat"], out["scale"], opacity.numpy(), rgb.numpy(), pelvis, motion.fps)
+    if not decoded.conditioned:  # one F for every frame
+        out.update(alpha=placed.opacities.numpy(), rgb=placed.rgb.numpy())
+    return Animation(out["pos"], out["quat"], out["scale"], out["alpha"], out["rgb"], pelvis, motion.fps)
 
 
 def usd_view_eye(pelvis: torch.Tensor) -> torch.Tensor:
@@ -122,6 +116,12 @@ def usd_view_eye(pelvis: torch.Tensor) -> torch.Tensor:
 
     eye = orbit_eyes(pelvis.double().numpy(), USD_VIEW_DISTANCE, USD_VIEW_AZIMUTH, 0.0)
     return torch.as_tensor(np.asarray(eye, dtype=np.float32).reshape(3))
+
+
+def usd_view_eyes(pelvis: torch.Tensor) -> torch.Tensor:
+    """`usd_view_eye` of P bodies: pelvis [P, 3] -> eyes [P, 1, 3], one camera per body
+    (avatar/posed.PosedAvatar's eyes)."""
+    return torch.stack([usd_view_eye(p) for p in pelvis])[:, None]
 
 
 def follow_cameras(pelvis: np.ndarray, fps: float, size: int) -> Cameras:
@@ -142,9 +142,8 @@ def animation_preview_frames(anim: Animation, size: int = 512) -> Iterator[np.nd
 
     cams = follow_cameras(anim.pelvis, anim.fps, size)
     for t in range(anim.num_frames):
-        cam = Cameras(cams.viewmats[t : t + 1], cams.Ks[t : t + 1], cams.width, cams.height)
         with torch.no_grad():
-            out = render_gaussians(anim.frame(t), cam)
+            out = render_gaussians(anim.frame(t), cams.select(t))
         yield torch.cat([out.rgb[0], out.alpha[0][..., None]], dim=-1).numpy()
 
 

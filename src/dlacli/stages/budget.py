@@ -82,7 +82,7 @@ def _renders(avatar: Avatar, cameras: Cameras, n: int, seed: int | None, times=N
 
 
 def _check_counts(counts) -> list[int]:
-    from dlacli.stages.render import MAX_GAUSSIANS
+    from dlacli.limits import MAX_GAUSSIANS
 
     out = sorted({int(n) for n in counts})
     if not out or out[0] < 2 or out[-1] > MAX_GAUSSIANS:
@@ -114,7 +114,7 @@ def sampling_noise(avatar: Avatar, cameras: Cameras, counts=LADDER, seed: int | 
                    checkpoint: str | None = None) -> dict[int, float]:  # fmt: skip
     """s(n): half the masked mean squared difference between the renders with n Gaussians at sample
     seeds `seed` (default: the avatar's) and seed + 1, own pose (mask: either alpha > 0.5)."""
-    from dlacli.stages.render import sample_settings
+    from dlacli.avatar.posed import sample_settings
 
     _, seed = sample_settings(avatar, None, seed)
     other = (seed + 1) % 2**32
@@ -181,7 +181,7 @@ class BudgetChoice:
 def auto_cameras(cameras: Cameras, k: int = AUTO_VIEWS) -> Cameras:
     """At most k of the cameras, evenly spread over their order."""
     idx = np.unique(np.linspace(0, len(cameras) - 1, min(k, len(cameras))).round().astype(np.int64))
-    return Cameras(cameras.viewmats[idx], cameras.Ks[idx], cameras.width, cameras.height)
+    return cameras.select(idx)
 
 
 def auto_gaussians(avatar: Avatar, cameras: Cameras, counts=LADDER, tolerance_db: float = TOLERANCE_DB,
@@ -203,7 +203,7 @@ def choose_for_views(avatar: Avatar, views: ViewSet, counts=LADDER, render_size:
     size), choose, and return the avatar recording the choice: `extra.samples.count` and
     `extra.budget` = {count, tolerance_db, render_size, subject_px, measured_on, psnr_masked:
     {count: dB}} (non-finite scores as null), with the choice itself."""
-    from dlacli.stages.render import sample_settings
+    from dlacli.avatar.posed import sample_settings
 
     _, seed = sample_settings(avatar)
     scores = measure_budget(avatar, views, counts, render_size, seed=seed)

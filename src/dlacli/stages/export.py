@@ -9,8 +9,8 @@ Poses (`POSES`), all on the avatar's own body shape (phenotype):
   avatar was lifted from: what `dla render` draws without `--motion`;
 or a frame of a motion (`dla render --motion`'s pose of that frame).
 
-Gaussians are sampled at the avatar's own count and seed (`stages.render.sample_settings`) and
-placed with the posed body's tangent frames (avatar/gaussian_map.py). A pose-conditioned decoder
+Gaussians are sampled at the avatar's own count and seed (`avatar.posed.sample_settings`) and
+placed with the posed body's tangent frames (avatar/posed.py). A pose-conditioned decoder
 decodes F per pose; a view-conditioned one is evaluated from the front, as for USD (animate's
 `usd_view_eye`), since a splat file has no camera.
 
@@ -33,7 +33,6 @@ import numpy as np
 import torch
 
 from dlacli.errors import DlaInputError
-from dlacli.avatar import gaussian_map as gm
 from dlacli.types import Avatar, BodyParams, Gaussians, Motion
 
 POSES = ("rest", "canonical", "input")
@@ -120,24 +119,21 @@ def export_frames(
 ) -> Iterator[tuple[int | None, Gaussians]]:
     """(motion frame or None, world Gaussians [N]) for a named pose, or for `frames` of `motion`
     (all of them when None), in dla's world axes; `orient` them for a file."""
-    from dlacli.body.model import get_body_model
-    from dlacli.stages.animate import usd_view_eye
     from dlacli.avatar.codec import Decoded
-    from dlacli.stages.render import sample_settings
+    from dlacli.avatar.posed import PosedAvatar, avatar_samples
+    from dlacli.body.model import get_body_model
+    from dlacli.stages.animate import usd_view_eyes
 
     model = get_body_model()
     decoded = Decoded(avatar, where, checkpoint)
-    samples = gm.make_samples(*sample_settings(avatar, n_gaussians, seed))
+    samples = avatar_samples(avatar, n_gaussians, seed)
 
-    def at(verts: torch.Tensor, pelvis: torch.Tensor) -> Gaussians:  # verts [V, 3]
-        rays = decoded.rays(verts, usd_view_eye(pelvis)) if decoded.decoder.view_conditioned else None
-        fmap = decoded.at(decoded.pose(verts), rays)
-        return gm.posed_gaussians(fmap, samples, gm.sample_frames(verts[None], samples)).item(0)
+    def placed(body):  # the Gaussians on P posed bodies (a BodyOutput) -> avatar.posed.Placed [P]
+        return PosedAvatar(decoded, samples, body.vertices, usd_view_eyes(body.bone_heads[:, 0])).all()
 
     with torch.no_grad():
         if motion is None:
-            body = model.forward_body(pose_body(avatar, pose))
-            yield None, at(body.vertices[0], body.bone_heads[0, 0])
+            yield None, placed(model.forward_body(pose_body(avatar, pose))).item(0)
             if progress is not None:
                 progress(1, 1)
             return
@@ -147,9 +143,9 @@ def export_frames(
             raise DlaInputError("--frame", f"frame {bad} is outside the motion's frames 0..{motion.num_frames - 1}")
         for start in range(0, sel.size, BATCH):
             part = sel[start : start + BATCH]
-            body = model.forward_motion(avatar.body.phenotype, motion, frames=part)
+            batch = placed(model.forward_motion(avatar.body.phenotype, motion, frames=part))
             for k, t in enumerate(part):
-                yield int(t), at(body.vertices[k], body.bone_heads[k, 0])
+                yield int(t), batch.item(k)
                 if progress is not None:
                     progress(start + k + 1, sel.size)
 

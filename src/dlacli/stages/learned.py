@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from dlacli.errors import DlaInputError
-from dlacli.nn.learned import DECODER, ENCODER, LearnedAvatarNet, conditioning, scaled_cameras, subject_depth
+from dlacli.nn.learned import DECODER, ENCODER, LearnedAvatarNet, subject_depth
 
 # checkpoints written before the network moved to nn/ name dlacli.stages.learned.LearnedAvatarNet
 # and .LearnedConfig: both stay importable from here (avatar/checkpoint.py rebuilds by dotted name)
@@ -33,7 +33,7 @@ def input_tensors(views: ViewSet, size: int) -> tuple[torch.Tensor, torch.Tensor
     if h != size:
         x = nnf.interpolate(x, size=(size, size), mode="area" if h > size else "bilinear")
     x = x.clamp(0.0, 1.0)
-    return x[:, :3].contiguous(), x[:, 3:].contiguous(), scaled_cameras(views.cameras, size)
+    return x[:, :3].contiguous(), x[:, 3:].contiguous(), views.cameras.resized(size, size)
 
 
 def load_learned(checkpoint: str, where: str = "--checkpoint"):
@@ -47,29 +47,17 @@ def load_learned(checkpoint: str, where: str = "--checkpoint"):
 
 
 def render_targets(net: LearnedAvatarNet, z: torch.Tensor, vertices: torch.Tensor, rest, cameras: Cameras):
-    """Render the avatar z [C, r, r] on one posed body (vertices [V, 3]) from each camera, with
-    the F of that camera (a view-conditioned GPD decodes per camera) -> rgb [C, H, W, 3], alpha."""
+    """Render the avatar z [C, r, r] (differentiable in z) on one posed body (vertices [V, 3];
+    rest [V, 3] its zero pose) from C cameras, with the F of each camera when the GPD is
+    view-conditioned (avatar/posed.py) -> rgb [C, H, W, 3], alpha [C, H, W]."""
+    from dlacli.avatar.codec import Decoded
+    from dlacli.avatar.posed import PosedAvatar, render_posed
     from dlacli.geometry import camera_centers
-    from dlacli.render.splat import render_gaussians
 
-    from dlacli.avatar.codec import pose_conditioning
-
-    eyes = camera_centers(cameras.viewmats.float())
-    rgbs, alphas = [], []
-    trunk = net.gpd.trunk(z[None])
-    f_c = net.gpd.canonical(z[None], trunk=trunk)
-    pose = pose_conditioning(vertices.float(), np.asarray(rest), net.resolution) if net.conditioned else None
-    for c in range(len(cameras)):
-        fmap = f_c
-        if net.conditioned:
-            cond = conditioning(vertices, rest, eyes[c], net.resolution, pose)[None]
-            fmap = f_c + net.gpd.delta(z[None], cond, trunk=trunk)
-        g = net.gaussians(fmap, vertices[None]).item(0)
-        cam = Cameras(cameras.viewmats[c:c + 1], cameras.Ks[c:c + 1], cameras.width, cameras.height)
-        out = render_gaussians(g, cam)
-        rgbs.append(out.rgb[0])
-        alphas.append(out.alpha[0])
-    return torch.stack(rgbs), torch.stack(alphas)
+    eyes = camera_centers(cameras.viewmats.float())[None].to(z.device)  # [1, C, 3]
+    posed = PosedAvatar(Decoded.of(net, z, rest), net.samples, vertices[None].float().to(z.device), eyes)
+    outs = [out for _, out in render_posed(posed, cameras)]
+    return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
 
 
 def lift_learned(views: ViewSet, checkpoint: str, steps: int = 0, lr: float = 0.02, render_size: int = 256,
@@ -80,6 +68,7 @@ def lift_learned(views: ViewSet, checkpoint: str, steps: int = 0, lr: float = 0.
     from dlacli.body.model import get_body_model
     from dlacli.body.uv import UV_LAYOUT
     from dlacli.stages.lift import MAX_VIEWS, LiftResult, _resized_targets, sheet_and_novel_view
+    from dlacli.stages.refine import adam_refine
     from dlacli.types import Avatar
 
     if views.body is None:
@@ -101,16 +90,12 @@ def lift_learned(views: ViewSet, checkpoint: str, steps: int = 0, lr: float = 0.
     if steps > 0:
         t_rgb, t_mask, t_cams = _resized_targets(views, render_size)
         z.requires_grad_(True)
-        opt = torch.optim.Adam([z], lr=lr)
-        for i in range(steps):
-            opt.zero_grad(set_to_none=True)
+
+        def loss() -> torch.Tensor:
             pred, alpha = render_targets(net, z, verts, rest, t_cams)
-            loss = (pred - t_rgb).abs().mean() + (alpha - t_mask).abs().mean()
-            loss.backward()
-            opt.step()
-            history.append(float(loss.detach()))
-            if progress is not None:
-                progress(i, history[-1])
+            return (pred - t_rgb).abs().mean() + (alpha - t_mask).abs().mean()
+
+        history = adam_refine([z], loss, steps, lr, progress)
         z = z.detach()
     seconds = time.perf_counter() - t0
     with torch.no_grad():

@@ -19,7 +19,6 @@ c. `refine`: optimise F's geometry (opacity, normal offset, rotation, scale) thr
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,12 +61,6 @@ class LiftConfig:
 
 
 # ------------------------------------------------------------------------------ a. unstructured
-
-
-def _scaled_cameras(cameras: Cameras, factor: float, width: int, height: int) -> Cameras:
-    ks = cameras.Ks.clone()
-    ks[:, :2, :] *= factor
-    return Cameras(cameras.viewmats.clone(), ks, width, height)
 
 
 def _block_mean(x: np.ndarray, s: int) -> np.ndarray:
@@ -129,7 +122,7 @@ def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128
     h, w = views.masks.shape[1:]
     stride = max(1, int(round(max(h, w) / grid)))
     gh, gw = h // stride, w // stride
-    cams = _scaled_cameras(views.cameras, 1.0 / stride, gw, gh)
+    cams = views.cameras.resized(gw, gh, scale=1.0 / stride)  # blocks of stride pixels, the remainder cropped
     body = rasterize(vertices, faces, cams)
     centre = vertices.mean(axis=0)
     radius = float(np.linalg.norm(vertices - centre, axis=1).max()) + 0.4
@@ -380,10 +373,7 @@ def _resized_targets(views: ViewSet, max_size: int):
     if (rh, rw) != (h, w):
         x = nnf.interpolate(x, size=(rh, rw), mode="bilinear", antialias=True, align_corners=False)
     x = x.permute(0, 2, 3, 1).clamp(0.0, 1.0)
-    ks = views.cameras.Ks.clone()
-    ks[:, 0, :] *= rw / w
-    ks[:, 1, :] *= rh / h
-    return x[..., :3].contiguous(), x[..., 3].contiguous(), Cameras(views.cameras.viewmats, ks, rw, rh)
+    return x[..., :3].contiguous(), x[..., 3].contiguous(), views.cameras.resized(rw, rh)
 
 
 def _mean(x: torch.Tensor, rows: int = 1024) -> torch.Tensor:
@@ -397,26 +387,32 @@ def _mean(x: torch.Tensor, rows: int = 1024) -> torch.Tensor:
     return flat.view(rows, -1).sum(dim=1).sum() / x.numel()
 
 
+def lifted_posed(fmap: np.ndarray, falloff: float, vertices: np.ndarray, cameras: Cameras, samples: gm.Samples):
+    """The avatar lift writes for F [14, R, R] and view falloff k (identity decoder, or the
+    view-cosine one when k != 0) placed on the body in one pose (vertices [V, 3]) and seen from
+    cameras: avatar/posed.PosedAvatar, what `dla render` draws of it."""
+    from dlacli.avatar.codec import Decoded, IdentityDecoder, ViewCosineDecoder
+    from dlacli.avatar.posed import PosedAvatar
+    from dlacli.geometry import camera_centers
+
+    z = torch.from_numpy(fmap).float()
+    decoder = IdentityDecoder()
+    if falloff:
+        z, decoder = torch.cat([z, torch.full((1, *fmap.shape[1:]), float(falloff))]), ViewCosineDecoder()
+    verts = torch.from_numpy(np.asarray(vertices, dtype=np.float32))
+    # the view-cosine decoder reads the posed normals alone: the posed body stands in for the rest pose
+    decoded = Decoded.of(decoder, z, rest_vertices=verts.numpy())
+    return PosedAvatar(decoded, samples, verts[None], camera_centers(cameras.viewmats)[None])
+
+
 def view_colours(fmap: np.ndarray, falloff: float, vertices: np.ndarray, cameras: Cameras, samples: gm.Samples) -> torch.Tensor | None:
     """The samples' colours [C, N, 3] as each camera sees F [14, R, R] with a view falloff k on
     the body in one pose (vertices [V, 3]): what the view-cosine decoder (avatar/codec.py) makes
-    of them, so lift refines and shows what `dla render` draws. None for k = 0."""
+    of them, so lift refines what `dla render` draws. None for k = 0."""
     if not falloff:
         return None
-    from dlacli.body.uv import normal_map
-    from dlacli.geometry import camera_centers
-    from dlacli.avatar.codec import PoseConditioning, ViewCosineDecoder, uv_rays
-
-    res = fmap.shape[-1]
-    verts = torch.from_numpy(np.asarray(vertices, dtype=np.float32))
-    z = torch.cat([torch.from_numpy(fmap).float(), torch.full((1, res, res), float(falloff))])
-    pose = PoseConditioning(torch.zeros(3, res, res), normal_map(verts, res).permute(2, 0, 1).float())
-    decoder = ViewCosineDecoder()
-    out = []
-    for eye in camera_centers(cameras.viewmats):
-        f = decoder.canonical(z) + decoder.delta(z, pose, uv_rays(verts, eye, res))
-        out.append(gm.lookup(f[gm.RGB], samples.uv).clamp(0.0, 1.0))
-    return torch.stack(out)
+    posed = lifted_posed(fmap, falloff, vertices, cameras, samples)
+    return torch.cat([posed.placed(0, c).rgb for c in range(len(cameras))])
 
 
 def _render(g: Gaussians, cams: Cameras, colours: torch.Tensor | None):
@@ -429,9 +425,8 @@ def _render(g: Gaussians, cams: Cameras, colours: torch.Tensor | None):
         return out.rgb, out.alpha
     parts = []
     for c in range(len(cams)):
-        one = Cameras(cams.viewmats[c : c + 1], cams.Ks[c : c + 1], cams.width, cams.height)
         coloured = Gaussians(g.means, g.quats, g.scales, g.opacities, rgb_to_sh0(colours[c])[:, None, :])
-        parts.append(render_gaussians(coloured, one))
+        parts.append(render_gaussians(coloured, cams.select(c)))
     return torch.cat([p.rgb for p in parts]), torch.cat([p.alpha for p in parts])
 
 
@@ -443,29 +438,28 @@ def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConf
     L1 + w_mask * mask L1 + w_ssim * (1 - SSIM), Adam for cfg.steps steps.
     `progress(step, loss)` is called per step. Returns the refined map and the loss of every step."""
     from dlacli.nn.losses import ssim_map
+    from dlacli.stages.refine import adam_refine
 
     samples = samples or gm.make_samples(cfg.gaussians, cfg.seed)
+    # F itself is optimised (the identity decoder's F = Z): its Gaussians are placed straight by
+    # gaussian_map (as avatar/posed.py places any F), the body's frames computed once
     frames = gm.sample_frames(torch.from_numpy(np.asarray(vertices, dtype=np.float32))[None], samples)
     target_rgb, target_mask, cams = _resized_targets(views, cfg.render_size)
     colours = view_colours(fmap, falloff, vertices, cams, samples)  # colours are held: once
     base = torch.from_numpy(fmap).float()
     delta = torch.zeros_like(base, requires_grad=True)
     step_scale = _CHANNEL_STEP.to(base)[:, None, None]
-    opt = torch.optim.Adam([delta], lr=cfg.lr)
-    history: list[float] = []
-    for step in range(cfg.steps):
-        opt.zero_grad(set_to_none=True)
+
+    def loss() -> torch.Tensor:
         (g,) = gm.gaussians_at_frames(base + delta * step_scale, samples, frames)
         rgb, alpha = _render(g, cams, colours)
-        loss = _mean((rgb - target_rgb).abs())
-        loss = loss + cfg.w_mask * _mean((alpha - target_mask).abs())
+        value = _mean((rgb - target_rgb).abs())
+        value = value + cfg.w_mask * _mean((alpha - target_mask).abs())
         if cfg.w_ssim:
-            loss = loss + cfg.w_ssim * (1.0 - _mean(ssim_map(rgb, target_rgb)))
-        loss.backward()
-        opt.step()
-        history.append(float(loss.detach()))
-        if progress is not None:
-            progress(step, history[-1])
+            value = value + cfg.w_ssim * (1.0 - _mean(ssim_map(rgb, target_rgb)))
+        return value
+
+    history = adam_refine([delta], loss, cfg.steps, cfg.lr, progress)
     return (base + delta.detach() * step_scale).numpy(), history
 
 
@@ -482,11 +476,12 @@ class LiftResult:
 
 def render_views(fmap: np.ndarray, vertices: np.ndarray, cameras: Cameras, samples: gm.Samples, falloff: float = 0.0):
     """Render the avatar F (view falloff k) placed on one posed body (vertices [V, 3]) from
-    cameras -> (rgb [C, H, W, 3], alpha [C, H, W])."""
-    frames = gm.sample_frames(torch.from_numpy(np.asarray(vertices, dtype=np.float32))[None], samples)
+    cameras, as `dla render` draws it (`lifted_posed`) -> (rgb [C, H, W, 3], alpha [C, H, W])."""
+    from dlacli.avatar.posed import render_posed
+
     with torch.no_grad():
-        (g,) = gm.gaussians_at_frames(torch.from_numpy(fmap).float(), samples, frames)
-        return _render(g, cameras, view_colours(fmap, falloff, vertices, cameras, samples))
+        outs = [out for _, out in render_posed(lifted_posed(fmap, falloff, vertices, cameras, samples), cameras)]
+    return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
 
 
 def contact_sheet(inputs: np.ndarray, renders: np.ndarray, tile: int = 256) -> np.ndarray:
@@ -518,7 +513,7 @@ def sheet_and_novel_view(views: ViewSet, novel: ViewSet | None, render):
     inputs, renders, novel_view = rgb.numpy(), render(cams), None
     if novel is not None and len(novel):
         n_rgb, n_mask, n_cams = _resized_targets(novel, 512)
-        n_out = render(Cameras(n_cams.viewmats[:1], n_cams.Ks[:1], n_cams.width, n_cams.height))
+        n_out = render(n_cams.select(0))
         novel_view = (n_out[0], n_rgb[0].numpy(), n_mask[0].numpy())
         inputs, renders = np.concatenate([inputs, n_rgb[:1].numpy()]), np.concatenate([renders, n_out])
     return contact_sheet(inputs, renders), novel_view

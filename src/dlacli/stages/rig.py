@@ -70,6 +70,16 @@ def warn_conditioned(decoded, where: str) -> None:
         )
 
 
+def rig_decoded(avatar: Avatar, where: str = "avatar", checkpoint: str | None = None):
+    """The avatar decoded for rigging (avatar/codec.Decoded; its F_c is what a rig carries), with
+    `warn_conditioned`'s line when the decoder has a part the rig drops."""
+    from dlacli.avatar.codec import Decoded
+
+    decoded = Decoded(avatar, where, checkpoint)
+    warn_conditioned(decoded, where)
+    return decoded
+
+
 def blend_corner_weights(
     face_id: np.ndarray,  # [N] int64 triangles of the body mesh
     bary: np.ndarray,  # [N, 3] barycentrics
@@ -112,20 +122,16 @@ def build_rig(
 ) -> Rig:
     """The avatar's Gaussians in the rest pose (zero pose, its own phenotype) with LBS weights.
 
-    Count and seed of the sample points default to the avatar's own (stages/render.sample_settings).
+    Count and seed of the sample points default to the avatar's own (avatar/posed.sample_settings).
     K = anny's weights per vertex (9)."""
+    from dlacli.avatar.posed import PosedAvatar, avatar_samples
     from dlacli.body.model import get_body_model
-    from dlacli.avatar import gaussian_map as gm
-    from dlacli.avatar.codec import Decoded
-    from dlacli.stages.render import sample_settings
 
     model = get_body_model()
-    decoded = Decoded(avatar, where, checkpoint)
-    warn_conditioned(decoded, where)
-    samples = gm.make_samples(*sample_settings(avatar, n_gaussians, seed))
+    decoded = rig_decoded(avatar, where, checkpoint)
+    samples = avatar_samples(avatar, n_gaussians, seed)
     rest = model.zero_pose(avatar.body.phenotype)
-    frames = gm.sample_frames(rest.vertices, samples)
-    means, quats, scales, opacity, rgb = gm.skinned_params(decoded.f_c, samples, frames)
+    placed = PosedAvatar(decoded, samples, rest.vertices, canonical_only=True).all()
     v_idx, v_w = model.vertex_bone_weights
     j_idx, j_w = blend_corner_weights(
         samples.face_id, samples.bary, v_idx, v_w, model.faces, model.num_bones, v_idx.shape[1]
@@ -134,11 +140,11 @@ def build_rig(
         joint_names=list(model.bone_labels),
         parents=model.bone_parents.astype(np.int64).copy(),
         bind_transforms=rest.bone_poses[0].double().numpy(),
-        positions=means[0].numpy().astype(np.float32),
-        quats=quats[0].numpy().astype(np.float32),
-        scales=scales[0].numpy().astype(np.float32),
-        opacities=opacity.numpy().astype(np.float32),
-        rgb=rgb.numpy().astype(np.float32),
+        positions=placed.means[0].numpy().astype(np.float32),
+        quats=placed.quats[0].numpy().astype(np.float32),
+        scales=placed.scales[0].numpy().astype(np.float32),
+        opacities=placed.opacities.numpy().astype(np.float32),
+        rgb=placed.rgb.numpy().astype(np.float32),
         joint_indices=j_idx,
         joint_weights=j_w,
     )
@@ -310,11 +316,9 @@ def rig_asset(
     colour texture, and (with a motion) each joint's world transform per frame."""
     from dlacli.body.model import get_body_model
     from dlacli.io.usd_rig import RigAsset
-    from dlacli.avatar.codec import Decoded
 
     model = get_body_model()
-    decoded = Decoded(avatar, where, checkpoint)
-    warn_conditioned(decoded, where)
+    decoded = rig_decoded(avatar, where, checkpoint)
     mesh = body_mesh(decoded.f_c, avatar.body.phenotype)
     v_idx, v_w = model.vertex_bone_weights
     poses = fps = None
@@ -356,12 +360,12 @@ def write_rigged_usd(
 
     The mesh is the body surface the avatar's map describes, not its Gaussians, so `n_gaussians`
     and `seed` (the Gaussian sample settings of `dla export`) do not change the file; they are
-    checked like everywhere else (stages/render.sample_settings)."""
+    checked like everywhere else (avatar/posed.sample_settings)."""
     from pathlib import Path
 
+    from dlacli.avatar.posed import sample_settings
     from dlacli.io.atomic import check_outputs
     from dlacli.io.usd_rig import SUFFIXES, texture_path, write_rig_usd
-    from dlacli.stages.render import sample_settings
 
     path = Path(path)
     if path.suffix.lower() not in SUFFIXES:

@@ -107,14 +107,6 @@ def _to_size(rgb: np.ndarray, alpha: np.ndarray, size: int, where: Path) -> np.n
     return (x.permute(0, 2, 3, 1) * 255.0).round().clamp(0, 255).to(torch.uint8).numpy()
 
 
-def _scaled(cameras: Cameras, size: int) -> Cameras:
-    """The same cameras for a size x size image of the same field of view."""
-    ks = cameras.Ks.clone()
-    ks[:, 0, :] *= size / cameras.width
-    ks[:, 1, :] *= size / cameras.height
-    return Cameras(cameras.viewmats.clone(), ks, size, size)
-
-
 def _cat_cameras(parts: list[Cameras], size: int) -> Cameras:
     return Cameras(torch.cat([c.viewmats for c in parts]), torch.cat([c.Ks for c in parts]), size, size)
 
@@ -176,7 +168,7 @@ class TrainingData:
         if (folder / "novel_views").is_dir():
             nv = read_views(folder / "novel_views", require_body=False)
             images.append(_to_size(nv.images, nv.masks, h, folder / "novel_views"))
-            cams.append(_scaled(nv.cameras, h))
+            cams.append(nv.cameras.resized(h, h))
             pose += [0] * len(nv)
             kind += ["view"] * len(nv)
         if (folder / "novel_poses").is_dir():
@@ -188,19 +180,19 @@ class TrainingData:
                                     f"frame times must index the {motion.num_frames} poses of motion.npz")  # fmt: skip
             verts.extend(model.forward_motion(main.body.phenotype, motion).vertices)
             images.append(_to_size(npv.images, npv.masks, h, folder / "novel_poses"))
-            cams.append(_scaled(npv.cameras, h))
+            cams.append(npv.cameras.resized(h, h))
             pose += (1 + times).tolist()
             kind += ["pose"] * len(npv)
         inputs = _to_size(main.images, main.masks, s, folder)
         if self.include_inputs:
             images.append(inputs if s == h else _to_size(main.images, main.masks, h, folder))
-            cams.append(_scaled(main.cameras, h))
+            cams.append(main.cameras.resized(h, h))
             pose += [0] * len(main)
             kind += ["view"] * len(main)
         if not images:
             raise DlaInputError(folder, "has no target views (no novel_views/, no novel_poses/, inputs excluded)")
         rest = torch.from_numpy(np.asarray(model.rest_vertices(main.body.phenotype), np.float32))
-        return _Subject(inputs, _scaled(main.cameras, s), np.concatenate(images), _cat_cameras(cams, h),
+        return _Subject(inputs, main.cameras.resized(s, s), np.concatenate(images), _cat_cameras(cams, h),
                         np.asarray(pose, np.int64), kind, torch.stack(verts).float().contiguous(), rest)  # fmt: skip
 
     def _subject(self, index: int) -> _Subject:

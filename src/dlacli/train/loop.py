@@ -139,11 +139,13 @@ class GeneratorLoss(nn.Module):
         self.alexnet = alexnet
 
     def forward(self, items, stage: str, size: int, noise_seeds: list[int], disc=None):
+        from dlacli.avatar.codec import Decoded
+        from dlacli.avatar.posed import PosedAvatar
+        from dlacli.geometry import camera_centers
         from dlacli.nn.encoder import kl_divergence
+        from dlacli.nn.learned import subject_depth
         from dlacli.nn.losses import perceptual_loss
         from dlacli.render.splat import render_gaussians
-        from dlacli.nn.learned import conditioning, scaled_cameras, subject_depth
-        from dlacli.geometry import camera_centers
 
         net, cfg = self.net, self.cfg
         device = next(net.parameters()).device
@@ -163,37 +165,33 @@ class GeneratorLoss(nn.Module):
             from dlacli.types import Gaussians
 
             pg = Gaussians.from_rgb(g.means[b], g.quats[b], g.scales[b], g.opacities[b], g.rgb[b])
-            in_cams = scaled_cameras(it.input_cameras, size).to(device)
+            in_cams = it.input_cameras.resized(size, size).to(device)
             in_rgb = _resize(it.input_rgb, size).to(device)
             in_mask = _resize(it.input_mask, size).to(device)
             ug = render_gaussians(pg, in_cams)
             ug_l = (ug.rgb - in_rgb.permute(0, 2, 3, 1)).abs().mean() + (ug.alpha - in_mask[:, 0]).abs().mean()
             t_rgb = _resize(it.target_rgb, size).to(device)  # [T, 3, H, H]
             t_mask = _resize(it.target_mask, size).to(device)
-            t_cams = scaled_cameras(it.target_cameras, size).to(device)
+            t_cams = it.target_cameras.resized(size, size).to(device)
             same = [t for t, kind in enumerate(it.target_kind) if kind == "view"]
             if same:
                 sel = torch.tensor(same)
-                sc = type(t_cams)(t_cams.viewmats[sel], t_cams.Ks[sel], size, size)
-                ug2 = render_gaussians(pg, sc)
+                ug2 = render_gaussians(pg, t_cams.select(sel))
                 ug_l = ug_l + (ug2.rgb - t_rgb[sel].permute(0, 2, 3, 1)).abs().mean() + (ug2.alpha - t_mask[sel, 0]).abs().mean()
             parts["ug"].append(ug_l)
-            # the decoder's render of every target
-            eyes = camera_centers(t_cams.viewmats.float())
-            n_t = len(it.target_kind)
-            cond = None
-            if net.conditioned:
-                cond = torch.stack([conditioning(it.target_vertices[t], it.rest_vertices, eyes[t], net.resolution)
-                                    for t in range(n_t)]).to(device)  # fmt: skip
-            fmap, delta = net.decode(z[None].expand(n_t, -1, -1, -1), cond)
-            batch_g = net.gaussians(fmap, it.target_vertices.to(device))
-            preds, alphas = [], []
-            for t in range(n_t):
-                cam = type(t_cams)(t_cams.viewmats[t:t + 1], t_cams.Ks[t:t + 1], size, size)
-                out = render_gaussians(batch_g.item(t), cam)
+            # the decoder's render of every target: F_c once, F_delta per target body and camera
+            eyes = camera_centers(t_cams.viewmats.float())[:, None]  # [T, 1, 3]: one camera per target body
+            verts = it.target_vertices.to(device).float()  # [T, V, 3]
+            posed = PosedAvatar(Decoded.of(net, z, it.rest_vertices), net.samples, verts, eyes)
+            preds, alphas, deltas = [], [], []
+            for t in range(len(it.target_kind)):
+                placed = posed.placed(t)
+                out = render_gaussians(placed.item(0), t_cams.select(t))
                 preds.append(out.rgb[0])
                 alphas.append(out.alpha[0])
+                deltas.append(placed.delta)
             pred, alpha = torch.stack(preds), torch.stack(alphas)  # [T, H, W, 3], [T, H, W]
+            delta = torch.cat(deltas) if net.conditioned else torch.zeros((), device=device)  # [T, 14, R, R]
             gt = t_rgb.permute(0, 2, 3, 1)
             gm_ = t_mask[:, 0]
             parts["l1"].append((pred - gt).abs().mean())
@@ -389,7 +387,7 @@ def train(data: str | os.PathLike, out: str | os.PathLike, cfg: TrainConfig, *, 
 def validate(net, data, size: int, seed: int = 0, subjects: int = 2):
     """Masked and whole-image PSNR and alpha IoU of the decoder's renders on validation items (the
     posterior mean, no noise), and a picture: ground truth above prediction per target."""
-    from dlacli.nn.learned import scaled_cameras, subject_depth
+    from dlacli.nn.learned import subject_depth
     from dlacli.stages.learned import render_targets
 
     net.eval()
@@ -399,10 +397,9 @@ def validate(net, data, size: int, seed: int = 0, subjects: int = 2):
         cams = it.input_cameras
         g, feats = net.reconstruct(it.input_rgb[None], [cams], subject_depth(cams, it.input_vertices)[None])
         mean, _ = net.encode(g, feats, net.uv_positions(it.input_vertices[None]))
-        t_cams = scaled_cameras(it.target_cameras, size)
+        t_cams = it.target_cameras.resized(size, size)
         for t in range(len(it.target_kind)):
-            cam = type(t_cams)(t_cams.viewmats[t:t + 1], t_cams.Ks[t:t + 1], size, size)
-            pred, alpha = render_targets(net, mean[0], it.target_vertices[t], it.rest_vertices, cam)
+            pred, alpha = render_targets(net, mean[0], it.target_vertices[t], it.rest_vertices, t_cams.select(t))
             gt = _resize(it.target_rgb[t:t + 1], size)[0].permute(1, 2, 0)
             m = _resize(it.target_mask[t:t + 1], size)[0, 0]
             psnr.append(_psnr(pred[0], gt, None))

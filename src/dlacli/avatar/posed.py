@@ -1,0 +1,170 @@
+"""The one path from an avatar to posed Gaussians (DESIGN.md section 3, "avatar/"):
+
+    avatar --Decoded--> F_c (once) --+ F_delta(pose p, camera c)--> F --lookup at the samples,
+        skinning on body p (gaussian_map)--> Gaussians of body p seen from camera c --> splatting
+
+`PosedAvatar` places a decoded avatar on P posed bodies, each seen from C cameras (their centres),
+and handles the decoder's conditioning once for every consumer (render, animate, export, rig,
+lift, the learned lift, training): the tangent frames of all bodies at once, F_c once, the pose
+conditioning once per body, F_delta once per body when the decoder is pose-conditioned and once
+per (body, camera) when it is view-conditioned. An unconditioned decoder's F_c is skinned onto
+all P bodies as one batch; a conditioned decoder's maps are decoded and skinned one at a time,
+each on its own body (the batch sizes the consumers used before: batching changes the float
+summation order, and render, animate and export are pinned bit for bit). Differentiable in the
+code: a `Decoded.of(decoder, z)` with z requiring grad gives Gaussians with gradients to z.
+
+`sample_settings` is the sample-count/seed policy: which surface samples an avatar is drawn at.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterator
+
+import numpy as np
+import torch
+
+from dlacli.avatar import gaussian_map as gm
+from dlacli.avatar.codec import Decoded
+from dlacli.errors import DlaInputError
+from dlacli.limits import DEFAULT_GAUSSIANS, MAX_GAUSSIANS
+from dlacli.types import Avatar, Cameras, Gaussians
+
+CAMERAS_PER_CALL = 8  # splat this many cameras at once: projections are [C, N, ...], memory grows with C
+
+
+def sample_settings(avatar: Avatar, n_gaussians: int | None = None, seed: int | None = None) -> tuple[int, int]:
+    """(Gaussian count, sample seed): the given ones, else what the avatar records
+    (`extra.samples`, written by lift: the points its Gaussians were refined at), else the
+    defaults (DEFAULT_GAUSSIANS, 0)."""
+    recorded = avatar.extra.get("samples", {}) if isinstance(avatar.extra.get("samples"), dict) else {}
+    count = n_gaussians if n_gaussians is not None else recorded.get("count", DEFAULT_GAUSSIANS)
+    seed = seed if seed is not None else recorded.get("seed", 0)
+    if not isinstance(count, int) or isinstance(count, bool) or not 2 <= count <= MAX_GAUSSIANS:
+        raise DlaInputError("avatar", f"extra.samples.count must be an integer in [2, {MAX_GAUSSIANS}], got {count!r}")
+    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**32:
+        raise DlaInputError("avatar", f"extra.samples.seed must be an integer in [0, 2^32), got {seed!r}")
+    return count, seed
+
+
+def avatar_samples(avatar: Avatar, n_gaussians: int | None = None, seed: int | None = None) -> gm.Samples:
+    """The surface samples an avatar's Gaussians are drawn at (`sample_settings`)."""
+    return gm.make_samples(*sample_settings(avatar, n_gaussians, seed))
+
+
+@dataclass
+class Placed:
+    """Gaussians of a map F placed on P posed bodies (activated, as `gaussian_map.skinned_params`
+    gives them) and the F_delta that made F."""
+
+    means: torch.Tensor  # [P, N, 3]
+    quats: torch.Tensor  # [P, N, 4] (w, x, y, z)
+    scales: torch.Tensor  # [P, N, 3]
+    opacities: torch.Tensor  # [N]: one map F for every body (F_c), or [P, N]: one per body
+    rgb: torch.Tensor  # [N, 3] or [P, N, 3], in [0, 1]
+    delta: torch.Tensor | None = None  # [P, 14, R, R] F_delta of each body's F; None: F = F_c
+
+    def item(self, p: int = 0) -> Gaussians:
+        """The Gaussians [N] on body p."""
+        opacities = self.opacities if self.opacities.ndim == 1 else self.opacities[p]
+        rgb = self.rgb if self.rgb.ndim == 2 else self.rgb[p]
+        return Gaussians.from_rgb(self.means[p], self.quats[p], self.scales[p], opacities, rgb)
+
+
+def _stack(parts: list[Placed]) -> Placed:
+    if len(parts) == 1:
+        return parts[0]
+    deltas = [x.delta for x in parts]
+    delta = None if any(d is None for d in deltas) else torch.cat(deltas)
+    fields = ("means", "quats", "scales", "opacities", "rgb")
+    return Placed(*(torch.cat([getattr(x, k) for x in parts]) for k in fields), delta)
+
+
+class PosedAvatar:
+    """A decoded avatar on P posed bodies (vertices [P, V, 3]), body p seen from the C cameras
+    whose centres are eyes[p] (eyes [P, C, 3]; None: no camera, e.g. rigging). Module docstring:
+    what is computed once and what per body and camera. `canonical_only`: place F_c alone, as
+    if the decoder were unconditioned (what a rig can carry)."""
+
+    def __init__(
+        self,
+        decoded: Decoded,
+        samples: gm.Samples,
+        vertices: torch.Tensor,
+        eyes: torch.Tensor | None = None,
+        canonical_only: bool = False,
+    ):
+        assert vertices.ndim == 3 and vertices.shape[-1] == 3, f"vertices [P, V, 3], got {tuple(vertices.shape)}"
+        p = vertices.shape[0]
+        assert eyes is None or (eyes.ndim == 3 and eyes.shape[0] == p and eyes.shape[-1] == 3), (
+            f"eyes must be [{p}, C, 3], got {None if eyes is None else tuple(eyes.shape)}"
+        )
+        self.decoded, self.samples, self.vertices, self.eyes = decoded, samples, vertices, eyes
+        self.frames = gm.sample_frames(vertices, samples)  # tangent frames of all P bodies
+        self.conditioned = decoded.conditioned and not canonical_only
+        self._poses: dict[int, object] = {}  # pose conditioning per body
+        self._all: Placed | None = None  # F_c on every body (unconditioned)
+
+    def __len__(self) -> int:
+        return self.vertices.shape[0]
+
+    @property
+    def cameras(self) -> int:
+        """C, the cameras per body (0 without eyes)."""
+        return 0 if self.eyes is None else self.eyes.shape[1]
+
+    @property
+    def per_camera(self) -> bool:
+        """Whether each camera sees Gaussians of its own (a view-conditioned decoder's F_delta)."""
+        return self.conditioned and self.decoded.decoder.view_conditioned and self.eyes is not None
+
+    def placed(self, p: int, c: int = 0) -> Placed:
+        """Body p seen from its camera c: Placed with P = 1."""
+        if not self.conditioned:
+            return self.all() if len(self) == 1 else self._slice(self.all(), p)
+        dec = self.decoded
+        if p not in self._poses:
+            self._poses[p] = dec.pose(self.vertices[p])
+        rays = dec.rays(self.vertices[p], self.eyes[p, c]) if self.eyes is not None else None
+        delta = dec.delta(self._poses[p], rays)
+        fmap = dec.f_c if delta is None else dec.f_c + delta
+        one = tuple(f[p : p + 1] for f in self.frames)
+        means, quats, scales, opacities, rgb = gm.skinned_params(fmap, self.samples, one)
+        return Placed(means, quats, scales, opacities[None], rgb[None], None if delta is None else delta[None])
+
+    def all(self, c: int = 0) -> Placed:
+        """Every body, seen from its camera c: Placed with P = len(self)."""
+        if not self.conditioned:
+            if self._all is None:
+                self._all = Placed(*gm.skinned_params(self.decoded.f_c, self.samples, self.frames))
+            return self._all
+        return _stack([self.placed(p, c) for p in range(len(self))])
+
+    def gaussians(self, p: int = 0, c: int = 0) -> Gaussians:
+        """The Gaussians [N] of body p seen from its camera c."""
+        return self.placed(p, c).item(0)
+
+    @staticmethod
+    def _slice(x: Placed, p: int) -> Placed:
+        one = slice(p, p + 1)
+        shared = x.opacities.ndim == 1
+        opacities, rgb = (x.opacities, x.rgb) if shared else (x.opacities[one], x.rgb[one])
+        return Placed(x.means[one], x.quats[one], x.scales[one], opacities, rgb)
+
+
+def render_posed(
+    posed: PosedAvatar, cameras: Cameras, body: int = 0, per_call: int = CAMERAS_PER_CALL
+) -> Iterator[tuple[np.ndarray, object]]:
+    """Splat body `body` of `posed` from its cameras (C of them, the ones whose centres `posed`
+    holds for that body, in order) -> (camera indices [k], RenderOutput [k, H, W]) per call:
+    each camera alone when it sees Gaussians of its own (`posed.per_camera`), else `per_call`
+    cameras at once. Differentiable like `render_gaussians`."""
+    from dlacli.render.splat import render_gaussians
+
+    assert posed.eyes is None or len(cameras) == posed.cameras, f"{len(cameras)} cameras, {posed.cameras} eyes"
+    step = 1 if posed.per_camera else max(1, per_call)
+    shared = None if posed.per_camera else posed.gaussians(body)
+    for k in range(0, len(cameras), step):
+        group = np.arange(k, min(k + step, len(cameras)))
+        g = shared if shared is not None else posed.gaussians(body, k)
+        yield group, render_gaussians(g, cameras.select(slice(k, k + len(group))))

@@ -1,0 +1,168 @@
+"""avatar/posed.py, the one path from a decoded avatar to posed Gaussians: what it computes once
+and what per body and camera, against the pieces it is made of (gaussian_map's skinning of a map,
+the codec's F = F_c + F_delta), and gradients through it to the code."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from dlacli.avatar import codec
+from dlacli.avatar import gaussian_map as gm
+from dlacli.avatar.posed import PosedAvatar, render_posed
+from dlacli.types import Avatar, BodyParams
+
+R = 16
+N = 600
+
+
+def _z(channels: int = gm.CHANNELS) -> torch.Tensor:
+    g = torch.Generator().manual_seed(3)
+    z = torch.zeros(channels, R, R)
+    z[gm.OPACITY] = 2.0 + torch.rand(1, R, R, generator=g)
+    z[gm.RGB] = 0.2 + 0.6 * torch.rand(3, R, R, generator=g)
+    z[gm.OFFSET] = 0.005 * torch.randn(3, R, R, generator=g)
+    z[gm.ROTATION.start] = 1.0
+    z[gm.LOG_SCALE] = np.log(3.0)
+    return z
+
+
+@pytest.fixture(scope="module")
+def bodies():
+    """Two posed bodies [2, V, 3] (rest and an arm raised) and the zero pose [V, 3]."""
+    from dlacli.body.model import get_body_model
+
+    m = get_body_model()
+    bent = BodyParams(pose={"upperarm01.L": np.array([0.0, 0.0, 0.8])})
+    verts = torch.cat([m.forward_body(BodyParams()).vertices, m.forward_body(bent).vertices])
+    return verts, m.rest_vertices(BodyParams().phenotype)
+
+
+def _eyes(p: int, c: int) -> torch.Tensor:
+    a = torch.linspace(0.0, 2.0 * np.pi, c + 1)[:c]
+    ring = torch.stack([3.0 * torch.sin(a), -3.0 * torch.cos(a), torch.full_like(a, 0.2)], dim=-1)  # [C, 3]
+    return ring[None].expand(p, -1, -1) + 0.1 * torch.arange(p, dtype=torch.float32)[:, None, None]
+
+
+class Counting(codec.Decoder):
+    """F_c = z; F_delta shifts colour by the pose (mean relative position) and the ray's x; counts
+    every call and records what each delta saw."""
+
+    name = "counting"
+    pose_conditioned = view_conditioned = True
+    resolution = R
+
+    def __init__(self):
+        self.calls = {"prepare": 0, "canonical": 0, "delta": []}
+
+    def prepare(self, z):
+        self.calls["prepare"] += 1
+        return "trunk"
+
+    def canonical(self, z, prepared=None):
+        assert prepared == "trunk"
+        self.calls["canonical"] += 1
+        return z
+
+    def delta(self, z, pose, rays, prepared=None):
+        assert prepared == "trunk"
+        self.calls["delta"].append((pose, rays))
+        d = torch.zeros_like(z)
+        d[gm.RGB] = 0.3 * torch.tanh(pose.relative_positions.mean()) + 0.2 * rays[0]
+        return d
+
+
+def test_an_unconditioned_avatar_is_its_map_skinned_onto_every_body(bodies):
+    verts, _ = bodies
+    samples = gm.make_samples(N, 1)
+    z = _z()
+    av = Avatar(z=z.numpy(), encoder="unproject", decoder="identity", body=BodyParams(), uv_layout="anny")
+    posed = PosedAvatar(codec.Decoded(av), samples, verts, _eyes(2, 3))
+    assert not posed.per_camera and posed.cameras == 3 and len(posed) == 2
+    placed = posed.all()
+    want = gm.skinned_params(z, samples, gm.sample_frames(verts, samples))  # one batch, shared colours
+    for got, ref in zip((placed.means, placed.quats, placed.scales, placed.opacities, placed.rgb), want):
+        assert torch.equal(got, ref)
+    for p in range(2):  # body by body: what render and export drew before, bit for bit
+        (alone,) = gm.gaussians_at_frames(z, samples, gm.sample_frames(verts[p : p + 1], samples))
+        for a, b in zip(posed.gaussians(p, 2)._tensors(), alone._tensors()):
+            assert torch.equal(a, b)
+
+
+def test_conditioning_is_computed_once_per_body_and_per_camera(bodies, monkeypatch):
+    verts, rest = bodies
+    samples = gm.make_samples(N, 1)
+    made = []
+    real = codec.pose_conditioning
+    monkeypatch.setattr(codec, "pose_conditioning", lambda *a: made.append(a) or real(*a))
+    dec = Counting()
+    decoded = codec.Decoded.of(dec, _z(), rest)
+    eyes = _eyes(2, 3)
+    posed = PosedAvatar(decoded, samples, verts, eyes)
+    assert posed.per_camera
+    sets = {(p, c): posed.placed(p, c) for p in range(2) for c in range(3)}
+    assert dec.calls["prepare"] == 1 and dec.calls["canonical"] == 1  # F_c once, the shared part once
+    assert len(made) == 2 and len(dec.calls["delta"]) == 6  # pose maps once per body, F_delta per pair
+    for k, (p, c) in enumerate(sets):
+        pose, rays = dec.calls["delta"][k]
+        assert torch.equal(pose.relative_positions, real(verts[p], rest, R).relative_positions)
+        assert torch.equal(rays, codec.uv_rays(verts[p], eyes[p, c], R))
+        # the set is F = F_c + F_delta of that body and camera, skinned onto that body
+        fmap = decoded.f_c + Counting.delta(dec, decoded.z, pose, rays, "trunk")
+        one = tuple(f[p : p + 1] for f in gm.sample_frames(verts, samples))
+        means, _, _, _, rgb = gm.skinned_params(fmap, samples, one)
+        assert torch.equal(sets[p, c].means, means) and torch.equal(sets[p, c].rgb[0], rgb)
+        assert sets[p, c].delta.shape == (1, gm.CHANNELS, R, R)
+    assert not torch.equal(sets[0, 0].rgb, sets[0, 1].rgb) and not torch.equal(sets[0, 0].rgb, sets[1, 0].rgb)
+    stacked = posed.all(c=1)  # every body from its camera 1
+    assert torch.equal(stacked.rgb, torch.cat([sets[0, 1].rgb, sets[1, 1].rgb]))
+    assert stacked.delta.shape == (2, gm.CHANNELS, R, R)
+
+
+def test_canonical_only_places_f_c(bodies):
+    verts, rest = bodies
+    samples = gm.make_samples(N, 1)
+    dec = Counting()
+    posed = PosedAvatar(codec.Decoded.of(dec, _z(), rest), samples, verts[:1], canonical_only=True)
+    placed = posed.all()
+    assert dec.calls["delta"] == [] and placed.delta is None and placed.rgb.shape == (N, 3)
+    assert torch.equal(placed.rgb, gm.skinned_params(_z(), samples, posed.frames)[4])
+
+
+def test_render_posed_splats_each_set_with_its_cameras(bodies):
+    from dlacli.geometry import camera_centers, look_at_orbit_cameras
+    from dlacli.render.splat import render_gaussians
+
+    verts, rest = bodies
+    samples = gm.make_samples(N, 1)
+    cams = look_at_orbit_cameras(np.array([0.0, 0.0, -0.2]), 3.0, np.array([0.0, 90.0, 200.0]), 5.0, 40.0, 24)
+    eyes = camera_centers(cams.viewmats)[None].expand(2, -1, -1)
+    view = PosedAvatar(codec.Decoded.of(Counting(), _z(), rest), samples, verts, eyes)
+    groups = list(render_posed(view, cams, body=1))
+    assert [list(g) for g, _ in groups] == [[0], [1], [2]]  # a set of its own per camera
+    for c, (_, out) in enumerate(groups):
+        assert torch.equal(out.rgb, render_gaussians(view.gaussians(1, c), cams.select(c)).rgb)
+    av = Avatar(z=_z().numpy(), encoder="unproject", decoder="identity", body=BodyParams(), uv_layout="anny")
+    plain = PosedAvatar(codec.Decoded(av), samples, verts, eyes)
+    groups = list(render_posed(plain, cams, per_call=2))
+    assert [list(g) for g, _ in groups] == [[0, 1], [2]]  # one set, cameras in calls of 2
+    assert torch.equal(groups[1][1].alpha, render_gaussians(plain.gaussians(0), cams.select(2)).alpha)
+
+
+def test_gradients_reach_the_code(bodies):
+    from dlacli.geometry import camera_centers, look_at_orbit_cameras
+
+    verts, rest = bodies
+    samples = gm.make_samples(N, 1)
+    cams = look_at_orbit_cameras(np.array([0.0, 0.0, -0.2]), 3.0, np.array([90.0, 270.0]), 5.0, 40.0, 24)
+    k = torch.full((1, R, R), 0.5)
+    z = torch.cat([_z(), k]).requires_grad_(True)  # a view-cosine code being refined
+    decoded = codec.Decoded.of(codec.ViewCosineDecoder(), z, rest)
+    posed = PosedAvatar(decoded, samples, verts[:1], camera_centers(cams.viewmats)[None])
+    loss = sum(out.rgb.sum() + out.alpha.sum() for _, out in render_posed(posed, cams))
+    loss.backward()
+    grad = z.grad
+    assert torch.isfinite(grad).all()
+    for channels in (gm.OPACITY, gm.RGB, gm.OFFSET, slice(14, 15)):  # geometry, colour and the falloff k
+        assert float(grad[channels].abs().max()) > 0
