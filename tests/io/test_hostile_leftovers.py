@@ -305,6 +305,25 @@ def test_checkpoint_json_goes_through_the_guarded_parser(tmp_path, which, conten
     assert info.value.where == str(path) and problem in info.value.problem and len(str(info.value)) < 300
 
 
+def test_a_rehashed_config_that_builds_a_huge_network_is_refused_unbuilt(tmp_path):
+    """The content hash is no signature: a config.json whose widths were raised to millions and
+    whose hash was recomputed would have made torch allocate 64 TB. The network is sized on the
+    meta device first."""
+    from dlacli.avatar import checkpoint as ck
+    from dlacli.nn.discriminator import DiscriminatorConfig, PatchDiscriminator
+
+    net = PatchDiscriminator(DiscriminatorConfig(base_channels=2, layers=1, max_channels=4))
+    folder = tmp_path / "ck"
+    ck.save_checkpoint(folder, net, net.config)
+    assert ck.load_checkpoint(folder).config == net.config
+    rec = json.loads((folder / "config.json").read_text())
+    rec["config"].update(base_channels=10**6, max_channels=10**6)
+    weights = (folder / "model.safetensors").read_bytes()
+    rec["hash"] = ck.content_hash(rec["class"], rec["config_class"], rec["config"], weights)
+    (folder / "config.json").write_text(json.dumps(rec))
+    _refused(ck.load_checkpoint, folder / "config.json", "config builds a PatchDiscriminator of 64,000,268,000,004 bytes")
+
+
 def test_a_config_integer_too_large_for_a_float_field(tmp_path):
     from dlacli.avatar.checkpoint import config_from_dict
 

@@ -456,10 +456,11 @@ def load_checkpoint(path, *, map_location="cpu", allowed_prefixes: Iterable[str]
         raise DlaInputError(where, str(err)) from None
     weights = _verified_weights(folder, rec)
     tensors = _safetensors(weights, folder / WEIGHTS)
+    _check_size(cls, config, len(weights), where)
     try:
         module = cls(config)
     except (ValueError, TypeError, RuntimeError) as err:
-        raise DlaInputError(where, f"config does not build {cls.__name__} ({' '.join(str(err).split())})") from None
+        raise DlaInputError(where, f"config does not build {cls.__name__} ({one_line(err)})") from None
     expected = module.state_dict()
     aliases = _aliases(expected)
     want = {k: tuple(t.shape) for k, t in expected.items() if k not in aliases}
@@ -481,6 +482,26 @@ def load_checkpoint(path, *, map_location="cpu", allowed_prefixes: Iterable[str]
         opt_tensors = {k: v.to(map_location) for k, v in _optimizer_tensors(folder, rec["optimizer"]).items()}
         optimizer_state = _decode_state(rec["optimizer"]["state"], opt_tensors, where)
     return Loaded(module, config, rec["step"], rec["hash"], optimizer_state, rec.get("extra", {}), folder)
+
+
+UNSAVED_BYTES = 256 * 2**20  # what a network may hold beyond its weights file (buffers it does not save)
+
+
+def _check_size(cls: type, config, weight_bytes: int, where) -> None:
+    """Refuse a config that would build a network far larger than its weights file (a config.json
+    whose hash was recomputed after its sizes were raised to billions) before anything is
+    allocated: the network is built on the meta device first, which allocates nothing. A network
+    that cannot be built on meta is left to the real build."""
+    try:
+        with torch.device("meta"):
+            skeleton = cls(config)
+        tensors = [*skeleton.parameters(), *skeleton.buffers()]  # shared (tied) tensors once
+        size = sum(t.numel() * t.element_size() for t in tensors if t.is_meta)
+    except Exception:  # noqa: BLE001 - any failure here is the real build's to report
+        return
+    if size > weight_bytes + UNSAVED_BYTES:
+        problem = f"config builds a {cls.__name__} of {size:,} bytes, far more than the {weight_bytes:,} bytes of {WEIGHTS}"
+        raise DlaInputError(where, problem)
 
 
 # --------------------------------------------------------------------------------------------
