@@ -461,3 +461,15 @@ def test_amc_root_and_asf_units_beyond_the_bounds(tmp_path):
     tiny = tmp_path / "tiny.asf"
     tiny.write_text(asf.read_text().replace("length 0.45", "length 1e-300"))
     _refused(read_amc, MOTION_DATA / "cmu_01_01.amc", "reaches", args=(tiny,))
+
+
+def test_a_float64_map_beyond_float32_is_refused_not_read_as_inf(tmp_path):
+    from dlacli.io.avatar import read_avatar
+
+    from dlacli.io.validate import load_npz, save_npz
+
+    arrays = load_npz(_avatar(tmp_path, "gpd"))
+    arrays["z"] = np.zeros((14, 2, 2))
+    arrays["z"][1, 0, 0] = 1e300  # a colour stored as float64: finite there, inf once read as float32
+    save_npz(arrays, tmp_path / "f64.npz")
+    _refused(read_avatar, tmp_path / "f64.npz", "z has 1 non-finite value")

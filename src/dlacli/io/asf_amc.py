@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from dlacli.errors import DlaInputError, excerpt
+from dlacli.errors import DlaInputError, excerpt, excerpts
 from dlacli.io.bvh import (
     MAX_DEPTH,
     MAX_JOINTS,
@@ -97,9 +97,9 @@ def _floats(words: list[str], n: int, where: Path, what: str) -> np.ndarray:
     try:
         values = np.array([float(w) for w in words[:n]])
     except ValueError:
-        raise DlaInputError(where, f"{what}: expected {n} numbers, got {' '.join(words)!r}") from None
+        raise DlaInputError(where, f"{what}: expected {n} numbers, got {excerpt(' '.join(words))}") from None
     if values.size != n or not np.all(np.isfinite(values)):
-        raise DlaInputError(where, f"{what}: expected {n} finite numbers, got {' '.join(words)!r}")
+        raise DlaInputError(where, f"{what}: expected {n} finite numbers, got {excerpt(' '.join(words))}")
     return values
 
 
@@ -132,7 +132,7 @@ def read_asf(path: str | os.PathLike) -> Asf:
     root = {words[0].lower(): words[1:] for words in sec["root"] if words}
     root_order = [w.lower() for w in root.get("order", "TX TY TZ RX RY RZ".split())]
     if sorted(root_order) != sorted(["tx", "ty", "tz", "rx", "ry", "rz"]):
-        raise DlaInputError(path, f":root order {' '.join(root_order)} is not supported (TX TY TZ RX RY RZ in any order)")
+        raise DlaInputError(path, f":root order {excerpt(' '.join(root_order))} is not supported (TX TY TZ RX RY RZ in any order)")
     root_axis = _axis_order(root.get("axis", ["XYZ"])[0], path, ":root axis")
     position = _floats(root.get("position", ["0", "0", "0"]), 3, path, ":root position")
     orientation = _floats(root.get("orientation", ["0", "0", "0"]), 3, path, ":root orientation")
@@ -184,7 +184,7 @@ def read_asf(path: str | os.PathLike) -> Asf:
     reached = _order_bones(children)
     missing = sorted(set(bones) - set(reached))
     if missing:
-        shown = ", ".join(missing[:8]) + (" ..." if len(missing) > 8 else "")
+        shown = excerpts(missing, 8)
         raise DlaInputError(path, f"bone(s) not reachable from root in :hierarchy (a cycle?): {shown}")
     depth = {"root": 0}
     for name in reached:  # parents come first
@@ -211,7 +211,7 @@ def _make_bone(block: dict[str, list[str]], path: Path) -> AsfBone:
     dofs = [d.lower() for d in block.get("dof", [])]
     for d in dofs:
         if d not in ("rx", "ry", "rz", "tx", "ty", "tz", "l"):
-            raise DlaInputError(path, f"bone {excerpt(name)} has unsupported dof {d!r}")
+            raise DlaInputError(path, f"bone {excerpt(name)} has unsupported dof {excerpt(d)}")
     if len(set(dofs)) != len(dofs):
         raise DlaInputError(path, f"bone {excerpt(name)} repeats a dof: {' '.join(dofs)}")
     return AsfBone(name, direction / norm, length, axis, order, dofs)

@@ -106,8 +106,10 @@ def _float_map(value: Any, where: Any, name: str) -> np.ndarray:
     arr = np.asarray(value)
     if arr.dtype.kind != "f":
         raise DlaInputError(where, f"{name} must be float16 or float32, found dtype {arr.dtype}")
+    with np.errstate(over="ignore"):
+        arr = arr.astype(np.float32)  # a float64 beyond float32's range becomes inf: refused here
     check_finite(arr, where, name)
-    return arr.astype(np.float32)
+    return arr
 
 
 def _json_object(value: Any, where: Any, name: str) -> dict[str, Any]:

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from dlacli.errors import DlaInputError, excerpt
+from dlacli.errors import DlaInputError, excerpt, excerpts, one_line
 from dlacli.io.validate import MAX_ANGLE, MAX_DISTANCE, check_magnitude
 from dlacli.kinematics import euler_matrices, rest_height
 from dlacli.types import MAX_FPS, MAX_FRAMES, MIN_FPS, SkeletonMotion
@@ -269,13 +269,13 @@ def read_bvh(path: str | os.PathLike, metres_per_unit: float | None = None) -> S
     joints, end_sites = _parse_hierarchy(tok, tok.next("root name"))
     extra = tok.next_or_none()
     if extra is not None:
-        raise DlaInputError(path, f"line {tok.line()}: unexpected {extra[:40]!r} after the hierarchy (one ROOT supported)")
+        raise DlaInputError(path, f"line {tok.line()}: unexpected {excerpt(extra)} after the hierarchy (one ROOT supported)")
     if tok.motion_end is None:
         raise DlaInputError(path, "no MOTION section (truncated file?)")
     names = [j["name"] for j in joints]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
-        raise DlaInputError(path, f"joint name(s) repeated: {', '.join(dup)}")
+        raise DlaInputError(path, f"joint name(s) repeated: {excerpts(dup)}")
 
     num_channels = sum(len(j["channels"]) for j in joints)
     frames, frame_time, data = _parse_motion(text, tok.motion_end, path, num_channels, len(joints))
@@ -355,7 +355,7 @@ def _parse_motion(text: str, pos: int, path: Path, num_channels: int, num_joints
     except KeyError as err:
         raise DlaInputError(path, f"MOTION section lacks {err.args[0].title()!r} (truncated file?)") from None
     except ValueError:
-        shown = "; ".join(f"{k[:20]}: {v[:20]}" for k, v in header.items())
+        shown = one_line("; ".join(f"{k[:20]}: {v[:20]}" for k, v in header.items()))
         raise DlaInputError(path, f"bad MOTION header ({shown}): Frames must be an integer, Frame Time a number") from None
     if frames <= 0:
         raise DlaInputError(path, f"motion has {frames} frames (at least one needed)")

@@ -91,7 +91,8 @@ def _float_array(value: Any, where: Any, name: str) -> np.ndarray:
     arr = np.asarray(value)
     if arr.dtype.kind not in "fiu":
         raise DlaInputError(where, f"{name} must be a numeric array, found dtype {arr.dtype}")
-    return arr.astype(np.float32)
+    with np.errstate(over="ignore"):
+        return arr.astype(np.float32)  # beyond float32's range: inf, refused by the caller's check_finite
 
 
 def read_motion(path: str | os.PathLike) -> Motion:

@@ -135,7 +135,7 @@ def _check_counts(path: Path, f) -> None:
                 row += 2 if header.text else np.dtype(prop.dtype()).itemsize
         need += el.count * max(row, 1)
     if need > body:
-        counts = ", ".join(f"{el.count} {el.name}" for el in header.elements)
+        counts = one_line(", ".join(f"{el.count} {el.name}" for el in header.elements))
         raise DlaInputError(path, f"header declares {counts}, which needs at least {need} bytes, but the file holds {max(body, 0)}")
     f.seek(0)
 

@@ -90,7 +90,7 @@ def read_transforms(folder: str | os.PathLike) -> dict[str, Any]:
 
     sizes = sorted({(int(w), int(h)) for w, h in zip(intr["w"], intr["h"])})
     if len(sizes) > 1:
-        raise DlaInputError(where, f"frames have different image sizes {', '.join(f'{w}x{h}' for w, h in sizes)}; all must be the same")
+        raise DlaInputError(where, f"frames have different image sizes {one_line(', '.join(f'{w}x{h}' for w, h in sizes))}; all must be the same")
     width, height = sizes[0]
     if width * height > MAX_IMAGE_PIXELS:
         raise DlaInputError(where, f"images of {width}x{height} pixels are larger than dla reads ({MAX_IMAGE_PIXELS / 1e6:.0f} megapixels)")
