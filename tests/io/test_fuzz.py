@@ -63,6 +63,8 @@ class Target:
     readers: list[Callable[[Path], object]]
     info: str | None = None  # the path `dla info` takes, for the CLI runs
     max_message: int | None = MAX_MESSAGE  # None: messages not bounded yet (below)
+    agree: tuple[tuple[int, int], ...] = ((0, -1),)  # readers that must refuse the same files: a
+    # command's reader (first) and `dla info`'s (last) share their checks
 
 
 # ------------------------------------------------------------------------------------ mutations
@@ -362,14 +364,14 @@ def targets(tmp: Path) -> list[Target]:
                            "s_01.amc": _cut_amc((motion / "cmu_01_01.amc").read_text(), 4).encode()},
                {"s.asf": "text", "s_01.amc": "text"},
                [lambda d: read_asf(d / "s.asf"), lambda d: read_amc(d / "s_01.amc", d / "s.asf"),
-                lambda d: summarize_amc(d / "s_01.amc"), info("s.asf")], "s_01.amc"),  # fmt: skip
+                lambda d: summarize_amc(d / "s_01.amc"), info("s.asf")], "s_01.amc", agree=((0, 3), (1, 2))),  # fmt: skip
         Target("keypoints", {"k.json": (DATA / "keypoints" / "pexels-marta-wave-6437749.json").read_bytes()},
                {"k.json": "json"}, [lambda d: read_coco_keypoints(d / "k.json")]),
         Target("photo", _photo_seeds(), {"photo.png": "bytes", "mask.png": "bytes", "keypoints.json": "json"},
                [lambda d: read_photo(d / "photo.png"),
-                lambda d: read_photo(d / "photo.png", d / "mask.png", d / "keypoints.json", [])]),  # fmt: skip
+                lambda d: read_photo(d / "photo.png", d / "mask.png", d / "keypoints.json", [])], agree=()),  # fmt: skip
         Target("checkpoint", written["checkpoint"], {"ck/config.json": "json", "ck/model.safetensors": "bytes"},
-               [lambda d: checkpoint_info(d / "ck"), lambda d: load_checkpoint(d / "ck")]),
+               [lambda d: checkpoint_info(d / "ck"), lambda d: load_checkpoint(d / "ck")], agree=()),
         Target("checkpoint_rehashed", written["checkpoint"], {"ck/config.json": "json+hash"},
                [lambda d: load_checkpoint(d / "ck")]),
         Target("train", written["train"], {"train.json": "json"}, [lambda d: _read_record(d / "train.json")]),
@@ -422,13 +424,15 @@ def _run(target: Target, index: int, folder: Path) -> tuple[list[str], int, int]
     if how.endswith("+hash"):
         _rehash(folder)
     before = _snapshot(folder)
-    problems, returned = [], 0
+    problems, returned, refused = [], 0, []
     for k, read in enumerate(target.readers):
         where = f"{target.name} run {index} ({rel}, {how}) reader {k}"
         signal.setitimer(signal.ITIMER_REAL, SECONDS_PER_RUN)
+        refused.append(True)
         try:
             read(folder)
             returned += 1
+            refused[-1] = False
         except DlaInputError as err:
             msg = str(err)
             if "\n" in msg or "\r" in msg:
@@ -445,6 +449,11 @@ def _run(target: Target, index: int, folder: Path) -> tuple[list[str], int, int]
         after = _snapshot(folder)
         if after != before:
             problems.append(f"{where}: the reader changed or added files: {sorted(set(after.items()) ^ set(before.items()))[:3]}")
+    for a, b in target.agree:
+        if refused[a] != refused[b]:
+            problems.append(f"{target.name} run {index} ({rel}, {how}): reader {a % len(refused)} "
+                            f"{'refuses' if refused[a] else 'accepts'} what reader {b % len(refused)} "
+                            f"{'refuses' if refused[b] else 'accepts'}")
     return problems, len(target.readers), returned
 
 
