@@ -321,7 +321,9 @@ def test_a_rehashed_config_that_builds_a_huge_network_is_refused_unbuilt(tmp_pat
     weights = (folder / "model.safetensors").read_bytes()
     rec["hash"] = ck.content_hash(rec["class"], rec["config_class"], rec["config"], weights)
     (folder / "config.json").write_text(json.dumps(rec))
-    _refused(ck.load_checkpoint, folder / "config.json", "config builds a PatchDiscriminator of 64,000,268,000,004 bytes")
+    _refused(
+        ck.load_checkpoint, folder / "config.json", "config builds a PatchDiscriminator of 64,000,268,000,004 bytes"
+    )
 
 
 def test_a_config_integer_too_large_for_a_float_field(tmp_path):
@@ -352,8 +354,15 @@ def test_train_json_for_resume_is_read_guarded(tmp_path, change, problem):
     from dlacli.train.loop import FORMAT, _read_record
 
     history = [{"step": 1, "stage": "low", "l1": 0.5}]
-    good = {"format": FORMAT, "settings": {}, "step": 2, "history": history, "validation": [],
-            "checkpoint": "ckpt-000002", "seconds": 1.5}
+    good = {
+        "format": FORMAT,
+        "settings": {},
+        "step": 2,
+        "history": history,
+        "validation": [],
+        "checkpoint": "ckpt-000002",
+        "seconds": 1.5,
+    }
     path = tmp_path / "train.json"
     path.write_text(json.dumps(good))
     assert _read_record(path) == good
@@ -386,8 +395,14 @@ def test_zip_version_above_63_is_refused_by_every_npz_reader(tmp_path):
     motion = _zip_version_70(EXAMPLES / "motion.npz", tmp_path / "motion.npz")
     avatar = _zip_version_70(EXAMPLES / "avatar.npz", tmp_path / "avatar.npz")
     needle = "unsupported zip feature (zip file version 7.0)"
-    readers = [(read_motion, motion), (read_avatar, avatar), (read_amass, motion), (load_npz, motion),
-               (npz_format, avatar), (summarize, avatar)]
+    readers = [
+        (read_motion, motion),
+        (read_avatar, avatar),
+        (read_amass, motion),
+        (load_npz, motion),
+        (npz_format, avatar),
+        (summarize, avatar),
+    ]
     for read, path in readers:
         _refused(read, path, needle)
     _one_line_exit_2(_dla_info(motion), motion, needle)

@@ -171,7 +171,7 @@ def config_from_dict(cls: type, data: dict, where=None, prefix: str = ""):
     try:
         return cls(**values)
     except (ValueError, TypeError) as err:
-        raise DlaInputError(where, f"config is not a valid {cls.__name__} ({' '.join(str(err).split())})") from None
+        raise DlaInputError(where, f"config is not a valid {cls.__name__} ({one_line(err)})") from None
 
 
 def _normal_config(config) -> dict:
