@@ -364,7 +364,8 @@ def _read_record(folder: Path) -> dict:
         what = f"format {excerpt(fmt)}" if fmt is not None else "no 'format' key"
         raise DlaInputError(where, f"{what}; dla reads {FORMAT!r} checkpoints")
     if unknown := sorted(set(rec) - _KEYS):
-        raise DlaInputError(where, f"unknown key(s) {one_line(', '.join(unknown[:20]))} (put project data under 'extra')")
+        keys = one_line(", ".join(unknown[:20]))
+        raise DlaInputError(where, f"unknown key(s) {keys} (put project data under 'extra')")
     for key, kind in (("class", str), ("config_class", str), ("config", dict), ("step", int), ("hash", str)):
         if key not in rec:
             raise DlaInputError(where, f"lacks the key {key!r}")
@@ -432,7 +433,8 @@ def _import(dotted: str, what: str, where, allowed: tuple[str, ...]):
     if not isinstance(obj, type):
         raise DlaInputError(where, f"{what} {excerpt(dotted)} does not exist in this dla version")
     if not _inside(obj.__module__, allowed):  # a name a dlacli module imported from elsewhere
-        raise DlaInputError(where, f"{what} {excerpt(dotted)} is defined in {obj.__module__}, outside {', '.join(allowed)}")
+        problem = f"{what} {excerpt(dotted)} is defined in {obj.__module__}"
+        raise DlaInputError(where, f"{problem}, outside {', '.join(allowed)}")
     return obj
 
 
@@ -500,8 +502,8 @@ def _check_size(cls: type, config, weight_bytes: int, where) -> None:
     except Exception:  # noqa: BLE001 - any failure here is the real build's to report
         return
     if size > weight_bytes + UNSAVED_BYTES:
-        problem = f"config builds a {cls.__name__} of {size:,} bytes, far more than the {weight_bytes:,} bytes of {WEIGHTS}"
-        raise DlaInputError(where, problem)
+        problem = f"config builds a {cls.__name__} of {size:,} bytes, far more than the {weight_bytes:,} bytes"
+        raise DlaInputError(where, f"{problem} of {WEIGHTS}")
 
 
 # --------------------------------------------------------------------------------------------

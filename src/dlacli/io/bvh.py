@@ -117,7 +117,9 @@ def check_skeleton_bounds(skel: SkeletonMotion, where: Any) -> None:
     `dla animate` plays what `dla motion convert` converts, and nothing else."""
     ends = np.array(list(skel.end_sites.values())).reshape(-1, 3)
     with np.errstate(over="ignore"):  # a huge value times the unit is inf: refused below
-        for name, arr in (("a joint offset", skel.offsets), ("an End Site offset", ends), ("the root position", skel.root_positions)):
+        root = skel.root_positions
+        lengths = (("a joint offset", skel.offsets), ("an End Site offset", ends), ("the root position", root))
+        for name, arr in lengths:
             check_magnitude(np.abs(arr) * skel.metres_per_unit, MAX_DISTANCE, where, name, "m")
 
 
@@ -211,7 +213,8 @@ def _parse_hierarchy(tok: _Tokens, root: str) -> tuple[list[dict], dict[int, np.
         elif key == "CHANNELS":
             count = tok.number(f"CHANNELS count of {excerpt(name)}")
             if count != int(count) or not 0 <= count <= 6:
-                raise DlaInputError(tok.where, f"line {tok.line()}: joint {excerpt(name)} has {count} channels (0..6 allowed)")
+                problem = f"joint {excerpt(name)} has {count} channels (0..6 allowed)"
+                raise DlaInputError(tok.where, f"line {tok.line()}: {problem}")
             joint["channels"] = [tok.next(f"channel of {excerpt(name)}") for _ in range(int(count))]
             _check_channels(joint["channels"], name, tok)
         elif key == "JOINT":
@@ -239,7 +242,8 @@ def _check_channels(channels: list[str], name: str, tok: _Tokens) -> None:
         if low in _ROT_CHANNELS:
             rot_axes.append(_ROT_CHANNELS[low])
         elif low not in _POS_CHANNELS:
-            raise DlaInputError(tok.where, f"line {tok.line()}: joint {excerpt(name)} has unsupported channel {excerpt(ch)}")
+            problem = f"joint {excerpt(name)} has unsupported channel {excerpt(ch)}"
+            raise DlaInputError(tok.where, f"line {tok.line()}: {problem}")
     if len(set(rot_axes)) != len(rot_axes):
         raise DlaInputError(
             tok.where,
@@ -347,7 +351,8 @@ def _parse_motion(text: str, pos: int, path: Path, num_channels: int, num_joints
         line = text[start:end].strip()
         key, sep, value = line.partition(":")
         if not sep:
-            raise DlaInputError(path, f"line {line_no(start)}: expected 'Frames:' and 'Frame Time:', got {excerpt(line)}")
+            problem = f"expected 'Frames:' and 'Frame Time:', got {excerpt(line)}"
+            raise DlaInputError(path, f"line {line_no(start)}: {problem}")
         header[key.strip().lower()] = value.strip()
     try:
         frames = int(header["frames"])

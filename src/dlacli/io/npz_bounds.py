@@ -74,7 +74,8 @@ def npz_error(where: Any, err: Exception) -> DlaInputError:
     if isinstance(err, NotImplementedError):  # e.g. a zip "version needed to extract" above 6.3
         return DlaInputError(where, f"unsupported zip feature ({one_line(err)}); dla reads the zips numpy writes")
     if isinstance(err, ValueError) and "pickle" in str(err).lower():
-        return DlaInputError(where, "holds pickled Python objects, which dla never reads (store strings as unicode arrays)")
+        problem = "holds pickled Python objects, which dla never reads (store strings as unicode arrays)"
+        return DlaInputError(where, problem)
     if isinstance(err, ValueError):
         return DlaInputError(where, f"not a readable .npz file ({one_line(err)})")
     return DlaInputError(where, f"not a readable .npz file ({type(err).__name__}: {one_line(err)})")

@@ -449,11 +449,14 @@ def _read_record(path: Path) -> dict:
         raise DlaInputError(path, "'seconds' must be >= 0")
     name = rec.get("checkpoint")
     if name is not None and not (isinstance(name, str) and re.fullmatch(r"ckpt-\d{6,9}", name)):
-        raise DlaInputError(path, f"'checkpoint' must be null or a checkpoint folder name (ckpt-NNNNNN), found {excerpt(name)}")
+        problem = f"'checkpoint' must be null or a checkpoint folder name (ckpt-NNNNNN), found {excerpt(name)}"
+        raise DlaInputError(path, problem)
     for key in ("history", "validation"):
         entries = rec.get(key)
         ok = isinstance(entries, list) and all(
-            isinstance(e, dict) and _is_number(e.get("step")) and all(isinstance(v, str) or _is_number(v) for v in e.values())
+            isinstance(e, dict)
+            and _is_number(e.get("step"))
+            and all(isinstance(v, str) or _is_number(v) for v in e.values())
             for e in entries
         )
         if not ok:
