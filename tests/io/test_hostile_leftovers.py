@@ -167,6 +167,13 @@ def _avatar(tmp_path, decoder="identity", z=None, canonical=None, name="a.npz") 
     return path
 
 
+def test_the_reader_checks_the_channels_the_renderer_exponentiates():
+    from dlacli.avatar import gaussian_map as gm
+    from dlacli.io.avatar import CANONICAL_CHANNELS, LOG_SCALE_CHANNELS
+
+    assert (LOG_SCALE_CHANNELS, CANONICAL_CHANNELS) == (gm.LOG_SCALE, gm.CHANNELS)
+
+
 def test_avatar_log_scales_beyond_the_range_are_refused(tmp_path):
     from dlacli.io.avatar import read_avatar, summarize_avatar
 
