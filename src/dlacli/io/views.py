@@ -8,7 +8,6 @@ converted with `Cameras.from_c2w_opengl`. Images: RGBA (alpha = person mask) or 
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any
