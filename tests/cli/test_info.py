@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import math
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -72,8 +74,15 @@ def _bad_inputs(tmp_path):
     views = tmp_path / "views"
     views.mkdir()
     (views / "transforms.json").write_text('{"frames": [')
+    big = tmp_path / "big.ply"  # a log-scale of 100: exp overflows float32 (issue 20)
+    ply = (EXAMPLES / "gaussians_sh0.ply").read_bytes()
+    big.write_bytes(ply.replace(struct.pack("<f", math.log(0.2)), struct.pack("<f", 100.0), 1))
+    zipped = tmp_path / "zip70.npz"  # "version needed to extract" 7.0: zipfile's NotImplementedError
+    npz = (EXAMPLES / "motion.npz").read_bytes()
+    zipped.write_bytes(npz.replace(b"PK\x01\x02-\x03-", b"PK\x01\x02-\x03F"))
     return [(cut, "not a readable .npz file"), (bad_body, "'dla.body/2' is not supported"),
-            (views, "not valid JSON"), (tmp_path / "missing.ply", "no such file")]
+            (views, "not valid JSON"), (tmp_path / "missing.ply", "no such file"),
+            (big, "holds a log-scale of 100"), (zipped, "unsupported zip feature")]
 
 
 def _check_one_line(path, needle, returncode, stdout, stderr):

@@ -91,7 +91,7 @@ def test_float16_rule_against_a_direct_evaluation():
 def test_full_round_trip(tmp_path):
     weights = b"pretend checkpoint bytes"
     digest = hashlib.sha256(weights).hexdigest()
-    canonical = np.linspace(-1, 1, 14 * 4 * 6, dtype=np.float32).reshape(14, 4, 6)
+    canonical = np.linspace(-1, 1, 14 * 6 * 6, dtype=np.float32).reshape(14, 6, 6)  # UV maps are square
     extra = {"source": "photo.png", "views": 4, "nested": {"a": [1, 2]}}
     av = _avatar(encoder="learned", decoder="gpd", checkpoint=digest, canonical=canonical, extra=extra)
     write_avatar(av, tmp_path / "a.npz")

@@ -32,9 +32,10 @@ from typing import Any, Iterable
 import torch
 from torch import nn
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt, one_line
 from dlacli.io.atomic import atomic_dir, check_outputs
 from dlacli.io.files import MAX_BINARY_BYTES, MAX_JSON_BYTES, read_bytes
+from dlacli.io.validate import parse_json
 from dlacli.paths import checkpoints_dir
 
 FORMAT = "dla.checkpoint/1"
@@ -110,8 +111,15 @@ def _type_name(hint) -> str:
     return getattr(hint, "__name__", None) or str(hint).replace("typing.", "")
 
 
+class _BadField(DlaInputError):
+    """A config field of the wrong type, its value quoted as a short excerpt."""
+
+    def __init__(self, where, name: str, value, hint):
+        super().__init__(where, f"config field {name} is {excerpt(value, 40)}, expected {_type_name(hint)}")
+
+
 def _coerce(v, hint, where, name: str):
-    bad = DlaInputError(where, f"config field {name} is {json.dumps(v)[:40]}, expected {_type_name(hint)}")
+    bad = _BadField(where, name, v, hint)
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     if origin in (typing.Union, types.UnionType):
         if v is None and type(None) in args:
@@ -130,7 +138,10 @@ def _coerce(v, hint, where, name: str):
         ok = (int, float) if hint is float else hint
         if not isinstance(v, ok) or (isinstance(v, bool) and hint is not bool):
             raise bad
-        return hint(v)
+        try:
+            return hint(v)
+        except OverflowError:  # an integer of hundreds of digits in a float field
+            raise bad from None
     if origin in (tuple, list) and args:
         if not isinstance(v, list):
             raise bad
@@ -152,7 +163,7 @@ def config_from_dict(cls: type, data: dict, where=None, prefix: str = ""):
     names = {f.name for f in fields}
     unknown, missing = sorted(set(data) - names), sorted(names - set(data))
     if unknown:
-        raise DlaInputError(where, f"config has unknown field(s) {', '.join(prefix + n for n in unknown)} for {cls.__name__}")
+        raise DlaInputError(where, f"config has unknown field(s) {one_line(', '.join(prefix + n for n in unknown[:20]))} for {cls.__name__}")
     if missing:
         raise DlaInputError(where, f"config lacks field(s) {', '.join(prefix + n for n in missing)} of {cls.__name__}")
     hints = typing.get_type_hints(cls)
@@ -160,7 +171,7 @@ def config_from_dict(cls: type, data: dict, where=None, prefix: str = ""):
     try:
         return cls(**values)
     except (ValueError, TypeError) as err:
-        raise DlaInputError(where, f"config is not a valid {cls.__name__} ({' '.join(str(err).split())})") from None
+        raise DlaInputError(where, f"config is not a valid {cls.__name__} ({one_line(err)})") from None
 
 
 def _normal_config(config) -> dict:
@@ -270,11 +281,9 @@ def _check_sizes(data: bytes, where) -> None:
     (n,) = struct.unpack("<Q", data[:8])
     if 8 + n > len(data):
         raise DlaInputError(where, f"truncated: {len(data)} bytes, its header alone needs {8 + n}")
-    try:
-        header = json.loads(data[8 : 8 + n])
-        assert isinstance(header, dict)
-    except (UnicodeDecodeError, json.JSONDecodeError, AssertionError):
-        raise DlaInputError(where, "not a safetensors file (bad header)") from None
+    header = parse_json(data[8 : 8 + n], where, "its header", constants=False)
+    if not isinstance(header, dict):
+        raise DlaInputError(where, "not a safetensors file (its header is not a JSON object)")
     ends = [e["data_offsets"][-1] for k, e in header.items() if k != "__metadata__" and isinstance(e, dict)
             and isinstance(e.get("data_offsets"), list) and e["data_offsets"] and isinstance(e["data_offsets"][-1], int)]  # fmt: skip
     need = 8 + n + max(ends, default=0)
@@ -290,7 +299,7 @@ def _safetensors(data: bytes, where) -> dict[str, torch.Tensor]:
     try:
         return load(data)
     except Exception as err:  # SafetensorError has no stable public base class
-        raise DlaInputError(where, f"not a readable safetensors file ({' '.join(str(err).split())})") from None
+        raise DlaInputError(where, f"not a readable safetensors file ({one_line(err)})") from None
 
 
 # --------------------------------------------------------------------------------------------
@@ -347,23 +356,16 @@ def _read_record(folder: Path) -> dict:
         raise DlaInputError(folder, "no such checkpoint folder")
     if not folder.is_dir():
         raise DlaInputError(folder, f"not a checkpoint folder (expected a folder holding {CONFIG} and {WEIGHTS})")
-    data = read_bytes(where, MAX_JSON_BYTES)
-
-    def no_constants(name):
-        raise ValueError(f"{name} is not a JSON number")
-
-    try:
-        rec = json.loads(data.decode("utf-8"), parse_constant=no_constants)
-    except (UnicodeDecodeError, ValueError) as err:
-        raise DlaInputError(where, f"not valid JSON ({' '.join(str(err).split())})") from None
+    rec = parse_json(read_bytes(where, MAX_JSON_BYTES), where, constants=False)
     if not isinstance(rec, dict):
         raise DlaInputError(where, "must be a JSON object")
     fmt = rec.get("format")
     if fmt != FORMAT:
-        what = f"format {fmt!r}" if fmt is not None else "no 'format' key"
+        what = f"format {excerpt(fmt)}" if fmt is not None else "no 'format' key"
         raise DlaInputError(where, f"{what}; dla reads {FORMAT!r} checkpoints")
     if unknown := sorted(set(rec) - _KEYS):
-        raise DlaInputError(where, f"unknown key(s) {', '.join(unknown)} (put project data under 'extra')")
+        keys = one_line(", ".join(unknown[:20]))
+        raise DlaInputError(where, f"unknown key(s) {keys} (put project data under 'extra')")
     for key, kind in (("class", str), ("config_class", str), ("config", dict), ("step", int), ("hash", str)):
         if key not in rec:
             raise DlaInputError(where, f"lacks the key {key!r}")
@@ -371,7 +373,7 @@ def _read_record(folder: Path) -> dict:
             raise DlaInputError(where, f"{key!r} must be a JSON {'object' if kind is dict else kind.__name__}"
                                        f"{' >= 0' if key == 'step' else ''}")  # fmt: skip
     if not _HEX.fullmatch(rec["hash"]):
-        raise DlaInputError(where, f"hash {rec['hash'][:70]!r} is not 64 lower-case hex digits")
+        raise DlaInputError(where, f"hash {excerpt(rec['hash'])} is not 64 lower-case hex digits")
     opt = rec.get("optimizer")
     if opt is not None and not (isinstance(opt, dict) and isinstance(opt.get("sha256"), str) and "state" in opt):
         raise DlaInputError(where, "'optimizer' must be null or an object with 'sha256' and 'state'")
@@ -416,9 +418,9 @@ def _inside(module_name: str, allowed: tuple[str, ...]) -> bool:
 
 def _check_path(dotted: str, what: str, where, allowed: tuple[str, ...]) -> None:
     if not _DOTTED.fullmatch(dotted):
-        raise DlaInputError(where, f"{what} {dotted[:80]!r} is not a dotted Python path")
+        raise DlaInputError(where, f"{what} {excerpt(dotted)} is not a dotted Python path")
     if not _inside(dotted.rsplit(".", 1)[0], allowed):
-        raise DlaInputError(where, f"{what} {dotted!r} is outside {', '.join(allowed)}; dla imports checkpoint classes only from there")
+        raise DlaInputError(where, f"{what} {excerpt(dotted)} is outside {', '.join(allowed)}; dla imports checkpoint classes only from there")
 
 
 def _import(dotted: str, what: str, where, allowed: tuple[str, ...]):
@@ -426,12 +428,13 @@ def _import(dotted: str, what: str, where, allowed: tuple[str, ...]):
     try:
         mod = importlib.import_module(mod_name)
     except ImportError as err:
-        raise DlaInputError(where, f"{what} {dotted!r} cannot be imported ({err}); is this dla version too old?") from None
+        raise DlaInputError(where, f"{what} {excerpt(dotted)} cannot be imported ({one_line(err)}); is this dla version too old?") from None
     obj = getattr(mod, attr, None)
     if not isinstance(obj, type):
-        raise DlaInputError(where, f"{what} {dotted!r} does not exist in this dla version")
+        raise DlaInputError(where, f"{what} {excerpt(dotted)} does not exist in this dla version")
     if not _inside(obj.__module__, allowed):  # a name a dlacli module imported from elsewhere
-        raise DlaInputError(where, f"{what} {dotted!r} is defined in {obj.__module__}, outside {', '.join(allowed)}")
+        problem = f"{what} {excerpt(dotted)} is defined in {obj.__module__}"
+        raise DlaInputError(where, f"{problem}, outside {', '.join(allowed)}")
     return obj
 
 
@@ -455,10 +458,11 @@ def load_checkpoint(path, *, map_location="cpu", allowed_prefixes: Iterable[str]
         raise DlaInputError(where, str(err)) from None
     weights = _verified_weights(folder, rec)
     tensors = _safetensors(weights, folder / WEIGHTS)
+    _check_size(cls, config, len(weights), where)
     try:
         module = cls(config)
     except (ValueError, TypeError, RuntimeError) as err:
-        raise DlaInputError(where, f"config does not build {cls.__name__} ({' '.join(str(err).split())})") from None
+        raise DlaInputError(where, f"config does not build {cls.__name__} ({one_line(err)})") from None
     expected = module.state_dict()
     aliases = _aliases(expected)
     want = {k: tuple(t.shape) for k, t in expected.items() if k not in aliases}
@@ -480,6 +484,26 @@ def load_checkpoint(path, *, map_location="cpu", allowed_prefixes: Iterable[str]
         opt_tensors = {k: v.to(map_location) for k, v in _optimizer_tensors(folder, rec["optimizer"]).items()}
         optimizer_state = _decode_state(rec["optimizer"]["state"], opt_tensors, where)
     return Loaded(module, config, rec["step"], rec["hash"], optimizer_state, rec.get("extra", {}), folder)
+
+
+UNSAVED_BYTES = 256 * 2**20  # what a network may hold beyond its weights file (buffers it does not save)
+
+
+def _check_size(cls: type, config, weight_bytes: int, where) -> None:
+    """Refuse a config that would build a network far larger than its weights file (a config.json
+    whose hash was recomputed after its sizes were raised to billions) before anything is
+    allocated: the network is built on the meta device first, which allocates nothing. A network
+    that cannot be built on meta is left to the real build."""
+    try:
+        with torch.device("meta"):
+            skeleton = cls(config)
+        tensors = [*skeleton.parameters(), *skeleton.buffers()]  # shared (tied) tensors once
+        size = sum(t.numel() * t.element_size() for t in tensors if t.is_meta)
+    except Exception:  # noqa: BLE001 - any failure here is the real build's to report
+        return
+    if size > weight_bytes + UNSAVED_BYTES:
+        problem = f"config builds a {cls.__name__} of {size:,} bytes, far more than the {weight_bytes:,} bytes"
+        raise DlaInputError(where, f"{problem} of {WEIGHTS}")
 
 
 # --------------------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ import numpy as np
 
 from dlacli.errors import DlaInputError
 from dlacli.io.bvh import check_motion_size, clean_fps
+from dlacli.io.validate import MAX_ANGLE, MAX_DISTANCE
 from dlacli.types import MAX_FPS, MIN_FPS, SkeletonMotion
 
 SMPL_JOINTS = (
@@ -110,7 +111,7 @@ def read_amass(path: str | os.PathLike) -> SkeletonMotion:
     trans = np.asarray(data["trans"])
     if trans.dtype.kind not in "fiu" or trans.shape != (t, 3):
         raise DlaInputError(path, f"trans has shape {trans.shape}, expected ({t}, 3)")
-    for name, arr, most in (("poses", poses, 1e4), ("trans", trans, 1e5)):  # radians, metres
+    for name, arr, most in (("poses", poses, MAX_ANGLE), ("trans", trans, MAX_DISTANCE)):  # radians, metres
         if not np.all(np.isfinite(arr)):
             raise DlaInputError(path, f"{name} holds non-finite values (first at frame {np.argwhere(~np.isfinite(arr))[0][0]})")
         if arr.size and np.abs(arr).max() > most:

@@ -30,8 +30,16 @@ from typing import Any
 
 import numpy as np
 
-from dlacli.errors import DlaInputError
-from dlacli.io.bvh import MAX_DEPTH, MAX_JOINTS, _next_line, _read_text, check_motion_size
+from dlacli.errors import DlaInputError, excerpt, excerpts
+from dlacli.io.bvh import (
+    MAX_DEPTH,
+    MAX_JOINTS,
+    _next_line,
+    _read_text,
+    check_angles,
+    check_motion_size,
+    check_skeleton_bounds,
+)
 from dlacli.kinematics import euler_matrices, rest_height
 from dlacli.types import SkeletonMotion
 
@@ -89,16 +97,16 @@ def _floats(words: list[str], n: int, where: Path, what: str) -> np.ndarray:
     try:
         values = np.array([float(w) for w in words[:n]])
     except ValueError:
-        raise DlaInputError(where, f"{what}: expected {n} numbers, got {' '.join(words)!r}") from None
+        raise DlaInputError(where, f"{what}: expected {n} numbers, got {excerpt(' '.join(words))}") from None
     if values.size != n or not np.all(np.isfinite(values)):
-        raise DlaInputError(where, f"{what}: expected {n} finite numbers, got {' '.join(words)!r}")
+        raise DlaInputError(where, f"{what}: expected {n} finite numbers, got {excerpt(' '.join(words))}")
     return values
 
 
 def _axis_order(word: str, where: Path, what: str) -> str:
     order = word.lower()
     if sorted(order) != ["x", "y", "z"]:
-        raise DlaInputError(where, f"{what}: unsupported rotation order {word!r} (a permutation of XYZ needed)")
+        raise DlaInputError(where, f"{what}: unsupported rotation order {excerpt(word)} (a permutation of XYZ needed)")
     return order
 
 
@@ -114,20 +122,21 @@ def read_asf(path: str | os.PathLike) -> Asf:
     try:
         length_unit = float(units.get("length", "1"))
     except ValueError:
-        raise DlaInputError(path, f":units length {units['length']!r} is not a number") from None
+        raise DlaInputError(path, f":units length {excerpt(units['length'])} is not a number") from None
     if not np.isfinite(length_unit) or length_unit <= 0:
         raise DlaInputError(path, f":units length {length_unit} must be > 0")
     angle_unit = units.get("angle", "deg").lower()[:3]
     if angle_unit not in ("deg", "rad"):
-        raise DlaInputError(path, f":units angle {units['angle']!r} (deg or rad expected)")
+        raise DlaInputError(path, f":units angle {excerpt(units['angle'])} (deg or rad expected)")
 
     root = {words[0].lower(): words[1:] for words in sec["root"] if words}
     root_order = [w.lower() for w in root.get("order", "TX TY TZ RX RY RZ".split())]
     if sorted(root_order) != sorted(["tx", "ty", "tz", "rx", "ry", "rz"]):
-        raise DlaInputError(path, f":root order {' '.join(root_order)} is not supported (TX TY TZ RX RY RZ in any order)")
+        raise DlaInputError(path, f":root order {excerpt(' '.join(root_order))} is not supported (TX TY TZ RX RY RZ in any order)")
     root_axis = _axis_order(root.get("axis", ["XYZ"])[0], path, ":root axis")
     position = _floats(root.get("position", ["0", "0", "0"]), 3, path, ":root position")
     orientation = _floats(root.get("orientation", ["0", "0", "0"]), 3, path, ":root orientation")
+    check_angles(orientation, path, ":root orientation", degrees=angle_unit == "deg")
 
     bones: dict[str, AsfBone] = {}
     block: dict[str, list[str]] | None = None
@@ -139,8 +148,9 @@ def read_asf(path: str | os.PathLike) -> Asf:
             if block is None:
                 raise DlaInputError(path, ":bonedata has 'end' without 'begin'")
             bone = _make_bone(block, path)
+            check_angles(bone.axis, path, f"bone {excerpt(bone.name)} axis", degrees=angle_unit == "deg")
             if bone.name in bones or bone.name == "root":
-                raise DlaInputError(path, f"bone {bone.name!r} defined twice")
+                raise DlaInputError(path, f"bone {excerpt(bone.name)} defined twice")
             if len(bones) >= MAX_JOINTS - 1:
                 raise DlaInputError(path, f"more than {MAX_JOINTS - 1} bones in :bonedata")
             bones[bone.name] = bone
@@ -161,26 +171,26 @@ def read_asf(path: str | os.PathLike) -> Asf:
         parent, kids = words[0], words[1:]
         for name in [parent, *kids]:
             if name != "root" and name not in bones:
-                raise DlaInputError(path, f":hierarchy names unknown bone {name[:40]!r}")
+                raise DlaInputError(path, f":hierarchy names unknown bone {excerpt(name)}")
         for kid in kids:
             if kid == "root":
-                raise DlaInputError(path, f":hierarchy makes root a child of {parent!r}")
+                raise DlaInputError(path, f":hierarchy makes root a child of {excerpt(parent)}")
             if kid in parent_of:
                 raise DlaInputError(
-                    path, f":hierarchy gives bone {kid!r} two parents ({parent_of[kid]!r} and {parent!r}): a cycle or a repeated line"
+                    path, f":hierarchy gives bone {excerpt(kid)} two parents ({excerpt(parent_of[kid])} and {excerpt(parent)}): a cycle or a repeated line"
                 )
             parent_of[kid] = parent
         children.setdefault(parent, []).extend(kids)
     reached = _order_bones(children)
     missing = sorted(set(bones) - set(reached))
     if missing:
-        shown = ", ".join(missing[:8]) + (" ..." if len(missing) > 8 else "")
+        shown = excerpts(missing, 8)
         raise DlaInputError(path, f"bone(s) not reachable from root in :hierarchy (a cycle?): {shown}")
     depth = {"root": 0}
     for name in reached:  # parents come first
         depth[name] = depth[parent_of[name]] + 1
         if depth[name] > MAX_DEPTH:
-            raise DlaInputError(path, f":hierarchy nests bones more than {MAX_DEPTH} deep (at {name!r})")
+            raise DlaInputError(path, f":hierarchy nests bones more than {MAX_DEPTH} deep (at {excerpt(name)})")
     return Asf(path, length_unit, angle_unit, root_order, root_axis, position, orientation, bones, children)
 
 
@@ -190,20 +200,20 @@ def _make_bone(block: dict[str, list[str]], path: Path) -> AsfBone:
     name = block["name"][0]
     for need in ("direction", "length", "axis"):
         if need not in block:
-            raise DlaInputError(path, f"bone {name!r} has no {need}")
-    direction = _floats(block["direction"], 3, path, f"bone {name!r} direction")
+            raise DlaInputError(path, f"bone {excerpt(name)} has no {need}")
+    direction = _floats(block["direction"], 3, path, f"bone {excerpt(name)} direction")
     norm = np.linalg.norm(direction)
     if norm < 1e-9:
-        raise DlaInputError(path, f"bone {name!r} has a zero direction")
-    length = float(_floats(block["length"], 1, path, f"bone {name!r} length")[0])
-    axis = _floats(block["axis"], 3, path, f"bone {name!r} axis")
-    order = _axis_order(block["axis"][3] if len(block["axis"]) > 3 else "XYZ", path, f"bone {name!r} axis")
+        raise DlaInputError(path, f"bone {excerpt(name)} has a zero direction")
+    length = float(_floats(block["length"], 1, path, f"bone {excerpt(name)} length")[0])
+    axis = _floats(block["axis"], 3, path, f"bone {excerpt(name)} axis")
+    order = _axis_order(block["axis"][3] if len(block["axis"]) > 3 else "XYZ", path, f"bone {excerpt(name)} axis")
     dofs = [d.lower() for d in block.get("dof", [])]
     for d in dofs:
         if d not in ("rx", "ry", "rz", "tx", "ty", "tz", "l"):
-            raise DlaInputError(path, f"bone {name!r} has unsupported dof {d!r}")
+            raise DlaInputError(path, f"bone {excerpt(name)} has unsupported dof {excerpt(d)}")
     if len(set(dofs)) != len(dofs):
-        raise DlaInputError(path, f"bone {name!r} repeats a dof: {' '.join(dofs)}")
+        raise DlaInputError(path, f"bone {excerpt(name)} repeats a dof: {' '.join(dofs)}")
     return AsfBone(name, direction / norm, length, axis, order, dofs)
 
 
@@ -265,25 +275,29 @@ def read_amc(amc_path: str | os.PathLike, asf: Asf | str | os.PathLike, fps: flo
             raise DlaInputError(amc_path, f"line {n}: data before the first frame number")
         name = words[0]
         if name != "root" and name not in asf.bones:
-            raise DlaInputError(amc_path, f"line {n}: bone {name[:40]!r} is not in the skeleton {asf.path.name}")
+            raise DlaInputError(amc_path, f"line {n}: bone {excerpt(name)} is not in the skeleton {asf.path.name}")
         if name in seen:
-            raise DlaInputError(amc_path, f"line {n}: bone {name!r} appears twice in frame {frames}")
+            raise DlaInputError(amc_path, f"line {n}: bone {excerpt(name)} appears twice in frame {frames}")
         seen.add(name)
         if name not in store:
             continue
         if len(words) - 1 != counts[name]:
-            raise DlaInputError(amc_path, f"line {n}: bone {name!r} has {len(words) - 1} values, its dofs need {counts[name]}")
+            raise DlaInputError(amc_path, f"line {n}: bone {excerpt(name)} has {len(words) - 1} values, its dofs need {counts[name]}")
         try:
             row = [float(w) for w in words[1:]]
         except ValueError:
-            raise DlaInputError(amc_path, f"line {n}: non-numeric value for bone {name!r}") from None
+            raise DlaInputError(amc_path, f"line {n}: non-numeric value for bone {excerpt(name)}") from None
         if not all(math.isfinite(v) for v in row):
-            raise DlaInputError(amc_path, f"line {n}: non-finite value for bone {name!r} (frame {frames})")
+            raise DlaInputError(amc_path, f"line {n}: non-finite value for bone {excerpt(name)} (frame {frames})")
         store[name].extend(row)
     if not frames:
         raise DlaInputError(amc_path, "no frames (an AMC motion needs at least one)")
     _check_frame(amc_path, frames, moving, seen)
     values = {b: np.frombuffer(store[b], dtype=np.float64).reshape(frames, counts[b]) for b in moving}
+    for b in moving:  # the rotation dofs (the root's rx ry rz; a bone's r*): motion.npz's bound on angles
+        dofs = asf.root_order if b == "root" else asf.bones[b].dofs
+        rot = [i for i, d in enumerate(dofs) if d.startswith("r")]
+        check_angles(values[b][:, rot], amc_path, f"rotation of bone {excerpt(b)}", degrees=not radians)
 
     to_rad = (lambda a: a) if radians else np.radians
     asf_rad = (lambda a: a) if asf.angle_unit == "rad" else np.radians
@@ -324,7 +338,7 @@ def read_amc(amc_path: str | os.PathLike, asf: Asf | str | os.PathLike, fps: flo
         c = _euler(asf_rad(bone.axis)[None], bone.axis_order)[0]
         rotations[:, k] = c @ _euler(angles, bone.axis_order) @ c.T
 
-    return SkeletonMotion(
+    skel = SkeletonMotion(
         names=joint_names,
         parents=parents,
         offsets=offsets,
@@ -337,12 +351,14 @@ def read_amc(amc_path: str | os.PathLike, asf: Asf | str | os.PathLike, fps: flo
         source=str(amc_path),
         end_sites=end_sites,
     )
+    check_skeleton_bounds(skel, amc_path)
+    return skel
 
 
 def _check_frame(where: Path, frame: int, moving: list[str], seen: set[str]) -> None:
     missing = next((b for b in moving if b not in seen), None)
     if missing is not None:
-        raise DlaInputError(where, f"frame {frame} lacks bone {missing!r} (truncated file?)")
+        raise DlaInputError(where, f"frame {frame} lacks bone {excerpt(missing)} (truncated file?)")
 
 
 def find_asf(amc_path: str | os.PathLike) -> Path:

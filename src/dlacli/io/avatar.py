@@ -14,9 +14,18 @@ from typing import Any
 
 import numpy as np
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt, excerpts
 from dlacli.io.body import body_from_dict, body_to_dict
-from dlacli.io.validate import as_str, check_finite, check_format, check_shape, load_npz, parse_json, save_npz
+from dlacli.io.validate import (
+    as_str,
+    check_finite,
+    check_format,
+    check_log_scales,
+    check_shape,
+    load_npz,
+    parse_json,
+    save_npz,
+)
 from dlacli.types import Avatar
 
 # z and canonical together: a 14 x 2048^2 float32 map (the largest --resolution) is 235 MB, the
@@ -27,6 +36,8 @@ FORMAT = "dla.avatar/1"
 KEYS = ("format", "z", "encoder", "decoder", "checkpoint", "body", "uv_layout")
 OPTIONAL_KEYS = ("canonical", "extra")
 CANONICAL_CHANNELS = 14
+LOG_SCALE_CHANNELS = slice(11, 14)  # F's log scale multipliers (formats/avatar.md; avatar.gaussian_map.LOG_SCALE)
+MAP_DECODERS = ("identity", "view-cosine")  # decoders whose z holds F's channels 0-13 (formats/avatar.md)
 # float16 storage rule: max |float16(a) - a| <= FLOAT16_RTOL * max |a|, and nothing overflows.
 FLOAT16_RTOL = 1e-3
 _SHA256 = re.compile(r"[0-9a-f]{64}")
@@ -60,24 +71,33 @@ def avatar_from_arrays(data: dict[str, Any], where: Any) -> Avatar:
         raise DlaInputError(where, f"missing array{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))}")
     unknown = sorted(set(data) - set(KEYS) - set(OPTIONAL_KEYS))
     if unknown:
-        raise DlaInputError(where, f"unknown array{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))} (put project data in 'extra')")
+        raise DlaInputError(where, f"unknown array{'s' if len(unknown) > 1 else ''} {excerpts(unknown)} (put project data in 'extra')")
 
     z = _float_map(data["z"], where, "z")
     check_shape(z, (None, None, None), where, "z")
     if 0 in z.shape:
         raise DlaInputError(where, f"z has an empty shape {z.shape}")
+    if z.shape[1] != z.shape[2]:
+        raise DlaInputError(where, f"z has shape {z.shape}; a UV map is square (C, R, R)")
     encoder = as_str(data["encoder"], where, "encoder")
     decoder = as_str(data["decoder"], where, "decoder")
+    if decoder in MAP_DECODERS:  # z is the Gaussian map F itself: its log-scales are read as such
+        check_log_scales(z[LOG_SCALE_CHANNELS], where, "z (channels 11-13, log scale)")
     uv_layout = as_str(data["uv_layout"], where, "uv_layout")
     checkpoint = as_str(data["checkpoint"], where, "checkpoint", allow_empty=True)
     if checkpoint and not _SHA256.fullmatch(checkpoint):
-        raise DlaInputError(where, f"checkpoint {checkpoint!r} is neither '' nor a lower-case sha256 hex digest")
+        raise DlaInputError(where, f"checkpoint {excerpt(checkpoint)} is neither '' nor a lower-case sha256 hex digest")
     body = body_from_dict(_json_object(data["body"], where, "body"), f"{where}:body")
 
     canonical = None
     if "canonical" in data:
         canonical = _float_map(data["canonical"], where, "canonical")
         check_shape(canonical, (CANONICAL_CHANNELS, None, None), where, "canonical")
+        if 0 in canonical.shape:
+            raise DlaInputError(where, f"canonical has an empty shape {canonical.shape}")
+        if canonical.shape[1] != canonical.shape[2]:
+            raise DlaInputError(where, f"canonical has shape {canonical.shape}; a UV map is square (14, R, R)")
+        check_log_scales(canonical[LOG_SCALE_CHANNELS], where, "canonical (channels 11-13, log scale)")
     extra = _json_object(data["extra"], where, "extra") if "extra" in data else {}
     return Avatar(z, encoder, decoder, body, uv_layout, checkpoint, canonical, extra)
 
@@ -86,8 +106,10 @@ def _float_map(value: Any, where: Any, name: str) -> np.ndarray:
     arr = np.asarray(value)
     if arr.dtype.kind != "f":
         raise DlaInputError(where, f"{name} must be float16 or float32, found dtype {arr.dtype}")
+    with np.errstate(over="ignore"):
+        arr = arr.astype(np.float32)  # a float64 beyond float32's range becomes inf: refused here
     check_finite(arr, where, name)
-    return arr.astype(np.float32)
+    return arr
 
 
 def _json_object(value: Any, where: Any, name: str) -> dict[str, Any]:

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt, excerpts
 from dlacli.io.atomic import atomic_path
 from dlacli.io.validate import (
     MAX_ANGLE,
@@ -47,10 +47,10 @@ def body_from_dict(d: Any, where: Any) -> BodyParams:
     require_keys(d, ("model", "phenotype"), where)
     unknown = sorted(set(d) - _KEYS)
     if unknown:
-        raise DlaInputError(where, f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))} (allowed: {', '.join(sorted(_KEYS))})")
+        raise DlaInputError(where, f"unknown key{'s' if len(unknown) > 1 else ''} {excerpts(unknown)} (allowed: {', '.join(sorted(_KEYS))})")
     model = as_str(d["model"], where, "model")
     if model not in MODELS:
-        raise DlaInputError(where, f"model {model!r} is not supported (supported: {', '.join(MODELS)})")
+        raise DlaInputError(where, f"model {excerpt(model)} is not supported (supported: {', '.join(MODELS)})")
 
     pheno = d["phenotype"]
     if not isinstance(pheno, dict):
@@ -60,7 +60,7 @@ def body_from_dict(d: Any, where: Any) -> BodyParams:
         raise DlaInputError(where, f"phenotype is missing {', '.join(map(repr, missing))} (all of {', '.join(PHENOTYPE_KEYS)} are required)")
     extra = sorted(set(pheno) - set(PHENOTYPE_KEYS))
     if extra:
-        raise DlaInputError(where, f"unknown phenotype key{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))} (allowed: {', '.join(PHENOTYPE_KEYS)})")
+        raise DlaInputError(where, f"unknown phenotype key{'s' if len(extra) > 1 else ''} {excerpts(extra)} (allowed: {', '.join(PHENOTYPE_KEYS)})")
     phenotype = {}
     for key in PHENOTYPE_KEYS:
         value = as_float(pheno[key], where, f"phenotype.{key}")
@@ -84,8 +84,8 @@ def body_from_dict(d: Any, where: Any) -> BodyParams:
     for label, value in pose_in.items():
         if not label:
             raise DlaInputError(where, "pose has an empty bone label")
-        pose[label] = as_array(value, (3,), where, f"pose[{label!r}]", np.float64)
-        check_magnitude(pose[label], MAX_ANGLE, where, f"pose[{label!r}]", "rad")
+        pose[label] = as_array(value, (3,), where, f"pose[{excerpt(label)}]", np.float64)
+        check_magnitude(pose[label], MAX_ANGLE, where, f"pose[{excerpt(label)}]", "rad")
     return BodyParams(
         phenotype=phenotype,
         root_rotation=root_rotation,

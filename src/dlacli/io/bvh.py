@@ -11,7 +11,8 @@ one to three distinct rotation axes is accepted. Position channels on a joint re
 for that frame. BVH has no unit: `guess_bvh_units` infers it from the skeleton's height.
 
 Hostile files: the readers of this module, `asf_amc` and `amass` share the limits below
-(`MAX_*` (MAX_FPS and MAX_FRAMES come from `dlacli.types`), `check_motion_size`) and read text
+(`MAX_*` (MAX_FPS and MAX_FRAMES come from `dlacli.types`), `check_motion_size`, and
+`check_skeleton_bounds`: motion.npz's bounds on distances and angles) and read text
 through `_read_text` (regular files only, size capped); `Frames:` is checked against the data
 present before anything is allocated for it, and hierarchies are parsed without recursion
 (docs/motion.md, "Limits").
@@ -19,6 +20,7 @@ present before anything is allocated for it, and hierarchies are parsed without 
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from pathlib import Path
@@ -26,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt, excerpts, one_line
+from dlacli.io.validate import MAX_ANGLE, MAX_DISTANCE, check_magnitude
 from dlacli.kinematics import euler_matrices, rest_height
 from dlacli.types import MAX_FPS, MAX_FRAMES, MIN_FPS, SkeletonMotion
 
@@ -98,6 +101,28 @@ def check_motion_size(where: Any, frames: int, joints: int) -> None:
         )
 
 
+def check_angles(angles: np.ndarray, where: Any, name: str, degrees: bool) -> None:
+    """Angles read from a motion file (radians, or degrees when `degrees`) within MAX_ANGLE
+    radians, the bound of a motion.npz's rotations."""
+    if degrees:
+        check_magnitude(angles, math.degrees(MAX_ANGLE), where, name, "degrees")
+    else:
+        check_magnitude(angles, MAX_ANGLE, where, name, "rad")
+
+
+def check_skeleton_bounds(skel: SkeletonMotion, where: Any) -> None:
+    """Refuse a skeleton motion whose bones or root path reach beyond MAX_DISTANCE metres, the
+    bound of a motion.npz's root_translation (io.validate): joint offsets, End Sites and root
+    positions, in the file's units times `metres_per_unit`. Every motion reader calls it, so
+    `dla animate` plays what `dla motion convert` converts, and nothing else."""
+    ends = np.array(list(skel.end_sites.values())).reshape(-1, 3)
+    with np.errstate(over="ignore"):  # a huge value times the unit is inf: refused below
+        root = skel.root_positions
+        lengths = (("a joint offset", skel.offsets), ("an End Site offset", ends), ("the root position", root))
+        for name, arr in lengths:
+            check_magnitude(np.abs(arr) * skel.metres_per_unit, MAX_DISTANCE, where, name, "m")
+
+
 # ---------------------------------------------------------------------------------------------
 # parsing
 
@@ -151,7 +176,7 @@ class _Tokens:
         try:
             value = float(tok)
         except ValueError:
-            raise DlaInputError(self.where, f"line {self.line()}: expected a number for {what}, got {tok[:40]!r}") from None
+            raise DlaInputError(self.where, f"line {self.line()}: expected a number for {what}, got {excerpt(tok)}") from None
         if not np.isfinite(value):
             raise DlaInputError(self.where, f"line {self.line()}: {what} is {tok}")
         return value
@@ -173,7 +198,7 @@ def _parse_hierarchy(tok: _Tokens, root: str) -> tuple[list[dict], dict[int, np.
             raise DlaInputError(tok.where, f"line {tok.line()}: more than {MAX_JOINTS} joints")
         joints.append({"name": name, "parent": parent, "offset": None, "channels": []})
         if tok.next("'{'") != "{":
-            raise DlaInputError(tok.where, f"line {tok.line()}: expected '{{' after joint {name[:40]!r}")
+            raise DlaInputError(tok.where, f"line {tok.line()}: expected '{{' after joint {excerpt(name)}")
         open_joints.append(len(joints) - 1)
 
     begin(root, -1)
@@ -184,28 +209,29 @@ def _parse_hierarchy(tok: _Tokens, root: str) -> tuple[list[dict], dict[int, np.
         word = tok.next("'}'")
         key = word.upper()
         if key == "OFFSET":
-            joint["offset"] = [tok.number(f"OFFSET of {name!r}") for _ in range(3)]
+            joint["offset"] = [tok.number(f"OFFSET of {excerpt(name)}") for _ in range(3)]
         elif key == "CHANNELS":
-            count = tok.number(f"CHANNELS count of {name!r}")
+            count = tok.number(f"CHANNELS count of {excerpt(name)}")
             if count != int(count) or not 0 <= count <= 6:
-                raise DlaInputError(tok.where, f"line {tok.line()}: joint {name!r} has {count} channels (0..6 allowed)")
-            joint["channels"] = [tok.next(f"channel of {name!r}") for _ in range(int(count))]
+                problem = f"joint {excerpt(name)} has {count} channels (0..6 allowed)"
+                raise DlaInputError(tok.where, f"line {tok.line()}: {problem}")
+            joint["channels"] = [tok.next(f"channel of {excerpt(name)}") for _ in range(int(count))]
             _check_channels(joint["channels"], name, tok)
         elif key == "JOINT":
             begin(tok.next("joint name"), index)
         elif key == "END":
             tok.next("'Site'")
             if tok.next("'{'") != "{" or tok.next("OFFSET").upper() != "OFFSET":
-                raise DlaInputError(tok.where, f"line {tok.line()}: malformed End Site under {name!r}")
+                raise DlaInputError(tok.where, f"line {tok.line()}: malformed End Site under {excerpt(name)}")
             end_sites[index] = np.array([tok.number("End Site OFFSET") for _ in range(3)])
             if tok.next("'}'") != "}":
                 raise DlaInputError(tok.where, f"line {tok.line()}: expected '}}' closing an End Site")
         elif key == "}":
             if joint["offset"] is None:
-                raise DlaInputError(tok.where, f"joint {name!r} has no OFFSET")
+                raise DlaInputError(tok.where, f"joint {excerpt(name)} has no OFFSET")
             open_joints.pop()
         else:
-            raise DlaInputError(tok.where, f"line {tok.line()}: unexpected {word[:40]!r} in joint {name!r}")
+            raise DlaInputError(tok.where, f"line {tok.line()}: unexpected {excerpt(word)} in joint {excerpt(name)}")
     return joints, end_sites
 
 
@@ -216,16 +242,17 @@ def _check_channels(channels: list[str], name: str, tok: _Tokens) -> None:
         if low in _ROT_CHANNELS:
             rot_axes.append(_ROT_CHANNELS[low])
         elif low not in _POS_CHANNELS:
-            raise DlaInputError(tok.where, f"line {tok.line()}: joint {name!r} has unsupported channel {ch!r}")
+            problem = f"joint {excerpt(name)} has unsupported channel {excerpt(ch)}"
+            raise DlaInputError(tok.where, f"line {tok.line()}: {problem}")
     if len(set(rot_axes)) != len(rot_axes):
         raise DlaInputError(
             tok.where,
-            f"line {tok.line()}: joint {name!r} has unsupported rotation order "
+            f"line {tok.line()}: joint {excerpt(name)} has unsupported rotation order "
             f"{' '.join(c for c in channels if c.lower() in _ROT_CHANNELS)} (an axis repeats)",
         )
     pos = [c.lower() for c in channels if c.lower() in _POS_CHANNELS]
     if len(set(pos)) != len(pos):
-        raise DlaInputError(tok.where, f"line {tok.line()}: joint {name!r} repeats a position channel")
+        raise DlaInputError(tok.where, f"line {tok.line()}: joint {excerpt(name)} repeats a position channel")
 
 
 def read_bvh(path: str | os.PathLike, metres_per_unit: float | None = None) -> SkeletonMotion:
@@ -246,13 +273,13 @@ def read_bvh(path: str | os.PathLike, metres_per_unit: float | None = None) -> S
     joints, end_sites = _parse_hierarchy(tok, tok.next("root name"))
     extra = tok.next_or_none()
     if extra is not None:
-        raise DlaInputError(path, f"line {tok.line()}: unexpected {extra[:40]!r} after the hierarchy (one ROOT supported)")
+        raise DlaInputError(path, f"line {tok.line()}: unexpected {excerpt(extra)} after the hierarchy (one ROOT supported)")
     if tok.motion_end is None:
         raise DlaInputError(path, "no MOTION section (truncated file?)")
     names = [j["name"] for j in joints]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
-        raise DlaInputError(path, f"joint name(s) repeated: {', '.join(dup)}")
+        raise DlaInputError(path, f"joint name(s) repeated: {excerpts(dup)}")
 
     num_channels = sum(len(j["channels"]) for j in joints)
     frames, frame_time, data = _parse_motion(text, tok.motion_end, path, num_channels, len(joints))
@@ -267,6 +294,7 @@ def read_bvh(path: str | os.PathLike, metres_per_unit: float | None = None) -> S
         col += len(chans)
         rot_cols = [i for i, c in enumerate(chans) if c in _ROT_CHANNELS]
         if rot_cols:
+            check_angles(block[:, rot_cols], path, f"rotation of joint {excerpt(joint['name'])}", degrees=True)
             axes = "".join(_ROT_CHANNELS[chans[i]] for i in rot_cols)
             rotations[:, k] = euler_matrices(np.radians(block[:, rot_cols]), axes)
         pos_cols = {_POS_CHANNELS[c]: i for i, c in enumerate(chans) if c in _POS_CHANNELS}
@@ -287,11 +315,13 @@ def read_bvh(path: str | os.PathLike, metres_per_unit: float | None = None) -> S
         source=str(path),
         end_sites=end_sites,
     )
-    height = rest_height(skel)
+    with np.errstate(over="ignore", invalid="ignore"):  # huge offsets: inf, then refused below
+        height = rest_height(skel)
     if metres_per_unit is None:
         skel.units, skel.metres_per_unit = guess_bvh_units(height)
     else:
         skel.units, skel.metres_per_unit = "given", float(metres_per_unit)
+    check_skeleton_bounds(skel, path)
     return skel
 
 
@@ -321,7 +351,8 @@ def _parse_motion(text: str, pos: int, path: Path, num_channels: int, num_joints
         line = text[start:end].strip()
         key, sep, value = line.partition(":")
         if not sep:
-            raise DlaInputError(path, f"line {line_no(start)}: expected 'Frames:' and 'Frame Time:', got {line[:40]!r}")
+            problem = f"expected 'Frames:' and 'Frame Time:', got {excerpt(line)}"
+            raise DlaInputError(path, f"line {line_no(start)}: {problem}")
         header[key.strip().lower()] = value.strip()
     try:
         frames = int(header["frames"])
@@ -329,7 +360,7 @@ def _parse_motion(text: str, pos: int, path: Path, num_channels: int, num_joints
     except KeyError as err:
         raise DlaInputError(path, f"MOTION section lacks {err.args[0].title()!r} (truncated file?)") from None
     except ValueError:
-        shown = "; ".join(f"{k[:20]}: {v[:20]}" for k, v in header.items())
+        shown = one_line("; ".join(f"{k[:20]}: {v[:20]}" for k, v in header.items()))
         raise DlaInputError(path, f"bad MOTION header ({shown}): Frames must be an integer, Frame Time a number") from None
     if frames <= 0:
         raise DlaInputError(path, f"motion has {frames} frames (at least one needed)")
@@ -369,7 +400,7 @@ def _parse_motion(text: str, pos: int, path: Path, num_channels: int, num_joints
             data[f] = np.array(words, dtype=np.float64)
         except ValueError:
             bad = next(t for t in words if not _is_float(t))
-            raise DlaInputError(path, f"line {line_no(start)}: non-numeric value {bad[:20]!r} in the MOTION data") from None
+            raise DlaInputError(path, f"line {line_no(start)}: non-numeric value {excerpt(bad)} in the MOTION data") from None
     span = _next_line(text, pos)
     if span is not None:
         more = _count_lines(text, span[0])

@@ -12,7 +12,7 @@ import os
 import stat
 from pathlib import Path
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt, one_line
 
 MiB = 1 << 20
 # Caps on what one input file may be: far above any real artifact of its kind, far below what
@@ -97,13 +97,13 @@ def inside(folder: str | os.PathLike, rel: str, where: object, name: str, allow_
     if allow_outside:
         return path
     if os.path.isabs(rel):
-        raise DlaInputError(where, f"{name} {rel!r} is an absolute path; dla reads only files inside the folder (--allow-outside to permit)")
+        raise DlaInputError(where, f"{name} {excerpt(rel)} is an absolute path; dla reads only files inside the folder (--allow-outside to permit)")
     try:
         path.resolve().relative_to(folder.resolve())
     except ValueError:
-        raise DlaInputError(where, f"{name} {rel!r} leads outside the folder; dla reads only files inside it (--allow-outside to permit)") from None
+        raise DlaInputError(where, f"{name} {excerpt(rel)} leads outside the folder; dla reads only files inside it (--allow-outside to permit)") from None
     except (OSError, RuntimeError) as err:  # link loops
-        raise DlaInputError(where, f"{name} {rel!r} cannot be resolved ({err})") from None
+        raise DlaInputError(where, f"{name} {excerpt(rel)} cannot be resolved ({one_line(err)})") from None
     return path
 
 
@@ -121,9 +121,9 @@ def open_image(path: str | os.PathLike, max_pixels: int = MAX_IMAGE_PIXELS):
             warnings.simplefilter("error", Image.DecompressionBombWarning)
             im = Image.open(io.BytesIO(data))
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as err:
-        raise DlaInputError(path, f"image too large to decode ({' '.join(str(err).split())})") from None
+        raise DlaInputError(path, f"image too large to decode ({one_line(err)})") from None
     except (OSError, ValueError, SyntaxError) as err:
-        raise DlaInputError(path, f"not a readable image ({' '.join(str(err).split())})") from None
+        raise DlaInputError(path, f"not a readable image ({one_line(err)})") from None
     w, h = im.size
     if w * h > max_pixels or w <= 0 or h <= 0:
         im.close()
@@ -143,5 +143,5 @@ class decoding:
 
     def __exit__(self, kind, err, tb):
         if err is not None and isinstance(err, (OSError, ValueError, SyntaxError, EOFError)) and not isinstance(err, DlaInputError):
-            raise DlaInputError(self.path, f"not a readable image ({' '.join(str(err).split())})") from None
+            raise DlaInputError(self.path, f"not a readable image ({one_line(err)})") from None
         return False

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt
 from dlacli.io.validate import npz_format
 
 
@@ -51,7 +51,7 @@ def _summarizer(path: Path) -> Callable[[Path], dict[str, Any]]:
             from dlacli.io.amass import summarize_amass
 
             return summarize_amass
-        raise DlaInputError(path, f"unknown npz format {fmt!r} (expected dla.motion/1 or dla.avatar/1)")
+        raise DlaInputError(path, f"unknown npz format {excerpt(fmt)} (expected dla.motion/1 or dla.avatar/1)")
     if suffix == ".bvh":
         from dlacli.io.bvh import summarize_bvh
 

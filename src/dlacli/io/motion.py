@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt, excerpts
 from dlacli.io.validate import (
     MAX_ANGLE,
     MAX_DISTANCE,
@@ -39,7 +39,7 @@ def motion_from_arrays(data: dict[str, Any], where: Any) -> Motion:
         raise DlaInputError(where, f"missing array{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))}")
     model = as_str(data["model"], where, "model")
     if model not in MODELS:
-        raise DlaInputError(where, f"model {model!r} is not supported (supported: {', '.join(MODELS)})")
+        raise DlaInputError(where, f"model {excerpt(model)} is not supported (supported: {', '.join(MODELS)})")
 
     labels = np.asarray(data["bone_labels"])
     if labels.shape == (0,):
@@ -51,8 +51,10 @@ def motion_from_arrays(data: dict[str, Any], where: Any) -> Motion:
     if any(not s for s in bone_labels):
         raise DlaInputError(where, "bone_labels holds an empty label")
     if len(set(bone_labels)) != len(bone_labels):
-        dup = sorted({s for s in bone_labels if bone_labels.count(s) > 1})
-        raise DlaInputError(where, f"bone_labels repeats {', '.join(map(repr, dup))}")
+        from collections import Counter
+
+        dup = sorted(s for s, n in Counter(bone_labels).items() if n > 1)
+        raise DlaInputError(where, f"bone_labels repeats {excerpts(dup)}")
     j = len(bone_labels)
 
     rotations = _float_array(data["rotations"], where, "rotations")
@@ -89,7 +91,8 @@ def _float_array(value: Any, where: Any, name: str) -> np.ndarray:
     arr = np.asarray(value)
     if arr.dtype.kind not in "fiu":
         raise DlaInputError(where, f"{name} must be a numeric array, found dtype {arr.dtype}")
-    return arr.astype(np.float32)
+    with np.errstate(over="ignore"):
+        return arr.astype(np.float32)  # beyond float32's range: inf, refused by the caller's check_finite
 
 
 def read_motion(path: str | os.PathLike) -> Motion:

@@ -19,7 +19,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt, one_line
 
 MAX_NPZ_BYTES = 4096 * 2**20  # default cap: the file, and its arrays unpacked (files.MAX_BINARY_BYTES)
 MAX_MEMBERS = 4096
@@ -48,8 +48,8 @@ def check_zip_bounds(f: IO[bytes], where: Any, max_bytes: int = MAX_NPZ_BYTES) -
     _check_directory(f, where)
     try:
         zf = zipfile.ZipFile(f)
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as err:
-        raise DlaInputError(where, f"not a readable .npz file ({type(err).__name__}: {err})") from None
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError, NotImplementedError) as err:
+        raise npz_error(where, err) from None
     with zf:
         infos = zf.infolist()
         total = sum(info.file_size for info in infos)
@@ -61,11 +61,24 @@ def check_zip_bounds(f: IO[bytes], where: Any, max_bytes: int = MAX_NPZ_BYTES) -
             ratio = _MAX_RATIO.get(info.compress_type)
             if ratio is not None and info.file_size > info.compress_size * ratio + 1024:
                 raise DlaInputError(
-                    where, f"member {info.filename[:60]!r} claims {info.file_size:,} bytes unpacked from "
+                    where, f"member {excerpt(info.filename)} claims {info.file_size:,} bytes unpacked from "
                     f"{info.compress_size:,} packed, more than its method can give (corrupt or hostile file)",
                 )
             if info.filename.endswith(".npy"):
                 _check_member(zf, info, where, max_bytes)
+
+
+def npz_error(where: Any, err: Exception) -> DlaInputError:
+    """What any failure of zipfile or numpy on an .npz says: one short line (their messages may
+    quote a member's raw name or bytes, so they pass through `one_line`)."""
+    if isinstance(err, NotImplementedError):  # e.g. a zip "version needed to extract" above 6.3
+        return DlaInputError(where, f"unsupported zip feature ({one_line(err)}); dla reads the zips numpy writes")
+    if isinstance(err, ValueError) and "pickle" in str(err).lower():
+        problem = "holds pickled Python objects, which dla never reads (store strings as unicode arrays)"
+        return DlaInputError(where, problem)
+    if isinstance(err, ValueError):
+        return DlaInputError(where, f"not a readable .npz file ({one_line(err)})")
+    return DlaInputError(where, f"not a readable .npz file ({type(err).__name__}: {one_line(err)})")
 
 
 def _check_directory(f: IO[bytes], where: Any) -> None:
@@ -101,8 +114,10 @@ def _check_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, where: Any, max_by
                 shape, _, dtype = reader(m, version, max_header_size=_HEADER_BYTES)
     except DlaInputError:
         raise
+    except NotImplementedError as err:  # a compression method or zip feature zipfile lacks
+        raise npz_error(where, err) from None
     except Exception as err:  # bad magic or header, CRC errors, truncated members
-        raise DlaInputError(where, f"not a readable .npz file (member {name[:60]!r}: {type(err).__name__}: {err})") from None
+        raise DlaInputError(where, f"not a readable .npz file (member {excerpt(name)}: {type(err).__name__}: {one_line(err)})") from None
     if dtype.hasobject:
         return  # np.load(allow_pickle=False) refuses it with its own message
     count = math.prod(int(n) for n in shape)
@@ -110,6 +125,6 @@ def _check_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, where: Any, max_by
     if count > max_bytes or nbytes > info.file_size:
         raise DlaInputError(
             where,
-            f"member {name[:60]!r} declares a {tuple(shape)} {dtype} array ({nbytes:,} bytes) but holds "
+            f"member {excerpt(name)} declares a {tuple(shape)} {dtype} array ({nbytes:,} bytes) but holds "
             f"{info.file_size:,} bytes (corrupt or hostile file)",
         )

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, one_line
 from dlacli.io.files import decoding, open_image
 from dlacli.io.validate import load_json
 
@@ -78,7 +78,7 @@ def _to_float(im, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     try:
         arr = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
     except (ValueError, OSError) as exc:
-        raise DlaInputError(path, f"unsupported image mode {mode!r} ({exc})") from None
+        raise DlaInputError(path, f"unsupported image mode {mode!r} ({one_line(exc)})") from None
     return arr, None
 
 
@@ -110,7 +110,10 @@ def read_coco_keypoints(path: str | Path) -> np.ndarray:
             )
         if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
             raise DlaInputError(path, f"{where}'keypoints' must contain numbers only")
-        arr = np.asarray(values, dtype=np.float64).reshape(NUM_KEYPOINTS, 3)
+        try:
+            arr = np.asarray(values, dtype=np.float64).reshape(NUM_KEYPOINTS, 3)
+        except OverflowError:  # a JSON integer of hundreds of digits
+            raise DlaInputError(path, f"{where}'keypoints' holds a number too large for a pixel coordinate") from None
         if not np.all(np.isfinite(arr)):
             raise DlaInputError(path, f"{where}'keypoints' contains NaN or infinite values")
         if not np.all(np.isin(arr[:, 2], (0, 1, 2))):

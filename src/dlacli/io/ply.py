@@ -17,8 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt, one_line
 from dlacli.io.atomic import atomic_path
+from dlacli.io.validate import check_log_scales
 from dlacli.types import Gaussians, sh_degree_for_coeffs
 
 OPACITY_EPS = 1e-7  # activated opacities are clamped to [eps, 1 - eps] before the logit
@@ -121,7 +122,7 @@ def _check_counts(path: Path, f) -> None:
     try:
         header = plyfile.PlyData._parse_header(io.BytesIO(head[:end]))
     except plyfile.PlyHeaderParseError as err:
-        raise DlaInputError(path, f"not a valid PLY file ({_one_line(err)})") from None
+        raise DlaInputError(path, f"not a valid PLY file ({one_line(err)})") from None
     body = os.fstat(f.fileno()).st_size - end
     need = 0
     for el in header.elements:
@@ -134,7 +135,7 @@ def _check_counts(path: Path, f) -> None:
                 row += 2 if header.text else np.dtype(prop.dtype()).itemsize
         need += el.count * max(row, 1)
     if need > body:
-        counts = ", ".join(f"{el.count} {el.name}" for el in header.elements)
+        counts = one_line(", ".join(f"{el.count} {el.name}" for el in header.elements))
         raise DlaInputError(path, f"header declares {counts}, which needs at least {need} bytes, but the file holds {max(body, 0)}")
     f.seek(0)
 
@@ -150,17 +151,13 @@ def _open(path: Path):
             _check_counts(path, f)
             return plyfile.PlyData.read(f, mmap=False)
     except plyfile.PlyHeaderParseError as err:
-        raise DlaInputError(path, f"not a valid PLY file ({_one_line(err)})") from None
+        raise DlaInputError(path, f"not a valid PLY file ({one_line(err)})") from None
     except plyfile.PlyParseError as err:
-        raise DlaInputError(path, f"malformed or truncated PLY data ({_one_line(err)})") from None
+        raise DlaInputError(path, f"malformed or truncated PLY data ({one_line(err)})") from None
     except (ValueError, EOFError, OSError, UnicodeDecodeError, IndexError) as err:
         raise DlaInputError(
-            path, f"unreadable PLY file ({type(err).__name__}: {_one_line(err)})"
+            path, f"unreadable PLY file ({type(err).__name__}: {one_line(err)})"
         ) from None
-
-
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split()) or type(err).__name__
 
 
 def _sh_degree_from_rest(path: Path, names: list[str]) -> int:
@@ -179,7 +176,7 @@ def _column(path: Path, vertex, name: str) -> np.ndarray:
     values = np.asarray(vertex.data[name], dtype=np.float64)  # [N]
     if not np.all(np.isfinite(values)):
         bad = int(np.flatnonzero(~np.isfinite(values))[0])
-        raise DlaInputError(path, f"property {name!r} is {values[bad]} at vertex {bad} (NaN/Inf)")
+        raise DlaInputError(path, f"property {excerpt(name)} is {values[bad]} at vertex {bad} (NaN/Inf)")
     return values
 
 
@@ -194,7 +191,7 @@ def _read(path: Path) -> tuple[Any, tuple[np.ndarray, ...], list[str]]:
     for prop in vertex.properties:
         if prop.name in ("x", "y", "z") or prop.name.startswith(("f_", "scale_", "rot_", "opacity")):
             if getattr(prop, "len_dtype", None) is not None:  # a list property
-                raise DlaInputError(path, f"property {prop.name!r} is a list, expected a scalar")
+                raise DlaInputError(path, f"property {excerpt(prop.name)} is a list, expected a scalar")
     degree = _sh_degree_from_rest(path, names)
     needed = property_names(degree)
     for name in needed:
@@ -215,12 +212,11 @@ def _read(path: Path) -> tuple[Any, tuple[np.ndarray, ...], list[str]]:
     logits = cols(("opacity",))[:, 0]  # [N]
     log_scales = cols(("scale_0", "scale_1", "scale_2"))  # [N, 3]
     rots = cols(("rot_0", "rot_1", "rot_2", "rot_3"))  # [N, 4]
+    check_log_scales(log_scales, path, "scale_0..2")  # exp stays finite in float32, and sane
     try:
         opacities, scales, quats = stored_to_activated(logits, log_scales, rots)
     except ValueError as err:
         raise DlaInputError(path, str(err)) from None
-    if not np.all(np.isfinite(scales)):
-        raise DlaInputError(path, "scale_* too large: exp(scale) overflows")
     sh = sh_from_ply_columns(f_dc, f_rest)  # [N, K, 3]
 
     arrays = tuple(np.ascontiguousarray(a, dtype=np.float32) for a in (means, quats, scales, opacities, sh))

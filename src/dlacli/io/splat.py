@@ -20,6 +20,7 @@ import numpy as np
 
 from dlacli.errors import DlaInputError
 from dlacli.io.atomic import atomic_path
+from dlacli.io.validate import check_log_scales
 from dlacli.types import SH_C0, Gaussians
 
 RECORD = np.dtype([("position", "<f4", (3,)), ("scale", "<f4", (3,)), ("rgba", "u1", (4,)), ("rot", "u1", (4,))])
@@ -109,6 +110,7 @@ def decode_splat(data: bytes, where: str | os.PathLike = "splat") -> dict[str, n
             raise DlaInputError(where, f"a record's {name[:-1]} is NaN or Inf")
     if np.any(out["scales"] <= 0):
         raise DlaInputError(where, "a record's scale is <= 0")
+    check_log_scales(np.log(out["scales"].astype(np.float64)), where, "scale")  # the .ply's range of sizes
     return out
 
 

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt, one_line
 
 
 def load_json(path: str | os.PathLike) -> Any:
@@ -26,19 +26,49 @@ def load_json(path: str | os.PathLike) -> Any:
     return parse_json(read_text(path, MAX_JSON_BYTES), path)
 
 
-def parse_json(text: str, where: Any, name: str = "") -> Any:
-    """json.loads with every failure as one DlaInputError: syntax, nesting deeper than Python's
-    recursion limit (~1000 levels; no dla file nests more than 5), integers of more digits than
-    Python converts."""
+MAX_JSON_DEPTH = 64  # arrays and objects nested deeper are refused: no dla file nests more than 6
+
+
+def parse_json(text: str | bytes, where: Any, name: str = "", constants: bool = True) -> Any:
+    """json.loads with every failure as one DlaInputError: syntax, undecodable bytes, nesting
+    deeper than MAX_JSON_DEPTH (deeper than Python's recursion limit never reaches a RecursionError
+    either), integers of more digits than Python converts. `constants=False` also refuses NaN,
+    Infinity and -Infinity, which JSON itself does not have. Every JSON file and string dla reads
+    goes through here."""
     what = f"{name} is " if name else ""
+
+    def no_constant(word: str):
+        raise ValueError(f"{word} is not a JSON number")
+
     try:
-        return json.loads(text)
+        value = json.loads(text, **({} if constants else {"parse_constant": no_constant}))
     except json.JSONDecodeError as err:
         raise DlaInputError(where, f"{what}not valid JSON: {err.msg} at line {err.lineno} column {err.colno}") from None
+    except UnicodeDecodeError as err:
+        raise DlaInputError(where, f"{what}not UTF-8 text (byte {err.start})") from None
     except RecursionError:
-        raise DlaInputError(where, f"{what}JSON nested too deeply") from None
-    except ValueError as err:  # e.g. int digits limit
-        raise DlaInputError(where, f"{what}not usable JSON ({' '.join(str(err).split())[:120]})") from None
+        raise DlaInputError(where, f"{what}JSON nested too deeply (at most {MAX_JSON_DEPTH} levels are read)") from None
+    except ValueError as err:  # e.g. int digits limit, NaN with constants=False
+        raise DlaInputError(where, f"{what}not valid JSON ({one_line(err)})") from None
+    depth = json_depth(value)
+    if depth > MAX_JSON_DEPTH:
+        raise DlaInputError(where, f"{what}JSON nested {depth} levels deep; at most {MAX_JSON_DEPTH} are read")
+    return value
+
+
+def json_depth(value: Any) -> int:
+    """How deeply arrays and objects nest in a parsed JSON value (0 for a number or string),
+    counted without recursion."""
+    depth, stack = 0, [(value, 1)]
+    while stack:
+        item, level = stack.pop()
+        if isinstance(item, dict):
+            item = item.values()
+        elif not isinstance(item, list):
+            continue
+        depth = max(depth, level)
+        stack.extend((child, level + 1) for child in item if isinstance(child, (dict, list)))
+    return depth
 
 
 def check_format(found: Any, supported: str, where: Any) -> None:
@@ -48,9 +78,9 @@ def check_format(found: Any, supported: str, where: Any) -> None:
     if found != supported:
         family = supported.rsplit("/", 1)[0]
         if isinstance(found, str) and found.startswith(family + "/"):
-            problem = f"format {found!r} is not supported by this version of dla (it reads {supported!r})"
+            problem = f"format {excerpt(found)} is not supported by this version of dla (it reads {supported!r})"
         else:
-            problem = f"format is {found!r}, expected {supported!r}"
+            problem = f"format is {excerpt(found)}, expected {supported!r}"
         raise DlaInputError(where, problem)
 
 
@@ -85,11 +115,14 @@ def as_array(
 
     Accepts nested JSON lists or numpy arrays; bool, string and object data are rejected.
     """
-    if isinstance(value, (list, tuple)) and _holds_bool(value):  # JSON true/false would read as 1/0
+    odd = _odd_items(value) if isinstance(value, (list, tuple)) else None
+    if odd is bool:  # JSON true/false would read as 1/0
         raise DlaInputError(where, f"{name} must hold numbers, found true/false")
+    if odd is int:
+        raise DlaInputError(where, f"{name} holds an integer beyond 64 bits, too large to be a number dla uses")
     try:
         arr = np.asarray(value)
-    except (ValueError, TypeError):
+    except (ValueError, TypeError, OverflowError):
         raise DlaInputError(where, f"{name} is not a rectangular array of numbers") from None
     if arr.dtype.kind not in "fiu":
         raise DlaInputError(where, f"{name} must hold numbers, found {_describe(value)} (dtype {arr.dtype})")
@@ -99,15 +132,22 @@ def as_array(
     return arr
 
 
-def _holds_bool(value) -> bool:
+def _odd_items(value) -> type | None:
+    """bool if nested lists hold a JSON true/false, int if one of their integers does not fit 64
+    bits (numpy would make an object array of them), else None; walked without recursion."""
     stack = [value]
     while stack:
         item = stack.pop()
         if isinstance(item, bool):
-            return True
+            return bool
+        if isinstance(item, int) and abs(item) > _LARGEST_INT:
+            return int
         if isinstance(item, (list, tuple)):
             stack.extend(item)
-    return False
+    return None
+
+
+_LARGEST_INT = 2**63 - 1
 
 
 def check_shape(arr: np.ndarray, shape: tuple[int | None, ...], where: Any, name: str) -> None:
@@ -131,6 +171,29 @@ MAX_ANGLE = 1e4  # radians
 MAX_DISTANCE = 1e5  # metres
 
 
+# Gaussian sizes (formats/gaussians-ply.md, "Reading"): a standard deviation is at most MAX_SCALE
+# (no Gaussian is wider than the farthest distance dla accepts) and at least MIN_SCALE (a
+# thousandth of a proton's radius, so nothing real is smaller), so that the scale, its square (the
+# covariance) and the square's inverse are all finite, non-zero float32 numbers when rendered.
+# exp(89) is already infinite in float32; log-scales beyond the range say the file is broken.
+MIN_SCALE = 1e-18  # metres
+MAX_SCALE = MAX_DISTANCE  # metres
+LOG_SCALE_RANGE = (math.log(MIN_SCALE), math.log(MAX_SCALE))  # about (-41.4, 11.5)
+
+
+def check_log_scales(log_scales: np.ndarray, where: Any, name: str) -> None:
+    """Every log-scale of `log_scales` (finite, any shape) in LOG_SCALE_RANGE: its scale between
+    MIN_SCALE and MAX_SCALE. For an avatar's map, whose log-scales multiply a texel's size, the
+    same range bounds the multiplier."""
+    low, high = LOG_SCALE_RANGE
+    if log_scales.size and not (float(log_scales.min()) >= low and float(log_scales.max()) <= high):
+        worst = float(log_scales.max()) if float(log_scales.max()) > high else float(log_scales.min())
+        raise DlaInputError(
+            where, f"{name} holds a log-scale of {worst:.4g} (scale {math.exp(min(worst, 700)):.3g}); "
+            f"dla reads log-scales in [{low:.1f}, {high:.1f}] (scales from {MIN_SCALE:g} to {MAX_SCALE:g})",
+        )
+
+
 def check_magnitude(arr: np.ndarray, limit: float, where: Any, name: str, unit: str) -> None:
     """Every |value| of `arr` at most `limit` (after the finiteness check)."""
     if arr.size and float(np.max(np.abs(arr))) > limit:
@@ -151,7 +214,7 @@ def as_str(value: Any, where: Any, name: str, allow_empty: bool = False) -> str:
 def load_npz(path: str | os.PathLike, max_unpacked: int | None = None) -> dict[str, np.ndarray]:
     """Every array of an .npz file, loaded eagerly without pickles (so truncation shows up here);
     refused unread when its arrays would unpack to more than `max_unpacked` bytes (default
-    files.MAX_NPZ_UNPACKED)."""
+    files.MAX_NPZ_UNPACKED). With `npz_format`, the only way dla opens an .npz."""
     from dlacli.io.files import open_input
 
     path = Path(path)
@@ -159,19 +222,18 @@ def load_npz(path: str | os.PathLike, max_unpacked: int | None = None) -> dict[s
     try:
         with open_input(path) as f, np.load(f, allow_pickle=False) as data:
             return {key: data[key] for key in data.files}
-    except ValueError as err:
-        if "pickle" in str(err).lower():
-            raise DlaInputError(path, "holds pickled Python objects, which dla never reads (store strings as unicode arrays)") from None
-        raise DlaInputError(path, f"not a readable .npz file ({err})") from None
-    except Exception as err:  # zipfile.BadZipFile, EOFError, OSError on truncated files
-        raise DlaInputError(path, f"not a readable .npz file ({type(err).__name__}: {err})") from None
+    except DlaInputError:
+        raise
+    except Exception as err:  # zipfile.BadZipFile, NotImplementedError, EOFError, OSError on truncated files
+        from dlacli.io.npz_bounds import npz_error
+
+        raise npz_error(path, err) from None
 
 
 def _describe(value: Any) -> str:
-    text = " ".join(repr(value).split())
-    if len(text) > 40:
-        text = text[:37] + "..."
-    return f"{type(value).__name__} {text}"
+    if isinstance(value, (list, dict)) and len(value) > 8:  # no repr of a huge JSON value
+        return f"{type(value).__name__} of {len(value):,} items"
+    return f"{type(value).__name__} {excerpt(value, 40)}"
 
 
 def dump_json(obj: Any, indent: int = 0) -> str:
@@ -218,8 +280,12 @@ def npz_format(path: str | os.PathLike) -> str:
             if "format" in data.files:
                 return str(data["format"])
             keys = set(data.files)
+    except DlaInputError:
+        raise
     except Exception as err:  # zip errors, truncated files
-        raise DlaInputError(path, f"not a readable .npz file ({type(err).__name__}: {err})") from None
+        from dlacli.io.npz_bounds import npz_error
+
+        raise npz_error(path, err) from None
     if "poses" in keys:
         return "amass"
     raise DlaInputError(path, "npz with neither a 'format' key (dla.motion/1, dla.avatar/1) nor AMASS 'poses'")

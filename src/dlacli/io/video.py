@@ -8,7 +8,7 @@ from typing import Iterable
 
 import numpy as np
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, one_line
 from dlacli.io.atomic import atomic_path
 
 
@@ -42,7 +42,7 @@ def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: floa
             finally:
                 writer.close()
         except (OSError, RuntimeError, BrokenPipeError) as err:  # ffmpeg missing, crashed or refused
-            raise DlaInputError(path, f"ffmpeg could not write the video ({' '.join(str(err).split())[:160]})") from None
+            raise DlaInputError(path, f"ffmpeg could not write the video ({one_line(err, 160)})") from None
         if count == 0:
             raise DlaInputError(path, "no frames to write")
         if not tmp.exists() or tmp.stat().st_size == 0:

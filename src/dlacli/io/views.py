@@ -8,14 +8,13 @@ converted with `Cameras.from_c2w_opengl`. Images: RGBA (alpha = person mask) or 
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt, one_line
 from dlacli.io.atomic import atomic_dir
 from dlacli.io.body import body_from_dict, body_to_dict
 from dlacli.io.files import MAX_IMAGE_PIXELS, inside, open_image
@@ -90,7 +89,7 @@ def read_transforms(folder: str | os.PathLike) -> dict[str, Any]:
 
     sizes = sorted({(int(w), int(h)) for w, h in zip(intr["w"], intr["h"])})
     if len(sizes) > 1:
-        raise DlaInputError(where, f"frames have different image sizes {', '.join(f'{w}x{h}' for w, h in sizes)}; all must be the same")
+        raise DlaInputError(where, f"frames have different image sizes {one_line(', '.join(f'{w}x{h}' for w, h in sizes))}; all must be the same")
     width, height = sizes[0]
     if width * height > MAX_IMAGE_PIXELS:
         raise DlaInputError(where, f"images of {width}x{height} pixels are larger than dla reads ({MAX_IMAGE_PIXELS / 1e6:.0f} megapixels)")
@@ -116,7 +115,7 @@ def read_transforms(folder: str | os.PathLike) -> dict[str, Any]:
 def _check_camera(obj: dict, where: Path, at: str) -> None:
     model = obj.get("camera_model")
     if model is not None and model not in CAMERA_MODELS:
-        raise DlaInputError(where, f"{at}: camera_model {model!r} is not supported (supported: {', '.join(CAMERA_MODELS)}, no distortion)")
+        raise DlaInputError(where, f"{at}: camera_model {excerpt(model)} is not supported (supported: {', '.join(CAMERA_MODELS)}, no distortion)")
     for key in DISTORTION_KEYS:
         if key in obj and as_float(obj[key], where, f"{at}.{key}") != 0.0:
             raise DlaInputError(where, f"{at}: lens distortion {key} = {obj[key]} is not supported (undistort the images first)")
@@ -177,10 +176,14 @@ def _decode(path: Path, width: int, height: int) -> tuple[np.ndarray, np.ndarray
                 im, mode = im.convert("RGB" if mode == "P" else "L"), "RGB" if mode == "P" else "L"
             arr = np.asarray(im)
     except (OSError, ValueError, SyntaxError) as err:  # Pillow reports truncation and junk as OSError
-        raise DlaInputError(path, f"not a readable image ({' '.join(str(err).split())})") from None
+        raise DlaInputError(path, f"not a readable image ({one_line(err)})") from None
     if mode in ("L", "LA", "RGB", "RGBA"):
         arr = arr.astype(np.float32) / 255.0
     elif mode in ("I;16", "I;16B", "I;16L", "I"):  # 16-bit grayscale PNG
+        if mode == "I" and arr.size and (int(arr.min()) < 0 or int(arr.max()) > 65535):  # e.g. a 32-bit TIFF
+            low, high = int(arr.min()), int(arr.max())
+            raise DlaInputError(path, f"32-bit integer image with values {low} to {high}, outside the 16-bit range "
+                                "0-65535 that dla scales to [0, 1]")
         arr = arr.astype(np.float32) / 65535.0
     else:
         raise DlaInputError(path, f"unsupported image mode {mode!r} (use 8- or 16-bit RGB(A), gray or gray+alpha)")

@@ -31,6 +31,8 @@ class DiscriminatorConfig:
         vals = (self.in_channels, self.base_channels, self.layers, self.max_channels)
         if any(isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in vals):
             raise ValueError("in_channels, base_channels, layers and max_channels must be positive ints")
+        if self.layers > 16:  # each halves the image: 16 already leaves 1 px of a 65,536 px side
+            raise ValueError(f"layers = {self.layers}: at most 16")
 
     def widths(self) -> list[int]:
         """Output channels of the layers + 1 feature convs (the stride-2 ones, then the stride-1 one)."""

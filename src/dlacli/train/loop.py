@@ -32,6 +32,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import shutil
 import sys
 import time
@@ -427,15 +428,41 @@ def _psnr(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None) -> fl
 
 
 def _read_record(path: Path) -> dict:
-    from dlacli.io.files import MAX_JSON_BYTES, read_bytes
+    """train.json of the run to resume, through the guarded JSON reader (io.validate.load_json),
+    with the shape this loop relies on checked before use; the checkpoint it names must be a
+    folder name train writes (ckpt-NNNNNN), never a path that leads elsewhere."""
+    from dlacli.errors import excerpt
+    from dlacli.io.validate import as_float, load_json
 
-    try:
-        rec = json.loads(read_bytes(path, MAX_JSON_BYTES).decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise DlaInputError(path, f"not a readable run record ({type(err).__name__})") from None
+    rec = load_json(path)
     if not isinstance(rec, dict) or rec.get("format") != FORMAT:
         raise DlaInputError(path, f"not a {FORMAT} run record")
+    if not isinstance(rec.get("settings"), dict):
+        raise DlaInputError(path, "'settings' must be an object")
+    step = rec.get("step")
+    if not isinstance(step, int) or isinstance(step, bool) or step < 0:
+        raise DlaInputError(path, f"'step' must be a whole number >= 0, found {excerpt(step)}")
+    if as_float(rec.get("seconds"), path, "seconds") < 0:
+        raise DlaInputError(path, "'seconds' must be >= 0")
+    name = rec.get("checkpoint")
+    if name is not None and not (isinstance(name, str) and re.fullmatch(r"ckpt-\d{6,9}", name)):
+        problem = f"'checkpoint' must be null or a checkpoint folder name (ckpt-NNNNNN), found {excerpt(name)}"
+        raise DlaInputError(path, problem)
+    for key in ("history", "validation"):
+        entries = rec.get(key)
+        ok = isinstance(entries, list) and all(
+            isinstance(e, dict)
+            and _is_number(e.get("step"))
+            and all(isinstance(v, str) or _is_number(v) for v in e.values())
+            for e in entries
+        )
+        if not ok:
+            raise DlaInputError(path, f"'{key}' must be a list of objects holding a 'step' and numbers")
     return rec
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def _write_record(path: Path, record: dict) -> None:
