@@ -68,4 +68,3 @@ def frames_in():
 @pytest.fixture(scope="session")
 def formats_dir() -> Path:
     return FORMATS
-

@@ -67,8 +67,9 @@ def test_quaternion_algebra(dtype):
     a, b = q[:50], q[50:]
     ma, mb = G.quat_to_matrix(a), G.quat_to_matrix(b)
     # Hamilton product = matrix product (b first, then a)
-    np.testing.assert_allclose(G.quat_to_matrix(G.quat_multiply(a, b)).double().numpy(),
-                               (ma @ mb).double().numpy(), atol=tol)  # fmt: skip
+    np.testing.assert_allclose(
+        G.quat_to_matrix(G.quat_multiply(a, b)).double().numpy(), (ma @ mb).double().numpy(), atol=tol
+    )
     ident = torch.tensor([1.0, 0, 0, 0], dtype=dtype).expand(50, 4)
     prod = G.quat_multiply(a, G.quat_conjugate(a))
     np.testing.assert_allclose(prod.double().numpy(), ident.double().numpy(), atol=tol)
@@ -86,15 +87,20 @@ def test_rotations_numpy_in_numpy_out(dtype):
     np.testing.assert_array_equal(m, G.axis_angle_to_matrix(torch.from_numpy(aa)).numpy())
     q = G.matrix_to_quat(m)
     assert isinstance(q, np.ndarray) and q.dtype == NP[dtype]
-    np.testing.assert_array_equal(G.quat_multiply(q, q), G.quat_multiply(torch.from_numpy(q), torch.from_numpy(q)).numpy())
+    np.testing.assert_array_equal(
+        G.quat_multiply(q, q), G.quat_multiply(torch.from_numpy(q), torch.from_numpy(q)).numpy()
+    )
     np.testing.assert_array_equal(G.skew(aa[0]), G.skew(torch.from_numpy(aa[0])).numpy())
     with pytest.raises(TypeError, match="not both"):
         G.quat_multiply(q, torch.from_numpy(q))
 
 
 def test_rotation_gradients_are_finite_at_zero_and_near_pi():
-    aa = torch.tensor([[0.0, 0.0, 0.0], [1e-8, -2e-8, 0.0], [0.3, -0.2, 0.5], [0.0, 0.0, math.pi - 1e-4]],
-                      dtype=F64, requires_grad=True)  # fmt: skip
+    aa = torch.tensor(
+        [[0.0, 0.0, 0.0], [1e-8, -2e-8, 0.0], [0.3, -0.2, 0.5], [0.0, 0.0, math.pi - 1e-4]],
+        dtype=F64,
+        requires_grad=True,
+    )
     assert torch.autograd.gradcheck(G.axis_angle_to_matrix, (aa,))
     assert torch.autograd.gradcheck(G.axis_angle_to_quat, (aa,))
     m = G.axis_angle_to_matrix(aa.detach()).requires_grad_(True)
@@ -170,8 +176,12 @@ def test_quat_continuous_signs():
 
 def test_rotation_between_directions():
     rng = np.random.default_rng(4)
-    for a, b in [*(rng.normal(size=(2, 3)) for _ in range(20)), (np.array([0.0, 0, 2]), np.array([0.0, 0, -1])),
-                 (np.array([1.0, 0, 0]), np.array([-3.0, 0, 0])), (np.array([0.0, 1, 0]), np.array([0.0, 5, 0]))]:
+    for a, b in [
+        *(rng.normal(size=(2, 3)) for _ in range(20)),
+        (np.array([0.0, 0, 2]), np.array([0.0, 0, -1])),
+        (np.array([1.0, 0, 0]), np.array([-3.0, 0, 0])),
+        (np.array([0.0, 1, 0]), np.array([0.0, 5, 0])),
+    ]:
         r = G.rotation_between(a, b)
         np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
         assert np.linalg.det(r) == pytest.approx(1.0, abs=1e-12)
@@ -227,8 +237,12 @@ def test_projection_of_an_orbit_camera_follows_the_conventions():
     np.testing.assert_allclose(px[0], [[w / 2, h / 2], [w / 2 + f / dist, h / 2], [w / 2, h / 2 - f / dist]], atol=1e-4)
     np.testing.assert_allclose(depth[0], [dist, dist, dist], atol=1e-6)
     np.testing.assert_allclose(depth[1, 1], dist - 1.0, atol=1e-6)  # the camera at azimuth 90 is on +X
-    np.testing.assert_allclose(G.camera_centers(cams.viewmats.double()).numpy(), [[0, -dist, 0], [dist, 0, 0]], atol=1e-6)
-    np.testing.assert_allclose(G.camera_centers(cams.viewmats.double()).numpy(), cams.c2w_opengl()[:, :3, 3], atol=1e-12)
+    np.testing.assert_allclose(
+        G.camera_centers(cams.viewmats.double()).numpy(), [[0, -dist, 0], [dist, 0, 0]], atol=1e-6
+    )
+    np.testing.assert_allclose(
+        G.camera_centers(cams.viewmats.double()).numpy(), cams.c2w_opengl()[:, :3, 3], atol=1e-12
+    )
 
 
 @pytest.mark.parametrize("dtype", [F32, F64])
@@ -290,8 +304,11 @@ def test_look_at_and_orbit_cameras():
     np.testing.assert_allclose(e - target, [[0, -2.5, 0], [2.5, 0, 0], [0, 0, 2.5]], atol=1e-12)
     cams = G.pinhole_cameras(c2w, 60.0, 40, 30)
     assert (cams.width, cams.height) == (40, 30)
-    np.testing.assert_allclose(cams.Ks[0].numpy(), [[15 / math.tan(math.radians(30)), 0, 20],
-                                                    [0, 15 / math.tan(math.radians(30)), 15], [0, 0, 1]], rtol=1e-6)  # fmt: skip
+    np.testing.assert_allclose(
+        cams.Ks[0].numpy(),
+        [[15 / math.tan(math.radians(30)), 0, 20], [0, 15 / math.tan(math.radians(30)), 15], [0, 0, 1]],
+        rtol=1e-6,
+    )
     assert G.framing_distance(2.0, 90.0, margin=1.0) == pytest.approx(1.0)
     path = np.stack([np.full(10, 2.0), np.arange(10.0)], axis=1)
     sm = G.smooth_path(path, fps=10.0, seconds=0.3)

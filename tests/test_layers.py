@@ -65,7 +65,11 @@ HEAVY = {
     "anny": {"dlacli.body.model"},
     "warp": {"dlacli.body.model"},
     "gsplat": {"dlacli.render.splat"},
-    "pxr": {"dlacli.io.usd", "dlacli.io.usd_read", "dlacli.io.usd_rig"},  # the animation (write, read) and the rigged asset
+    "pxr": {
+        "dlacli.io.usd",
+        "dlacli.io.usd_read",
+        "dlacli.io.usd_rig",
+    },  # the animation (write, read) and the rigged asset
     "diffusers": {"dlacli.nn.video_diffusion"},
     "mediapipe": {"dlacli.io.detect"},
     "bpy": set(),
@@ -167,8 +171,11 @@ def test_imports_point_down_the_layers():
 
 
 def test_nothing_imports_the_cli():
-    bad = [e.where() for e in EDGES if (e.target == "dlacli.cli" or e.target.startswith("dlacli.cli."))
-           and not e.importer.startswith("dlacli.cli")]  # fmt: skip
+    bad = [
+        e.where()
+        for e in EDGES
+        if (e.target == "dlacli.cli" or e.target.startswith("dlacli.cli.")) and not e.importer.startswith("dlacli.cli")
+    ]
     assert not bad, "only dlacli.cli may import dlacli.cli:\n" + "\n".join(bad)
 
 

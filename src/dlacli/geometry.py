@@ -397,8 +397,9 @@ def pinhole_cameras(c2w: np.ndarray, fov_deg: float, width: int, height: int | N
     return Cameras.from_c2w_opengl(c2w, f, f, width / 2.0, height / 2.0, width, height)
 
 
-def look_at_orbit_cameras(target, distance: float, azimuths, elevations, fov_deg: float, width: int,
-                          height: int | None = None) -> Cameras:
+def look_at_orbit_cameras(
+    target, distance: float, azimuths, elevations, fov_deg: float, width: int, height: int | None = None
+) -> Cameras:
     """Cameras on a sphere of radius `distance` around target [3] at azimuths [C] / elevations
     ([C] or scalar, degrees), each looking at the target, +Z up."""
     eyes = orbit_eyes(target, distance, azimuths, elevations)

@@ -176,9 +176,7 @@ def _edge_ok(q, nx, ny):
 
 
 @nb.njit(cache=True, parallel=True)
-def raster_bands(
-    normals, det_abs, bbox, intr, offsets, items, near, first_wins, face_id, bary, depth
-):
+def raster_bands(normals, det_abs, bbox, intr, offsets, items, near, first_wins, face_id, bary, depth):
     """Fill face_id / bary / depth; parallel over (camera, band), each band owned by one thread.
 
     face_id [C, H, W] int32 (pre-filled with -1), bary [C, H, W, 3] float32 (zeros),
@@ -275,9 +273,7 @@ def check_faces(faces, n_vertices: int, name: str = "faces") -> np.ndarray:
     if not np.issubdtype(arr.dtype, np.integer):
         raise DlaInputError(name, f"expected integer indices, got {arr.dtype}")
     if arr.min() < 0 or arr.max() >= n_vertices:
-        raise DlaInputError(
-            name, f"indices must be in [0, {n_vertices}), got range [{arr.min()}, {arr.max()}]"
-        )
+        raise DlaInputError(name, f"indices must be in [0, {n_vertices}), got range [{arr.min()}, {arr.max()}]")
     return np.ascontiguousarray(arr, dtype=np.int64)
 
 

@@ -90,7 +90,7 @@ class Gaussians:
         """The leading batch dimensions (empty for one set)."""
         return tuple(self.means.shape[:-2])
 
-    def item(self, index) -> "Gaussians":
+    def item(self, index) -> Gaussians:
         """The set at `index` of the leading batch dimensions."""
         return Gaussians(*(t[index] for t in self._tensors()))
 
@@ -104,14 +104,14 @@ class Gaussians:
         return sh0_to_rgb(self.sh[..., 0, :]).clamp(0.0, 1.0)
 
     @classmethod
-    def from_rgb(cls, means, quats, scales, opacities, rgb) -> "Gaussians":
+    def from_rgb(cls, means, quats, scales, opacities, rgb) -> Gaussians:
         """Build degree-0 Gaussians from [B..., N, 3] rgb colours."""
         return cls(means, quats, scales, opacities, rgb_to_sh0(rgb)[..., None, :])
 
-    def to(self, *args, **kwargs) -> "Gaussians":
+    def to(self, *args, **kwargs) -> Gaussians:
         return Gaussians(*(t.to(*args, **kwargs) for t in self._tensors()))
 
-    def subset(self, index: torch.Tensor) -> "Gaussians":
+    def subset(self, index: torch.Tensor) -> Gaussians:
         """Gaussians selected by a boolean mask [N] or an index tensor [M] (one set, no batch)."""
         assert not self.batch_shape, f"subset of a batch {self.batch_shape}: take .item(i) first"
         return Gaussians(*(t[index] for t in self._tensors()))
@@ -138,7 +138,7 @@ class Cameras:
         return self.viewmats.shape[0]
 
     @classmethod
-    def from_c2w_opengl(cls, c2w, fx, fy, cx, cy, width: int, height: int) -> "Cameras":
+    def from_c2w_opengl(cls, c2w, fx, fy, cx, cy, width: int, height: int) -> Cameras:
         """From camera-to-world matrices in OpenGL axes [C, 4, 4] (the transforms.json convention).
 
         fx, fy, cx, cy are scalars or length-C sequences.
@@ -154,27 +154,23 @@ class Cameras:
         ks[:, 2, 2] = 1.0
         import torch
 
-        return cls(
-            torch.from_numpy(w2c).float(), torch.from_numpy(ks).float(), int(width), int(height)
-        )
+        return cls(torch.from_numpy(w2c).float(), torch.from_numpy(ks).float(), int(width), int(height))
 
     def c2w_opengl(self) -> np.ndarray:
         """[C, 4, 4] camera-to-world in OpenGL axes, float64."""
         w2c = self.viewmats.detach().cpu().double().numpy()
         return np.linalg.inv(w2c) @ _GL_TO_CV
 
-    def to(self, *args, **kwargs) -> "Cameras":
-        return Cameras(
-            self.viewmats.to(*args, **kwargs), self.Ks.to(*args, **kwargs), self.width, self.height
-        )
+    def to(self, *args, **kwargs) -> Cameras:
+        return Cameras(self.viewmats.to(*args, **kwargs), self.Ks.to(*args, **kwargs), self.width, self.height)
 
-    def select(self, index) -> "Cameras":
+    def select(self, index) -> Cameras:
         """The cameras at `index` (an int, a slice, a list or an index array), still batched [C']."""
         if isinstance(index, (int, np.integer)):
             index = slice(int(index), int(index) + 1)
         return Cameras(self.viewmats[index], self.Ks[index], self.width, self.height)
 
-    def resized(self, width: int, height: int, scale: float | None = None) -> "Cameras":
+    def resized(self, width: int, height: int, scale: float | None = None) -> Cameras:
         """The same cameras for images of width x height pixels: the intrinsics' first row (fx, cx)
         times width / self.width and the second (fy, cy) times height / self.height (the same field
         of view, pixel centres consistent), or both rows times `scale` where the new image is the
@@ -193,9 +189,7 @@ PHENOTYPE_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")
 class BodyParams:
     """Body model parameters (the body.json contract, formats/body.md)."""
 
-    phenotype: dict[str, float] = field(
-        default_factory=lambda: {k: 0.5 for k in PHENOTYPE_KEYS}
-    )
+    phenotype: dict[str, float] = field(default_factory=lambda: {k: 0.5 for k in PHENOTYPE_KEYS})
     root_rotation: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [3] axis-angle
     root_translation: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [3] metres
     pose: dict[str, np.ndarray] = field(default_factory=dict)  # bone label -> [3] axis-angle

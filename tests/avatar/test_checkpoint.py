@@ -12,8 +12,8 @@ import pytest
 import torch
 from torch import nn
 
-from dlacli.errors import DlaInputError
 from dlacli.avatar import checkpoint as ck
+from dlacli.errors import DlaInputError
 
 
 @dataclasses.dataclass
@@ -131,8 +131,9 @@ def test_hash_ignores_step_and_training_state_but_not_weights_or_config(tmp_path
     assert h1 == h2
     assert (tmp_path / "a" / "model.safetensors").read_bytes() == (tmp_path / "b" / "model.safetensors").read_bytes()
     # an int in a float field is stored as the float it means: same hash as the float
-    assert ck.save_checkpoint(tmp_path / "c", net, dataclasses.replace(net.config, inner=Inner(gain=2))) == \
-        ck.save_checkpoint(tmp_path / "d", net, dataclasses.replace(net.config, inner=Inner(gain=2.0)))
+    assert ck.save_checkpoint(
+        tmp_path / "c", net, dataclasses.replace(net.config, inner=Inner(gain=2))
+    ) == ck.save_checkpoint(tmp_path / "d", net, dataclasses.replace(net.config, inner=Inner(gain=2.0)))
     assert ck.save_checkpoint(tmp_path / "e", net, dataclasses.replace(net.config, act="relu")) != h1
     with torch.no_grad():
         net.out.bias[0] += 1e-3
@@ -204,15 +205,21 @@ def test_classes_outside_dlacli_are_refused_before_import(tmp_path):
     _edit_config(tmp_path / "ck", lambda r: r.update({"class": "evil_module_that_runs_code.Net"}))
     with pytest.raises(DlaInputError, match="outside dlacli"):
         ck.load_checkpoint(tmp_path / "ck")
-    for dotted, problem in [("dlacli.nn.no_such_net.Net", "cannot be imported"),
-                            ("dlacli.avatar.checkpoint.NoSuchNet", "does not exist"),
-                            ("dlacli.errors.DlaInputError", "not a torch nn.Module"),
-                            ("dlacli.avatar.checkpoint.Path", "defined in pathlib, outside"),
-                            ("dlacliX.Net", "outside dlacli"), ("os.system", "outside"), ("x; rm", "not a dotted")]:  # fmt: skip
-        _edit_config(tmp_path / "ck", lambda r: r.update({"class": dotted}))
+    for dotted, problem in [
+        ("dlacli.nn.no_such_net.Net", "cannot be imported"),
+        ("dlacli.avatar.checkpoint.NoSuchNet", "does not exist"),
+        ("dlacli.errors.DlaInputError", "not a torch nn.Module"),
+        ("dlacli.avatar.checkpoint.Path", "defined in pathlib, outside"),
+        ("dlacliX.Net", "outside dlacli"),
+        ("os.system", "outside"),
+        ("x; rm", "not a dotted"),
+    ]:
+        _edit_config(tmp_path / "ck", lambda r, d=dotted: r.update({"class": d}))
         with pytest.raises(DlaInputError, match=problem):
             ck.load_checkpoint(tmp_path / "ck", allowed_prefixes=("dlacli.",) + HERE)
-    _edit_config(tmp_path / "ck", lambda r: r.update({"class": f"{ToyNet.__module__}.ToyNet", "config_class": "os.Cfg"}))
+    _edit_config(
+        tmp_path / "ck", lambda r: r.update({"class": f"{ToyNet.__module__}.ToyNet", "config_class": "os.Cfg"})
+    )
     with pytest.raises(DlaInputError, match="config_class 'os.Cfg' is outside"):
         _load(tmp_path / "ck")
 
@@ -220,14 +227,18 @@ def test_classes_outside_dlacli_are_refused_before_import(tmp_path):
 def test_config_fields_are_checked(tmp_path):
     net = _trained()
     ck.save_checkpoint(tmp_path / "ck", net, net.config)
-    cases = [(lambda c: c.update(colour="red"), "unknown field.* colour"), (lambda c: c.pop("depth"), "lacks field.* depth"),
-             (lambda c: c.update(width=8.0), "width is 8.0, expected int"), (lambda c: c.update(norm=1), "norm is 1"),
-             (lambda c: c.update(kernel=[3]), "kernel has 1 items, expected 2"),
-             (lambda c: c["inner"].update(extra=1), "unknown field.* inner.extra")]  # fmt: skip
+    cases = [
+        (lambda c: c.update(colour="red"), "unknown field.* colour"),
+        (lambda c: c.pop("depth"), "lacks field.* depth"),
+        (lambda c: c.update(width=8.0), "width is 8.0, expected int"),
+        (lambda c: c.update(norm=1), "norm is 1"),
+        (lambda c: c.update(kernel=[3]), "kernel has 1 items, expected 2"),
+        (lambda c: c["inner"].update(extra=1), "unknown field.* inner.extra"),
+    ]
     pristine = (tmp_path / "ck" / "config.json").read_text()
     for change, problem in cases:
         (tmp_path / "ck" / "config.json").write_text(pristine)
-        _edit_config(tmp_path / "ck", lambda r: change(r["config"]))
+        _edit_config(tmp_path / "ck", lambda r, ch=change: ch(r["config"]))
         with pytest.raises(DlaInputError, match=r"config.json: config .*" + problem):
             _load(tmp_path / "ck")
 
@@ -311,8 +322,10 @@ def test_optimizer_state_round_trip_resumes_exactly(tmp_path):
 
 
 def test_optimizer_state_encoding_keeps_types():
-    state = {"state": {0: {"step": torch.tensor(3.0), "v": [1, (2.0, float("inf"))]}},
-             "param_groups": [{"betas": (0.5, 0.9), "params": [0], "$odd": None, "foreach": None}]}  # fmt: skip
+    state = {
+        "state": {0: {"step": torch.tensor(3.0), "v": [1, (2.0, float("inf"))]}},
+        "param_groups": [{"betas": (0.5, 0.9), "params": [0], "$odd": None, "foreach": None}],
+    }
     tensors = {}
     enc = ck._encode_state(state, tensors, "opt")
     back = ck._decode_state(json.loads(json.dumps(enc, allow_nan=False)), tensors, "x")
@@ -327,8 +340,16 @@ def test_optimizer_state_encoding_keeps_types():
 def _fake(folder: Path, digest: str) -> Path:
     """A checkpoint folder whose config.json records `digest` (the resolver reads only that)."""
     folder.mkdir(parents=True)
-    rec = {"format": "dla.checkpoint/1", "class": "dlacli.x.X", "config_class": "dlacli.x.C", "config": {},
-           "step": 0, "hash": digest, "optimizer": None, "extra": {}}  # fmt: skip
+    rec = {
+        "format": "dla.checkpoint/1",
+        "class": "dlacli.x.X",
+        "config_class": "dlacli.x.C",
+        "config": {},
+        "step": 0,
+        "hash": digest,
+        "optimizer": None,
+        "extra": {},
+    }
     (folder / "config.json").write_text(json.dumps(rec))
     return folder
 
@@ -365,7 +386,9 @@ def test_resolve_ambiguous_prefix_lists_matches(tmp_path, cache):
     _fake(cache / b, b)
     _fake(tmp_path / "elsewhere" / "same", a)  # the same hash twice is not ambiguous
     assert ck.resolve_checkpoint("abcdef01", search=[tmp_path / "elsewhere"]) == tmp_path / "elsewhere" / "same"
-    with pytest.raises(DlaInputError, match=r"prefix is ambiguous, it matches 2: abcdef0100000000 .*; abcdef0211111111"):
+    with pytest.raises(
+        DlaInputError, match=r"prefix is ambiguous, it matches 2: abcdef0100000000 .*; abcdef0211111111"
+    ):
         ck.resolve_checkpoint("abcdef", search=[tmp_path / "elsewhere"])
     with pytest.raises(DlaInputError, match="not a checkpoint hash"):
         ck.resolve_checkpoint("abc")  # too short a prefix, and no such file

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import torch
 
-from dlacli.errors import DlaInputError
 from dlacli.avatar import codec
 from dlacli.avatar import gaussian_map as gm
+from dlacli.errors import DlaInputError
 from dlacli.types import Avatar, BodyParams, Motion
 
 RES = 32  # UV resolution of the test avatars
@@ -25,8 +25,15 @@ def _avatar(decoder: str = "identity", checkpoint: str = "") -> Avatar:
     z[gm.RGB] = 0.5
     z[gm.ROTATION.start] = 1.0
     z[gm.LOG_SCALE] = np.log(4.0)
-    return Avatar(z=z, encoder="unproject", decoder=decoder, body=BodyParams(), uv_layout="anny",
-                  checkpoint=checkpoint, extra={"samples": {"count": N, "seed": 3}})  # fmt: skip
+    return Avatar(
+        z=z,
+        encoder="unproject",
+        decoder=decoder,
+        body=BodyParams(),
+        uv_layout="anny",
+        checkpoint=checkpoint,
+        extra={"samples": {"count": N, "seed": 3}},
+    )
 
 
 class ViewToy(codec.Decoder):
@@ -140,7 +147,9 @@ def _three_poses() -> Motion:
 
     walk = builtin_motion("walk")
     pick = np.array([0, walk.num_frames // 4, walk.num_frames // 2])
-    return Motion(walk.bone_labels, walk.rotations[pick], walk.root_rotation[pick], walk.root_translation[pick], walk.fps)
+    return Motion(
+        walk.bone_labels, walk.rotations[pick], walk.root_rotation[pick], walk.root_translation[pick], walk.fps
+    )
 
 
 def test_pose_conditioned_decoder_is_decoded_per_frame(toys, tmp_path):

@@ -44,11 +44,9 @@ def test_pose_frames_split_by_camera():
 
 
 def test_a_small_run_scores_every_split(tmp_path):
-    from dlacli.bench.accuracy import SPLITS, run, score_avatar
+    from dlacli.bench.accuracy import SPLITS, peak_rss_mb, run, score_avatar
     from dlacli.bench.rows import check_row
     from dlacli.stages.methods import parse_methods
-
-    from dlacli.bench.accuracy import peak_rss_mb
 
     ballast = np.ones(2 * 2**30 // 8)  # 2 GiB touched here: the child's peak must not include it
     rows = run([8101], parse_methods("unproject"), res=64, novel_views=2, novel_poses=1, log=lambda s: None)

@@ -31,16 +31,37 @@ def _toy_rows(subject: int = 1, bump: float = 0.0) -> list[dict]:
     rows = []
     for n, (inp, nv, npose, ms, mib, noise) in TOY.items():
         for split, v in (("inputs", inp), ("novel_views", nv), ("novel_poses", npose)):
-            rows.append(budget_row("unproject", {"uv_resolution": 256}, split, 2.0, _metrics(v + bump), n, 256, ms, mib, 0.5,
-                                   noise, subject=subject, device="cpu"))  # fmt: skip
+            rows.append(
+                budget_row(
+                    "unproject",
+                    {"uv_resolution": 256},
+                    split,
+                    2.0,
+                    _metrics(v + bump),
+                    n,
+                    256,
+                    ms,
+                    mib,
+                    0.5,
+                    noise,
+                    subject=subject,
+                    device="cpu",
+                )
+            )
     return rows
 
 
 def test_budget_rows_pass_the_schema():
     row = _toy_rows()[0]
     assert check_row(dict(row)) == row and row["kind"] == "budget"
-    for change, needle in (({"gaussians": 1}, "gaussians"), ({"render_ms": -1.0}, "render_ms"), ({"usd_mib": float("nan")}, "usd_mib"),
-                           ({"metrics": {"psnr": 1.0}}, "psnr_masked"), ({"gaussians": 2.5}, "gaussians"), ({"noise": "x"}, "noise")):  # fmt: skip
+    for change, needle in (
+        ({"gaussians": 1}, "gaussians"),
+        ({"render_ms": -1.0}, "render_ms"),
+        ({"usd_mib": float("nan")}, "usd_mib"),
+        ({"metrics": {"psnr": 1.0}}, "psnr_masked"),
+        ({"gaussians": 2.5}, "gaussians"),
+        ({"noise": "x"}, "noise"),
+    ):
         with pytest.raises(DlaInputError, match=needle):
             check_row({**row, **change})
 
@@ -61,14 +82,18 @@ def test_rules_pick_from_the_rows():
 
 
 def test_a_tiny_budget_run():
-    rows = run([SEED], [256, 1024], [32, 64], render_size=48, novel_views=1, novel_poses=1, usd_frames=2, log=lambda s: None)
+    rows = run(
+        [SEED], [256, 1024], [32, 64], render_size=48, novel_views=1, novel_poses=1, usd_frames=2, log=lambda s: None
+    )
     assert len(rows) == 2 * 2 * 3  # UV resolutions x counts x splits
     assert all(check_row(dict(r)) == r for r in rows)
     for uv in (32, 64):
         sel = [r for r in rows if r["config"]["uv_resolution"] == uv]
         for n in (256, 1024):
             same = [r for r in sel if r["gaussians"] == n]
-            assert len({r["noise"] for r in same}) == 1 and len({r["usd_mib"] for r in same}) == 1  # per count, not per split
+            assert (
+                len({r["noise"] for r in same}) == 1 and len({r["usd_mib"] for r in same}) == 1
+            )  # per count, not per split
         small, big = (next(r for r in sel if r["gaussians"] == n) for n in (256, 1024))
         assert big["usd_mib"] > small["usd_mib"]  # four times the Gaussians in the file
     assert {r["split"] for r in rows} == {"inputs", "novel_views", "novel_poses"}
@@ -81,15 +106,26 @@ def test_report_with_every_kind(tmp_path):
     from dlacli.cli.app import main
 
     pytest.importorskip("matplotlib")
-    acc = [make_row("unproject", {"steps": 0}, split, 1.0, None, _metrics(19.0), subject=1, device="cpu")
-           for split in ("novel_views", "novel_poses")]  # fmt: skip
-    spd = [speed_row("splat", "fwd", m, {"n": 10, "res": 16}, s, 3, "run1", "cpu") for m, s in (("numba", 0.01), ("torch", 0.05))]
+    acc = [
+        make_row("unproject", {"steps": 0}, split, 1.0, None, _metrics(19.0), subject=1, device="cpu")
+        for split in ("novel_views", "novel_poses")
+    ]
+    spd = [
+        speed_row("splat", "fwd", m, {"n": 10, "res": 16}, s, 3, "run1", "cpu")
+        for m, s in (("numba", 0.01), ("torch", 0.05))
+    ]
     append_rows(tmp_path / "r.jsonl", acc + _toy_rows() + spd)
     with pytest.raises(SystemExit) as info:
         main(["bench", "report", str(tmp_path / "r.jsonl"), "-o", str(tmp_path / "b.md")])
     assert info.value.code == 0
     page = (tmp_path / "b.md").read_text()
-    for needle in ("## novel views", "## The Gaussian budget", "![the Gaussian budget](b_budget.png)", "## Speed", "| 5x torch"):
+    for needle in (
+        "## novel views",
+        "## The Gaussian budget",
+        "![the Gaussian budget](b_budget.png)",
+        "## Speed",
+        "| 5x torch",
+    ):
         assert needle in page, needle
     assert (tmp_path / "b.png").is_file() and not (tmp_path / "b_stability.png").exists()
     image = np.asarray(Image.open(tmp_path / "b_budget.png").convert("RGB"))
@@ -99,7 +135,11 @@ def test_report_with_every_kind(tmp_path):
 def test_cli_refuses_bad_counts(capsys):
     from dlacli.cli.app import main
 
-    for argv, needle in ((["--counts", "1,4096"], "--counts"), (["--method", "learned"], "--method"), (["--uv", "x"], "--uv")):
+    for argv, needle in (
+        (["--counts", "1,4096"], "--counts"),
+        (["--method", "learned"], "--method"),
+        (["--uv", "x"], "--uv"),
+    ):
         with pytest.raises(SystemExit) as info:
             main(["bench", "budget", *argv])
         assert info.value.code == 2 and needle in capsys.readouterr().err

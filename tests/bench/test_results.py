@@ -10,8 +10,17 @@ import pytest
 
 from dlacli.bench.charts import draw_chart
 from dlacli.bench.report import report_markdown
-from dlacli.bench.rows import (FORMAT, append_rows, check_row, label, make_row, pareto_front, points, read_rows,
-                               stability_row)
+from dlacli.bench.rows import (
+    FORMAT,
+    append_rows,
+    check_row,
+    label,
+    make_row,
+    pareto_front,
+    points,
+    read_rows,
+    stability_row,
+)
 from dlacli.errors import DlaInputError
 
 
@@ -26,8 +35,18 @@ def _toy_rows() -> list[dict]:
     for subject, bump in ((1, 0.0), (2, 0.4)):
         for split, shift in (("novel_views", 0.0), ("novel_poses", -0.5)):
             for steps, seconds, masked in ((0, 3.0, 18.7), (50, 44.0, 19.9), (100, 80.0, 19.8)):
-                rows.append(make_row("unproject", {"steps": steps}, split, seconds + subject, None,
-                                     _metrics(masked + bump + shift), subject=subject, device="cpu (2 threads)"))  # fmt: skip
+                rows.append(
+                    make_row(
+                        "unproject",
+                        {"steps": steps},
+                        split,
+                        seconds + subject,
+                        None,
+                        _metrics(masked + bump + shift),
+                        subject=subject,
+                        device="cpu (2 threads)",
+                    )
+                )
     return rows
 
 
@@ -38,10 +57,15 @@ def test_rows_round_trip_and_bad_rows_are_refused(tmp_path):
     append_rows(path, rows[5:])  # a second run adds to the first
     assert read_rows(path) == json.loads(json.dumps(rows))
     good = rows[0]
-    for change, needle in (({"format": "dla.bench/9"}, "format"), ({"split": "sideways"}, "split"),
-                           ({"seconds": float("nan")}, "seconds"), ({"seconds": -1.0}, "seconds"),
-                           ({"metrics": {**good["metrics"], "iou": True}}, "iou"),
-                           ({"metrics": {"psnr": 1.0}}, "psnr_masked"), ({"method": 3}, "method")):  # fmt: skip
+    for change, needle in (
+        ({"format": "dla.bench/9"}, "format"),
+        ({"split": "sideways"}, "split"),
+        ({"seconds": float("nan")}, "seconds"),
+        ({"seconds": -1.0}, "seconds"),
+        ({"metrics": {**good["metrics"], "iou": True}}, "iou"),
+        ({"metrics": {"psnr": 1.0}}, "psnr_masked"),
+        ({"method": 3}, "method"),
+    ):
         with pytest.raises(DlaInputError, match=needle):
             check_row({**good, **change})
     (tmp_path / "bad.jsonl").write_text(json.dumps(good) + "\n{not json\n")
@@ -58,8 +82,18 @@ def test_points_aggregate_over_subjects():
 
 
 def test_pareto_front_on_a_toy_set():
-    pts = [{"label": k, "seconds": s, "value": v} for k, s, v in
-           (("a", 1, 10), ("b", 2, 12), ("c", 3, 11), ("d", 4, 15), ("e", 4, 14), ("f", 0.5, 9), ("g", 2, 12))]
+    pts = [
+        {"label": k, "seconds": s, "value": v}
+        for k, s, v in (
+            ("a", 1, 10),
+            ("b", 2, 12),
+            ("c", 3, 11),
+            ("d", 4, 15),
+            ("e", 4, 14),
+            ("f", 0.5, 9),
+            ("g", 2, 12),
+        )
+    ]
     front = [p["label"] for p in pareto_front(pts)]
     # c is beaten by b (faster, better), e by d (as fast, better); b and g tie (both kept)
     assert front == ["f", "a", "b", "g", "d"]
@@ -100,12 +134,20 @@ def test_pipeline_results_become_rows():
     from dlacli.bench.pipeline import result_rows
 
     scores = {"psnr": 28.0, "psnr_masked": 20.0, "ssim": 0.95, "iou": 0.94}
-    result = {"res": 512, "rows": [{"seed": 7, "steps": 0, "lift_s": 2.0, "novel_views": scores, "novel_poses": scores},
-                                   {"seed": 7, "steps": 50, "lift_s": 40.0, "novel_views": scores, "novel_poses": scores}]}
+    result = {
+        "res": 512,
+        "rows": [
+            {"seed": 7, "steps": 0, "lift_s": 2.0, "novel_views": scores, "novel_poses": scores},
+            {"seed": 7, "steps": 50, "lift_s": 40.0, "novel_views": scores, "novel_poses": scores},
+        ],
+    }
     rows = result_rows(result)
     assert [(r["method"], r["config"]["steps"], r["split"]) for r in rows] == [
-        ("unproject", 0, "novel_views"), ("unproject", 0, "novel_poses"),
-        ("unproject", 50, "novel_views"), ("unproject", 50, "novel_poses")]
+        ("unproject", 0, "novel_views"),
+        ("unproject", 0, "novel_poses"),
+        ("unproject", 50, "novel_views"),
+        ("unproject", 50, "novel_poses"),
+    ]
     assert all(r["subject"] == 7 and r["peak_mb"] is None for r in rows)
 
 

@@ -31,8 +31,11 @@ def test_subject_matches_dla_synth(subject, tmp_path):
     from dlacli.io.views import read_views
 
     folder = synth(SEED, tmp_path / "s", res=48, novel_views=1, novel_poses=1)
-    for mine, theirs in ((subject.views, read_views(folder)), (subject.novel_views, read_views(folder / "novel_views", require_body=False)),
-                         (subject.novel_poses, read_views(folder / "novel_poses", require_body=False))):  # fmt: skip
+    for mine, theirs in (
+        (subject.views, read_views(folder)),
+        (subject.novel_views, read_views(folder / "novel_views", require_body=False)),
+        (subject.novel_poses, read_views(folder / "novel_poses", require_body=False)),
+    ):
         assert np.allclose(mine.cameras.viewmats, theirs.cameras.viewmats, atol=1e-6)
         # synth writes 8-bit PNGs: half a step of 1/255
         assert np.abs(mine.masks - theirs.masks).max() <= 0.5 / 255 + 1e-6
@@ -78,12 +81,17 @@ def test_view_perturbations_do_what_they_say(subject):
         assert np.linalg.norm(centroid(moved.masks[k]) - centroid(v.masks[k])) == pytest.approx(3.0, abs=0.05)
     # misregistration in degrees: the claimed camera orbits the rig's axis by +-level, same radius and height
     turned = S.misregister_deg(v, 5.0, _rng())
-    c0, c1 = camera_centers(v.cameras.viewmats).numpy() - TARGET, camera_centers(turned.cameras.viewmats).numpy() - TARGET
+    c0, c1 = (
+        camera_centers(v.cameras.viewmats).numpy() - TARGET,
+        camera_centers(turned.cameras.viewmats).numpy() - TARGET,
+    )
     assert np.allclose(c0[0], c1[0], atol=1e-5)
     for k in range(1, len(v)):
         d = math.degrees(math.atan2(c1[k, 1], c1[k, 0]) - math.atan2(c0[k, 1], c0[k, 0]))
         assert abs((d + 180) % 360 - 180) == pytest.approx(5.0, abs=1e-3)
-        assert np.hypot(*c1[k, :2]) == pytest.approx(np.hypot(*c0[k, :2]), abs=1e-4) and c1[k, 2] == pytest.approx(c0[k, 2], abs=1e-5)
+        assert np.hypot(*c1[k, :2]) == pytest.approx(np.hypot(*c0[k, :2]), abs=1e-4) and c1[k, 2] == pytest.approx(
+            c0[k, 2], abs=1e-5
+        )
     # fewer views: the front always, then the sides, then the back
     for count, keep in S.VIEW_SUBSETS.items():
         fewer = S.fewer_views(v, count, _rng())
@@ -138,13 +146,40 @@ def test_runs_record_failures(subject):
 
 
 def test_stability_rows_pass_the_schema():
-    ok = stability_row("unproject", {"res": 48}, "novel_views", 1.0, None, {"psnr": 25, "psnr_masked": 18, "ssim": 0.9, "iou": 0.9},
-                       "pose_noise", 5.0, subject=1, device="cpu")  # fmt: skip
-    failed = stability_row("unproject", {"steps": 50}, "novel_poses", 0.5, None, {}, "fewer_views", 1.0, "error", "ValueError: x", device="cpu")
+    ok = stability_row(
+        "unproject",
+        {"res": 48},
+        "novel_views",
+        1.0,
+        None,
+        {"psnr": 25, "psnr_masked": 18, "ssim": 0.9, "iou": 0.9},
+        "pose_noise",
+        5.0,
+        subject=1,
+        device="cpu",
+    )
+    failed = stability_row(
+        "unproject",
+        {"steps": 50},
+        "novel_poses",
+        0.5,
+        None,
+        {},
+        "fewer_views",
+        1.0,
+        "error",
+        "ValueError: x",
+        device="cpu",
+    )
     for row in (ok, failed):
         assert check_row(dict(row)) == row
-    for change, needle in (({"status": "fine"}, "status"), ({"metrics": {}}, "psnr"), ({"level": float("inf")}, "level"),
-                           ({"perturbation": None}, "perturbation"), ({"kind": "stable"}, "kind")):  # fmt: skip
+    for change, needle in (
+        ({"status": "fine"}, "status"),
+        ({"metrics": {}}, "psnr"),
+        ({"level": float("inf")}, "level"),
+        ({"perturbation": None}, "perturbation"),
+        ({"kind": "stable"}, "kind"),
+    ):
         with pytest.raises(DlaInputError, match=needle):
             check_row({**ok, **change})
 
@@ -154,13 +189,29 @@ def _toy(values: dict[float, float | None], method="m", pert="pose_noise", subje
     for level, v in values.items():
         for split in ("novel_views", "novel_poses"):
             metrics = {} if v is None else {"psnr": v + 8, "psnr_masked": v, "ssim": 0.9, "iou": 0.9}
-            rows.append(stability_row(method, {}, split, 1.0, None, metrics, pert, level, "ok" if v is not None else "error",
-                                      None if v is not None else "boom", subject=subject, device="cpu"))  # fmt: skip
+            rows.append(
+                stability_row(
+                    method,
+                    {},
+                    split,
+                    1.0,
+                    None,
+                    metrics,
+                    pert,
+                    level,
+                    "ok" if v is not None else "error",
+                    None if v is not None else "boom",
+                    subject=subject,
+                    device="cpu",
+                )
+            )
     return rows
 
 
 def test_drop_level_and_curves():
-    rows = _toy({0.0: 20.0, 2.0: 19.5, 5.0: 18.1, 10.0: 17.9, 20.0: 12.0}) + _toy({0.0: 21.0, 2.0: 20.5, 5.0: 17.9, 10.0: 18.0, 20.0: 13.0}, subject=2)
+    rows = _toy({0.0: 20.0, 2.0: 19.5, 5.0: 18.1, 10.0: 17.9, 20.0: 12.0}) + _toy(
+        {0.0: 21.0, 2.0: 20.5, 5.0: 17.9, 10.0: 18.0, 20.0: 13.0}, subject=2
+    )
     c = S.curves(rows)["pose_noise"]["m"]
     assert [lv for lv, *_ in c] == [0.0, 2.0, 5.0, 10.0, 20.0]
     assert c[2][1] == pytest.approx(18.0) and c[2][2] == 2  # mean over the two subjects
@@ -179,11 +230,21 @@ def test_a_tiny_run_and_its_report(tmp_path, capsys):
     from dlacli.stages.methods import parse_methods
 
     pytest.importorskip("matplotlib")
-    rows = S.run([SEED], parse_methods("unproject"), ["fewer_views", "colour_shift"], res=48, levels=2, novel_views=1, novel_poses=1,
-                 log=lambda line: None)  # fmt: skip
+    rows = S.run(
+        [SEED],
+        parse_methods("unproject"),
+        ["fewer_views", "colour_shift"],
+        res=48,
+        levels=2,
+        novel_views=1,
+        novel_poses=1,
+        log=lambda line: None,
+    )
     assert len(rows) == 2 * 2 * 2  # perturbations x levels x splits
     assert all(check_row(dict(r)) == r and r["status"] == "ok" for r in rows)
-    base = [r for r in rows if r["level"] == S.PERTURBATIONS[r["perturbation"]].levels[0] and r["split"] == "novel_views"]
+    base = [
+        r for r in rows if r["level"] == S.PERTURBATIONS[r["perturbation"]].levels[0] and r["split"] == "novel_views"
+    ]
     assert len(base) == 2 and base[0]["metrics"] == base[1]["metrics"]  # one clean run, every perturbation's baseline
     assert {r["level"] for r in rows if r["perturbation"] == "fewer_views"} == {4.0, 1.0}
     md = "\n".join(stability_markdown(rows, "s.png"))

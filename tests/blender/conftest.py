@@ -24,4 +24,7 @@ def bpy_python() -> Path:
     local = REPO / ".venv-bpy" / "bin" / "python"
     if local.is_file() and os.access(local, os.X_OK):
         return local
-    pytest.skip("no Python with bpy: set DLA_BPY_PYTHON or make .venv-bpy (python3.11 -m venv .venv-bpy; .venv-bpy/bin/pip install bpy==5.0.1)")
+    pytest.skip(
+        "no Python with bpy: set DLA_BPY_PYTHON or make .venv-bpy (python3.11 -m venv .venv-bpy; .venv-bpy/bin/pip "
+        "install bpy==5.0.1)"
+    )

@@ -25,7 +25,7 @@ RED, BLUE = (0.8, 0.1, 0.1), (0.1, 0.2, 0.8)
 POSED_BONE = "lowerarm01.L"
 RENDER_SIZE = 160
 
-SCRIPT = r'''
+SCRIPT = r"""
 import json, sys
 import bpy
 import numpy as np
@@ -102,7 +102,7 @@ else:
     np.save(out + "/rest.npy", before)
     np.save(out + "/posed.npy", after)
 print("DLA_JSON " + json.dumps(report))
-'''
+"""
 
 
 def two_colour_avatar() -> Avatar:
@@ -128,11 +128,15 @@ def run_blender(bpy_python, tmp_path: Path, usd: Path, mode: str, *extra) -> dic
     script.write_text(SCRIPT)
     out = tmp_path / mode
     out.mkdir()
-    proc = subprocess.run([str(bpy_python), str(script), "--", str(usd), str(out), mode, *map(str, extra)],
-                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    proc = subprocess.run(
+        [str(bpy_python), str(script), "--", str(usd), str(out), mode, *map(str, extra)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     lines = [line for line in proc.stdout.splitlines() if line.startswith("DLA_JSON ")]
     assert proc.returncode == 0 and lines, proc.stdout[-2000:] + proc.stderr[-2000:]
-    return json.loads(lines[-1][len("DLA_JSON "):])
+    return json.loads(lines[-1][len("DLA_JSON ") :])
 
 
 def usd_skinned(path: Path, t: float) -> np.ndarray:

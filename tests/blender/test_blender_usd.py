@@ -20,11 +20,12 @@ T, N = 12, 4096  # two rigid parts' worth of Gaussians (usd_compact.GAUSSIANS_PE
 
 
 def probe(bpy_python: Path, usd: Path, *args) -> dict:
-    run = subprocess.run([str(bpy_python), str(PROBE), str(usd), *map(str, args)],
-                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    run = subprocess.run(
+        [str(bpy_python), str(PROBE), str(usd), *map(str, args)], capture_output=True, text=True, timeout=300
+    )
     assert run.returncode == 0, run.stderr[-3000:]
     line = next(x for x in run.stdout.splitlines() if x.startswith("DLA-PROBE "))
-    return json.loads(line[len("DLA-PROBE "):])
+    return json.loads(line[len("DLA-PROBE ") :])
 
 
 def two_blobs():
@@ -74,7 +75,10 @@ def test_blender_imports_coloured_moving_points(bpy_python, tmp_path, schema, to
     assert (report["frame_start"], report["frame_end"]) == (0, T - 1)
     assert report["fps"] == 24.0
     clouds = report["clouds"]
-    want = {name: [pxr_points(path, "/Avatar/Points", f)[name] for f in frames] for name in pxr_points(path, "/Avatar/Points", 0)}
+    want = {
+        name: [pxr_points(path, "/Avatar/Points", f)[name] for f in frames]
+        for name in pxr_points(path, "/Avatar/Points", 0)
+    }
     assert set(clouds) == set(want) and sum(c["points"] for c in clouds.values()) == N
     for name, cloud in clouds.items():
         assert {"displayColor", "displayOpacity"} <= set(cloud["attributes"])

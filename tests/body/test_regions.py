@@ -85,8 +85,11 @@ def test_hands_and_feet_agree_with_anny_segmentation(body):
         device = torch.device("cpu")
 
     for ours, theirs in (
-        ("left_hand", "hand.L"), ("right_hand", "hand.R"), ("left_foot", "foot.L"), ("right_foot", "foot.R"),
-    ):  # fmt: skip
+        ("left_hand", "hand.L"),
+        ("right_hand", "hand.R"),
+        ("left_foot", "foot.L"),
+        ("right_foot", "foot.R"),
+    ):
         ref = get_face_segmentation_mask(_Layout, [theirs]).numpy()
         mine = Rg.region_faces(ours)
         assert ref.sum() > 100

@@ -26,21 +26,26 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from dlacli.body.builtin_motions import BUILTINS, builtin_motion
 from dlacli.body.model import get_body_model
-from dlacli.stages.motion_source import load_motion
 from dlacli.body.retarget import Y_UP_TO_ANNY, anny_rig, match_joints, resample_motion, retarget
 from dlacli.errors import DlaInputError
 from dlacli.io.amass import SMPL_REST_JOINTS
 from dlacli.io.asf_amc import read_amc
 from dlacli.io.bvh import read_bvh
+from dlacli.stages.motion_source import load_motion
 from dlacli.types import Motion
 
 SEGMENTS = [  # (anny bone, anny bone at the segment's end)
-    ("upperarm01.L", "lowerarm01.L"), ("lowerarm01.L", "wrist.L"),
-    ("upperarm01.R", "lowerarm01.R"), ("lowerarm01.R", "wrist.R"),
-    ("upperleg01.L", "lowerleg01.L"), ("lowerleg01.L", "foot.L"),
-    ("upperleg01.R", "lowerleg01.R"), ("lowerleg01.R", "foot.R"),
-    ("clavicle.L", "upperarm01.L"), ("clavicle.R", "upperarm01.R"),
-]  # fmt: skip
+    ("upperarm01.L", "lowerarm01.L"),
+    ("lowerarm01.L", "wrist.L"),
+    ("upperarm01.R", "lowerarm01.R"),
+    ("lowerarm01.R", "wrist.R"),
+    ("upperleg01.L", "lowerleg01.L"),
+    ("lowerleg01.L", "foot.L"),
+    ("upperleg01.R", "lowerleg01.R"),
+    ("lowerleg01.R", "foot.R"),
+    ("clavicle.L", "upperarm01.L"),
+    ("clavicle.R", "upperarm01.R"),
+]
 
 
 def fk_positions(skel, frames):
@@ -49,7 +54,8 @@ def fk_positions(skel, frames):
     children = {k: [c for c in range(skel.num_joints) if skel.parents[c] == k] for k in range(skel.num_joints)}
     out = np.zeros((len(frames), skel.num_joints, 3))
     for n, f in enumerate(frames):
-        def walk(k, rot, pos):
+
+        def walk(k, rot, pos, n=n, f=f):
             out[n, k] = pos
             rot = rot * Rotation.from_matrix(skel.rotations[f, k])
             for c in children[k]:
@@ -97,8 +103,10 @@ def test_posed_anny_follows_the_mocap(name, clips, motions, rig):
     for a, b in SEGMENTS:
         ang = _angles(heads[:, idx(b)] - heads[:, idx(a)], src[:, src_of[b]] - src[:, src_of[a]])
         assert np.median(ang) < 0.5 and np.percentile(ang, 95) < 1.0, (a, b, np.median(ang), ang.max())
-    left = _angles(heads[:, idx("upperleg01.L")] - heads[:, idx("upperleg01.R")],
-                   src[:, src_of["upperleg01.L"]] - src[:, src_of["upperleg01.R"]])  # fmt: skip
+    left = _angles(
+        heads[:, idx("upperleg01.L")] - heads[:, idx("upperleg01.R")],
+        src[:, src_of["upperleg01.L"]] - src[:, src_of["upperleg01.R"]],
+    )
     assert left.max() < 3.0
 
 
@@ -124,8 +132,13 @@ def test_asf_amc_and_bvh_give_the_same_motion(motions):
 
 
 def _amass(path, width, rate_key, poses):
-    np.savez(path, poses=poses, trans=np.zeros((poses.shape[0], 3)) + [0, 0, 0.95],
-             betas=np.zeros(10), **{rate_key: np.array(30.0)})  # fmt: skip
+    np.savez(
+        path,
+        poses=poses,
+        trans=np.zeros((poses.shape[0], 3)) + [0, 0, 0.95],
+        betas=np.zeros(10),
+        **{rate_key: np.array(30.0)},
+    )
 
 
 @pytest.mark.parametrize("width, rate_key", [(156, "mocap_framerate"), (165, "mocap_frame_rate")])
@@ -275,6 +288,8 @@ def test_units_do_not_matter(third_party_data, motions, rig):
     metric = retarget(read_bvh(third_party_data / "motion" / "scaled_131_01.bvh"), rig)
     cmu = motions["131_01.bvh"]
     n = cmu.num_frames
-    rel = Rotation.from_rotvec(cmu.rotations.reshape(-1, 3)).inv() * Rotation.from_rotvec(metric.rotations[:n].reshape(-1, 3))
+    rel = Rotation.from_rotvec(cmu.rotations.reshape(-1, 3)).inv() * Rotation.from_rotvec(
+        metric.rotations[:n].reshape(-1, 3)
+    )
     assert np.degrees(rel.magnitude()).max() < 0.01
     np.testing.assert_allclose(metric.root_translation[:n], cmu.root_translation, atol=1e-4)

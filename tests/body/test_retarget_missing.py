@@ -8,38 +8,65 @@ import sys
 import numpy as np
 import pytest
 
-from dlacli.stages.motion_source import load_motion
 from dlacli.body.retarget import DIALECTS, NEEDED, anny_rig, match_joints, retarget
 from dlacli.cli.app import main
 from dlacli.errors import DlaInputError
 from dlacli.io.asf_amc import read_amc
 from dlacli.io.bvh import read_bvh
+from dlacli.stages.motion_source import load_motion
 
 # CMU MotionBuilder-style names (as in cmu_01_01.bvh), metres, Y up, facing +Z, left on +X
 MB = [  # (name, parent, offset)
     ("Hips", None, (0.0, 0.95, 0.0)),
-    ("LHipJoint", "Hips", (0.0, 0.0, 0.0)), ("LeftUpLeg", "LHipJoint", (0.09, -0.05, 0.0)),
-    ("LeftLeg", "LeftUpLeg", (0.0, -0.42, 0.0)), ("LeftFoot", "LeftLeg", (0.0, -0.42, 0.0)),
+    ("LHipJoint", "Hips", (0.0, 0.0, 0.0)),
+    ("LeftUpLeg", "LHipJoint", (0.09, -0.05, 0.0)),
+    ("LeftLeg", "LeftUpLeg", (0.0, -0.42, 0.0)),
+    ("LeftFoot", "LeftLeg", (0.0, -0.42, 0.0)),
     ("LeftToeBase", "LeftFoot", (0.0, -0.04, 0.12)),
-    ("RHipJoint", "Hips", (0.0, 0.0, 0.0)), ("RightUpLeg", "RHipJoint", (-0.09, -0.05, 0.0)),
-    ("RightLeg", "RightUpLeg", (0.0, -0.42, 0.0)), ("RightFoot", "RightLeg", (0.0, -0.42, 0.0)),
+    ("RHipJoint", "Hips", (0.0, 0.0, 0.0)),
+    ("RightUpLeg", "RHipJoint", (-0.09, -0.05, 0.0)),
+    ("RightLeg", "RightUpLeg", (0.0, -0.42, 0.0)),
+    ("RightFoot", "RightLeg", (0.0, -0.42, 0.0)),
     ("RightToeBase", "RightFoot", (0.0, -0.04, 0.12)),
-    ("LowerBack", "Hips", (0.0, 0.08, 0.0)), ("Spine", "LowerBack", (0.0, 0.12, 0.0)),
-    ("Spine1", "Spine", (0.0, 0.12, 0.0)), ("Neck", "Spine1", (0.0, 0.14, 0.0)),
-    ("Neck1", "Neck", (0.0, 0.05, 0.0)), ("Head", "Neck1", (0.0, 0.07, 0.0)),
-    ("LeftShoulder", "Spine1", (0.03, 0.11, 0.0)), ("LeftArm", "LeftShoulder", (0.15, 0.0, 0.0)),
-    ("LeftForeArm", "LeftArm", (0.28, 0.0, 0.0)), ("LeftHand", "LeftForeArm", (0.25, 0.0, 0.0)),
-    ("RightShoulder", "Spine1", (-0.03, 0.11, 0.0)), ("RightArm", "RightShoulder", (-0.15, 0.0, 0.0)),
-    ("RightForeArm", "RightArm", (-0.28, 0.0, 0.0)), ("RightHand", "RightForeArm", (-0.25, 0.0, 0.0)),
-]  # fmt: skip
+    ("LowerBack", "Hips", (0.0, 0.08, 0.0)),
+    ("Spine", "LowerBack", (0.0, 0.12, 0.0)),
+    ("Spine1", "Spine", (0.0, 0.12, 0.0)),
+    ("Neck", "Spine1", (0.0, 0.14, 0.0)),
+    ("Neck1", "Neck", (0.0, 0.05, 0.0)),
+    ("Head", "Neck1", (0.0, 0.07, 0.0)),
+    ("LeftShoulder", "Spine1", (0.03, 0.11, 0.0)),
+    ("LeftArm", "LeftShoulder", (0.15, 0.0, 0.0)),
+    ("LeftForeArm", "LeftArm", (0.28, 0.0, 0.0)),
+    ("LeftHand", "LeftForeArm", (0.25, 0.0, 0.0)),
+    ("RightShoulder", "Spine1", (-0.03, 0.11, 0.0)),
+    ("RightArm", "RightShoulder", (-0.15, 0.0, 0.0)),
+    ("RightForeArm", "RightArm", (-0.28, 0.0, 0.0)),
+    ("RightHand", "RightForeArm", (-0.25, 0.0, 0.0)),
+]
 # the same skeleton with CMU's 3dsMax-style names (as in 131_01.bvh)
 TO_3DSMAX = {
-    "LeftUpLeg": "LeftHip", "LeftLeg": "LeftKnee", "LeftFoot": "LeftAnkle", "LeftToeBase": "LeftToe",
-    "RightUpLeg": "RightHip", "RightLeg": "RightKnee", "RightFoot": "RightAnkle", "RightToeBase": "RightToe",
-    "LowerBack": "lowerback", "Spine": "Chest", "Spine1": "Chest2", "Neck": "lowerneck", "Neck1": "Neck",
-    "LeftShoulder": "LeftCollar", "LeftArm": "LeftShoulder", "LeftForeArm": "LeftElbow", "LeftHand": "LeftWrist",
-    "RightShoulder": "RightCollar", "RightArm": "RightShoulder", "RightForeArm": "RightElbow", "RightHand": "RightWrist",
-}  # fmt: skip
+    "LeftUpLeg": "LeftHip",
+    "LeftLeg": "LeftKnee",
+    "LeftFoot": "LeftAnkle",
+    "LeftToeBase": "LeftToe",
+    "RightUpLeg": "RightHip",
+    "RightLeg": "RightKnee",
+    "RightFoot": "RightAnkle",
+    "RightToeBase": "RightToe",
+    "LowerBack": "lowerback",
+    "Spine": "Chest",
+    "Spine1": "Chest2",
+    "Neck": "lowerneck",
+    "Neck1": "Neck",
+    "LeftShoulder": "LeftCollar",
+    "LeftArm": "LeftShoulder",
+    "LeftForeArm": "LeftElbow",
+    "LeftHand": "LeftWrist",
+    "RightShoulder": "RightCollar",
+    "RightArm": "RightShoulder",
+    "RightForeArm": "RightElbow",
+    "RightHand": "RightWrist",
+}
 FRAMES = 4
 
 
@@ -144,7 +171,9 @@ def test_flag_lets_it_through_and_the_note_names_the_left_leg_bones(tmp_path, mo
         np.testing.assert_array_equal(motion.rotations[:, idx(bone)], 0.0)
     assert np.abs(motion.rotations[:, idx("upperleg01.R")]).max() > 0.01
     # without the flag, the library call refuses it too
-    with pytest.raises(DlaInputError, match=r"upperleg01\.L, lowerleg01\.L, foot\.L \(tried LeftUpLeg, LeftLeg, LeftFoot"):
+    with pytest.raises(
+        DlaInputError, match=r"upperleg01\.L, lowerleg01\.L, foot\.L \(tried LeftUpLeg, LeftLeg, LeftFoot"
+    ):
         retarget(read_bvh(path), rig)
 
 
@@ -172,26 +201,60 @@ def test_mixamo_without_spine2_is_read_as_mixamo_missing_one_bone(tmp_path, rig)
 # ASF/AMC
 
 ASF_BONES = [  # (name, parent, direction, length in units of 1/0.45 inch, has dofs)
-    ("lhipjoint", "root", (0.6, -0.8, 0.0), 2.0, False), ("lfemur", "lhipjoint", (0.34, -0.94, 0.0), 7.0, True),
-    ("ltibia", "lfemur", (0.0, -1.0, 0.0), 7.5, True), ("lfoot", "ltibia", (0.0, -0.2, 0.98), 2.2, True),
-    ("rhipjoint", "root", (-0.6, -0.8, 0.0), 2.0, False), ("rfemur", "rhipjoint", (-0.34, -0.94, 0.0), 7.0, True),
-    ("rtibia", "rfemur", (0.0, -1.0, 0.0), 7.5, True), ("rfoot", "rtibia", (0.0, -0.2, 0.98), 2.2, True),
-    ("lowerback", "root", (0.0, 1.0, 0.0), 2.0, True), ("upperback", "lowerback", (0.0, 1.0, 0.0), 2.0, True),
-    ("thorax", "upperback", (0.0, 1.0, 0.0), 2.0, True), ("lowerneck", "thorax", (0.0, 1.0, 0.0), 1.5, True),
-    ("upperneck", "lowerneck", (0.0, 1.0, 0.0), 1.5, True), ("head", "upperneck", (0.0, 1.0, 0.0), 1.5, True),
-    ("lclavicle", "thorax", (0.9, 0.4, 0.0), 3.0, True), ("lhumerus", "lclavicle", (1.0, 0.0, 0.0), 5.0, True),
-    ("lradius", "lhumerus", (1.0, 0.0, 0.0), 3.5, True), ("lwrist", "lradius", (1.0, 0.0, 0.0), 1.7, True),
-    ("rclavicle", "thorax", (-0.9, 0.4, 0.0), 3.0, True), ("rhumerus", "rclavicle", (-1.0, 0.0, 0.0), 5.0, True),
-    ("rradius", "rhumerus", (-1.0, 0.0, 0.0), 3.5, True), ("rwrist", "rradius", (-1.0, 0.0, 0.0), 1.7, True),
-]  # fmt: skip
+    ("lhipjoint", "root", (0.6, -0.8, 0.0), 2.0, False),
+    ("lfemur", "lhipjoint", (0.34, -0.94, 0.0), 7.0, True),
+    ("ltibia", "lfemur", (0.0, -1.0, 0.0), 7.5, True),
+    ("lfoot", "ltibia", (0.0, -0.2, 0.98), 2.2, True),
+    ("rhipjoint", "root", (-0.6, -0.8, 0.0), 2.0, False),
+    ("rfemur", "rhipjoint", (-0.34, -0.94, 0.0), 7.0, True),
+    ("rtibia", "rfemur", (0.0, -1.0, 0.0), 7.5, True),
+    ("rfoot", "rtibia", (0.0, -0.2, 0.98), 2.2, True),
+    ("lowerback", "root", (0.0, 1.0, 0.0), 2.0, True),
+    ("upperback", "lowerback", (0.0, 1.0, 0.0), 2.0, True),
+    ("thorax", "upperback", (0.0, 1.0, 0.0), 2.0, True),
+    ("lowerneck", "thorax", (0.0, 1.0, 0.0), 1.5, True),
+    ("upperneck", "lowerneck", (0.0, 1.0, 0.0), 1.5, True),
+    ("head", "upperneck", (0.0, 1.0, 0.0), 1.5, True),
+    ("lclavicle", "thorax", (0.9, 0.4, 0.0), 3.0, True),
+    ("lhumerus", "lclavicle", (1.0, 0.0, 0.0), 5.0, True),
+    ("lradius", "lhumerus", (1.0, 0.0, 0.0), 3.5, True),
+    ("lwrist", "lradius", (1.0, 0.0, 0.0), 1.7, True),
+    ("rclavicle", "thorax", (-0.9, 0.4, 0.0), 3.0, True),
+    ("rhumerus", "rclavicle", (-1.0, 0.0, 0.0), 5.0, True),
+    ("rradius", "rhumerus", (-1.0, 0.0, 0.0), 3.5, True),
+    ("rwrist", "rradius", (-1.0, 0.0, 0.0), 1.7, True),
+]
 
 
 def asf_amc_texts(bones=ASF_BONES, frames: int = 3) -> tuple[str, str]:
-    asf = [":version 1.10", ":name test", ":units", "  mass 1.0", "  length 0.45", "  angle deg", ":documentation",
-           ":root", "   order TX TY TZ RX RY RZ", "   axis XYZ", "   position 0 0 0", "   orientation 0 0 0", ":bonedata"]  # fmt: skip
+    asf = [
+        ":version 1.10",
+        ":name test",
+        ":units",
+        "  mass 1.0",
+        "  length 0.45",
+        "  angle deg",
+        ":documentation",
+        ":root",
+        "   order TX TY TZ RX RY RZ",
+        "   axis XYZ",
+        "   position 0 0 0",
+        "   orientation 0 0 0",
+        ":bonedata",
+    ]
     for i, (name, _, d, length, dofs) in enumerate(bones, 1):
-        asf += ["  begin", f"     id {i}", f"     name {name}", f"     direction {d[0]} {d[1]} {d[2]}",
-                f"     length {length}", "     axis 0 0 0  XYZ"] + (["    dof rx ry rz"] if dofs else []) + ["  end"]  # fmt: skip
+        asf += (
+            [
+                "  begin",
+                f"     id {i}",
+                f"     name {name}",
+                f"     direction {d[0]} {d[1]} {d[2]}",
+                f"     length {length}",
+                "     axis 0 0 0  XYZ",
+            ]
+            + (["    dof rx ry rz"] if dofs else [])
+            + ["  end"]
+        )
     asf += [":hierarchy", "  begin"]
     kids: dict[str, list[str]] = {}
     for name, parent, *_ in bones:
@@ -209,13 +272,17 @@ def test_asf_amc_renamed_bone(tmp_path, monkeypatch, capsys, rig):
     asf, amc = asf_amc_texts()
     full = read_amc(_write(tmp_path, "full.amc", amc), _write(tmp_path, "full.asf", asf))
     assert retarget(full, rig).num_frames == 3 and capsys.readouterr().err == ""
-    asf_path = _write(tmp_path, "s.asf", asf.replace("lfemur", "lthigh"))
+    _write(tmp_path, "s.asf", asf.replace("lfemur", "lthigh"))
     amc_path = _write(tmp_path, "s.amc", amc.replace("lfemur", "lthigh"))
     code, err = _main(monkeypatch, capsys, "motion", "convert", str(amc_path), "-o", str(tmp_path / "o.npz"))
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1, err
-    assert lines[0].startswith(f"error: {amc_path}: no source joint for anny bone(s) upperleg01.L (tried lfemur: cmu-asf")
-    code, err = _main(monkeypatch, capsys, "motion", "convert", str(amc_path), "-o", str(tmp_path / "o.npz"), "--allow-missing-joints")
+    assert lines[0].startswith(
+        f"error: {amc_path}: no source joint for anny bone(s) upperleg01.L (tried lfemur: cmu-asf"
+    )
+    code, err = _main(
+        monkeypatch, capsys, "motion", "convert", str(amc_path), "-o", str(tmp_path / "o.npz"), "--allow-missing-joints"
+    )
     assert code == 0, err
     notes = [line for line in err.splitlines() if line.startswith("note:")]
     assert len(notes) == 1 and "upperleg01.L" in notes[0] and str(amc_path) in notes[0]

@@ -86,9 +86,11 @@ def test_rigid_body_motion_moves_gaussians_rigidly(body, samples):
     ds = torch.from_numpy(rng.uniform(0.5, 2.0, size=(n, 3)))
     rr, rt = np.array([0.4, -1.0, 0.7]), np.array([0.3, 0.1, -0.2])
     out = body.forward(
-        {}, torch.zeros(2, 104, 3), torch.from_numpy(np.stack([np.zeros(3), rr])).float(),
+        {},
+        torch.zeros(2, 104, 3),
+        torch.from_numpy(np.stack([np.zeros(3), rr])).float(),
         torch.from_numpy(np.stack([np.zeros(3), rt])).float(),
-    )  # fmt: skip
+    )
     means, quats, scales = skin_gaussians_on_body(out.vertices.double(), fid, bary, dxyz, dquat, ds)
     r = Rotation.from_rotvec(rr).as_matrix()
     # posed in float32 (anny's forward, ~250 roundings at |x| ~ 1 m: 3e-5), skinned in float64
@@ -124,6 +126,20 @@ def test_skinning_gradcheck():
 
 def test_shape_validation():
     with pytest.raises(ValueError, match="frames_R"):
-        skin_gaussians(torch.zeros(1, 2, 3), torch.zeros(1, 3, 3, 3), torch.zeros(1, 2), torch.zeros(2, 3), torch.zeros(2, 4), torch.zeros(2, 3))
+        skin_gaussians(
+            torch.zeros(1, 2, 3),
+            torch.zeros(1, 3, 3, 3),
+            torch.zeros(1, 2),
+            torch.zeros(2, 3),
+            torch.zeros(2, 4),
+            torch.zeros(2, 3),
+        )
     with pytest.raises(ValueError, match="dquat"):
-        skin_gaussians(torch.zeros(1, 2, 3), torch.zeros(1, 2, 3, 3), torch.zeros(1, 2), torch.zeros(2, 3), torch.zeros(2, 3), torch.zeros(2, 3))
+        skin_gaussians(
+            torch.zeros(1, 2, 3),
+            torch.zeros(1, 2, 3, 3),
+            torch.zeros(1, 2),
+            torch.zeros(2, 3),
+            torch.zeros(2, 3),
+            torch.zeros(2, 3),
+        )

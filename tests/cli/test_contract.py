@@ -50,8 +50,10 @@ def refused(argv, capsys, *words: str) -> str:
 
 def snapshot(folder: Path) -> dict[str, bytes | None]:
     """Every entry under `folder` (names and file bytes), to show nothing changed."""
-    return {str(p.relative_to(folder)): (p.read_bytes() if p.is_file() and not p.is_symlink() else None)
-            for p in sorted(folder.rglob("*"))}  # fmt: skip
+    return {
+        str(p.relative_to(folder)): (p.read_bytes() if p.is_file() and not p.is_symlink() else None)
+        for p in sorted(folder.rglob("*"))
+    }
 
 
 @pytest.fixture
@@ -70,7 +72,9 @@ def work(tmp_path):
 def test_output_that_names_an_input_is_refused(work, capsys):
     before = snapshot(work)
     refused(["render", work / "av.npz", "-o", work / "av.npz", "--turntable", "2"], capsys, "av.npz", "a file")
-    refused(["edit", "swap", work / "av.npz", work / "av.npz", "--region", "face", "-o", work / "av.npz"], capsys, "input")
+    refused(
+        ["edit", "swap", work / "av.npz", work / "av.npz", "--region", "face", "-o", work / "av.npz"], capsys, "input"
+    )
     refused(["interp", work / "av.npz", work / "av.npz", "-o", work / "av.npz"], capsys, "input")
     refused(["lift", work / "views", "-o", work / "a.npz", "--ply", work / "views" / "body.json"], capsys, ".ply")
     os.symlink(work / "views" / "body.json", work / "link.ply")  # a link to an input is that input
@@ -109,9 +113,14 @@ def test_contact_sheet_over_an_input_image(work, capsys):
 def test_folder_outputs_never_replace_a_users_file_or_folder(work, capsys):
     before = snapshot(work)
     refused(["synth", "--seed", "1", "-o", work / "notes.txt"], capsys, "notes.txt", "not a folder dla wrote")
-    refused(["dream", work / "views" / "images" / "view_000.png", "-o", work / "views" / "images" / "view_000.png"],
-            capsys, "view_000.png")  # fmt: skip
-    refused(["render", work / "av.npz", "--turntable", "2", "-o", work], capsys, "did not write")  # holds the user's files
+    refused(
+        ["dream", work / "views" / "images" / "view_000.png", "-o", work / "views" / "images" / "view_000.png"],
+        capsys,
+        "view_000.png",
+    )
+    refused(
+        ["render", work / "av.npz", "--turntable", "2", "-o", work], capsys, "did not write"
+    )  # holds the user's files
     refused(["render", work / "views" / "av.npz", "--turntable", "1", "-o", work / "views"], capsys)
     assert snapshot(work) == before
 
@@ -145,7 +154,10 @@ def test_parent_that_is_a_file_and_missing_parents_are_left_alone(work, capsys):
 
 
 def test_ply_header_claiming_a_billion_vertices(work, capsys):
-    head = b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+    head = (
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000\n"
+        b"property float x\nproperty float y\nproperty float z\nend_header\n"
+    )
     (work / "big.ply").write_bytes(head + b"\0" * 24)
     refused(["info", work / "big.ply"], capsys, "big.ply", "1000000000")
     ascii_head = head.replace(b"binary_little_endian", b"ascii")
@@ -176,7 +188,7 @@ def test_npz_zip_bomb(work, capsys):
     at = 0
     for _ in range(2):
         at = data.index(b"PK\x01\x02", at)
-        data[at + 24:at + 28] = struct.pack("<I", 0xFFFFFFFE)  # uncompressed size: 4 GiB - 2
+        data[at + 24 : at + 28] = struct.pack("<I", 0xFFFFFFFE)  # uncompressed size: 4 GiB - 2
         at += 4
     (work / "bomb.npz").write_bytes(bytes(data))
     refused(["animate", work / "bomb.npz", "walk", "-o", work / "o.usdc"], capsys, "bomb.npz", "MiB")
@@ -184,29 +196,32 @@ def test_npz_zip_bomb(work, capsys):
     assert not (work / "o.usdc").exists() and not (work / "o.html").exists()
 
 
-@pytest.mark.parametrize("argv", [
-    ["lift", "{views}", "-o", "{w}/a.npz", "--resolution", "1000000"],
-    ["lift", "{views}", "-o", "{w}/a.npz", "--gaussians", "1000000000"],
-    ["render", "{av}", "-o", "{w}/r", "--turntable", "4", "--size", "1000000"],
-    ["render", "{av}", "-o", "{w}/r", "--turntable", "100000000"],
-    ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--fps", "1e9"],
-    ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--gaussians", "1000000000"],
-    ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--preview-size", "100000"],
-    ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--tolerance", "1e9"],
-    ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--tolerance", "-1"],
-    ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--tolerance", "nan"],
-    ["view", "{av}", "-o", "{w}/v.html", "--gaussians", "1000000000"],
-    ["view", "{av}", "--motion", "walk", "-o", "{w}/v.html", "--fps", "1e9"],
-    ["interp", "{av}", "{av}", "-o", "{w}/o", "--steps", "100000000"],
-    ["interp", "{av}", "{av}", "-o", "{w}/o.npz", "--t", "nan"],
-    ["dream", "{views}/images/view_000.png", "-o", "{w}/v", "--res", "100000"],
-    ["synth", "--seed", "1", "-o", "{w}/s", "--res", "100000"],
-    ["synth", "--seed", "1", "-o", "{w}/s", "--novel-views", "100000000"],
-    ["edit", "swap", "{av}", "{av}", "-r", "face", "-o", "{w}/o.npz", "--feather", "inf"],
-    ["export", "{av}", "-o", "{w}/a.ply", "--gaussians", "1000000000"],
-    ["export", "{av}", "-o", "{w}/a.ply", "--motion", "walk", "--frame", "100000000"],
-    ["export", "{av}", "-o", "{w}/a.ply", "--motion", "walk", "--frame", "0", "--fps", "1e9"],
-])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["lift", "{views}", "-o", "{w}/a.npz", "--resolution", "1000000"],
+        ["lift", "{views}", "-o", "{w}/a.npz", "--gaussians", "1000000000"],
+        ["render", "{av}", "-o", "{w}/r", "--turntable", "4", "--size", "1000000"],
+        ["render", "{av}", "-o", "{w}/r", "--turntable", "100000000"],
+        ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--fps", "1e9"],
+        ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--gaussians", "1000000000"],
+        ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--preview-size", "100000"],
+        ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--tolerance", "1e9"],
+        ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--tolerance", "-1"],
+        ["animate", "{av}", "walk", "-o", "{w}/a.usdc", "--tolerance", "nan"],
+        ["view", "{av}", "-o", "{w}/v.html", "--gaussians", "1000000000"],
+        ["view", "{av}", "--motion", "walk", "-o", "{w}/v.html", "--fps", "1e9"],
+        ["interp", "{av}", "{av}", "-o", "{w}/o", "--steps", "100000000"],
+        ["interp", "{av}", "{av}", "-o", "{w}/o.npz", "--t", "nan"],
+        ["dream", "{views}/images/view_000.png", "-o", "{w}/v", "--res", "100000"],
+        ["synth", "--seed", "1", "-o", "{w}/s", "--res", "100000"],
+        ["synth", "--seed", "1", "-o", "{w}/s", "--novel-views", "100000000"],
+        ["edit", "swap", "{av}", "{av}", "-r", "face", "-o", "{w}/o.npz", "--feather", "inf"],
+        ["export", "{av}", "-o", "{w}/a.ply", "--gaussians", "1000000000"],
+        ["export", "{av}", "-o", "{w}/a.ply", "--motion", "walk", "--frame", "100000000"],
+        ["export", "{av}", "-o", "{w}/a.ply", "--motion", "walk", "--frame", "0", "--fps", "1e9"],
+    ],
+)
 def test_flags_have_upper_bounds(argv, work, capsys):
     before = snapshot(work)
     argv = [a.format(w=work, views=work / "views", av=work / "av.npz") for a in argv]
@@ -222,16 +237,24 @@ def test_symlink_to_dev_zero_is_not_read(work, capsys):
 
 
 def _run_cli(args, timeout, **kw):
-    return subprocess.run([sys.executable, "-c", "from dlacli.cli.app import main; main()", *map(str, args)],
-                          capture_output=True, text=True, timeout=timeout, **kw)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-c", "from dlacli.cli.app import main; main()", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        **kw,
+    )
 
 
 def test_fifo_inputs_do_not_hang(work):
     os.mkfifo(work / "pipe.npz")
     os.mkfifo(work / "views" / "body.json.fifo")
     os.replace(work / "views" / "body.json.fifo", work / "views" / "body.json")
-    for args in (["info", work / "pipe.npz"], ["animate", work / "pipe.npz", "walk", "-o", work / "o.usdc"],
-                 ["lift", work / "views", "-o", work / "a.npz"]):  # fmt: skip
+    for args in (
+        ["info", work / "pipe.npz"],
+        ["animate", work / "pipe.npz", "walk", "-o", work / "o.usdc"],
+        ["lift", work / "views", "-o", work / "a.npz"],
+    ):
         result = _run_cli(args, timeout=120)
         assert result.returncode == 2, result.stderr
         assert result.stderr.startswith("error: ") and "FIFO" in result.stderr and "Traceback" not in result.stderr
@@ -251,6 +274,7 @@ def test_deeply_nested_json(work, capsys):
 def _png_header_only(width: int, height: int) -> bytes:
     def chunk(kind: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 6, 0, 0, 0)
     return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
 
@@ -264,8 +288,14 @@ def test_png_decompression_bomb(work, capsys):
 
 
 def test_usage_errors_are_one_line(capsys):
-    for argv in (["lift"], ["lift", "v"], ["nosuch"], ["lift", "v", "-o", "a.npz", "--steps", "x"],
-                 ["lift", "v", "-o", "a.npz", "--bogus"], ["animate", "a.npz"]):  # fmt: skip
+    for argv in (
+        ["lift"],
+        ["lift", "v"],
+        ["nosuch"],
+        ["lift", "v", "-o", "a.npz", "--steps", "x"],
+        ["lift", "v", "-o", "a.npz", "--bogus"],
+        ["animate", "a.npz"],
+    ):
         line = refused(argv, capsys)
         assert "--help" in line
 
@@ -275,7 +305,9 @@ def test_full_disk_is_one_line_and_leaves_nothing(work, capsys, monkeypatch):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
     monkeypatch.setattr(np.lib.format, "write_array", full)
-    refused(["interp", work / "av.npz", work / "av.npz", "-o", work / "out" / "b.npz"], capsys, "b.npz", "No space left")
+    refused(
+        ["interp", work / "av.npz", work / "av.npz", "-o", work / "out" / "b.npz"], capsys, "b.npz", "No space left"
+    )
     assert not (work / "out").exists()
     assert not [p for p in work.iterdir() if p.name.startswith(".")]
 
@@ -292,7 +324,9 @@ def test_side_files_land_only_with_the_main_output(work, capsys, monkeypatch):
     class Shot:
         rgba = np.zeros((16, 16, 4), np.float32)
 
-    monkeypatch.setattr(render, "render_avatar", lambda *a, **k: iter([Shot()]))  # the golden avatar is a format example, not renderable
+    monkeypatch.setattr(
+        render, "render_avatar", lambda *a, **k: iter([Shot()])
+    )  # the golden avatar is a format example, not renderable
 
     def broken(frames, path, fps, background=0.0):
         with video.atomic_path(path) as tmp:
@@ -300,8 +334,23 @@ def test_side_files_land_only_with_the_main_output(work, capsys, monkeypatch):
             raise video.DlaInputError(path, "ffmpeg wrote an empty video")
 
     monkeypatch.setattr(video, "write_video", broken)
-    refused(["interp", work / "av.npz", work / "av.npz", "-o", work / "morph", "--steps", "2",
-             "--video", work / "morph.mp4", "--size", "16"], capsys, "morph.mp4")  # fmt: skip
+    refused(
+        [
+            "interp",
+            work / "av.npz",
+            work / "av.npz",
+            "-o",
+            work / "morph",
+            "--steps",
+            "2",
+            "--video",
+            work / "morph.mp4",
+            "--size",
+            "16",
+        ],
+        capsys,
+        "morph.mp4",
+    )
     assert not (work / "morph").exists() and not (work / "morph.mp4").exists()
     assert not [p for p in work.iterdir() if p.name.startswith(".")]
 
@@ -328,11 +377,31 @@ def test_empty_video_is_never_renamed_into_place(tmp_path, monkeypatch):
 def test_sigterm_leaves_no_temporaries(tmp_path):
     """dla synth renders inside its temporary folder: SIGTERM there must remove it."""
     env = {**os.environ, "NUMBA_NUM_THREADS": "1"}
-    proc = subprocess.Popen([sys.executable, "-c", "from dlacli.cli.app import main; main()", "synth", "--seed", "3",
-                             "-o", str(tmp_path / "s"), "--res", "64", "--novel-views", "40", "--novel-poses", "20"],
-                            stderr=subprocess.PIPE, text=True, env=env)  # fmt: skip
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "from dlacli.cli.app import main; main()",
+            "synth",
+            "--seed",
+            "3",
+            "-o",
+            str(tmp_path / "s"),
+            "--res",
+            "64",
+            "--novel-views",
+            "40",
+            "--novel-poses",
+            "20",
+        ],
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     deadline = time.monotonic() + 300
-    while not [p for p in tmp_path.iterdir() if ".dla-" in p.name] and time.monotonic() < deadline and proc.poll() is None:
+    while (
+        not [p for p in tmp_path.iterdir() if ".dla-" in p.name] and time.monotonic() < deadline and proc.poll() is None
+    ):
         time.sleep(0.05)
     assert proc.poll() is None, "synth finished before it could be interrupted"
     proc.send_signal(signal.SIGTERM)
@@ -431,7 +500,7 @@ def test_npz_claiming_gigabytes_of_arrays(work, capsys):
         zf.writestr("z.npy", _npy((4,), b"\0" * 16))
     data = bytearray((work / "x.npz").read_bytes())
     at = data.index(b"PK\x01\x02")
-    data[at + 24:at + 28] = struct.pack("<I", 3 << 30)
+    data[at + 24 : at + 28] = struct.pack("<I", 3 << 30)
     (work / "x.npz").write_bytes(bytes(data))
     refused(["render", work / "x.npz", "--turntable", "1", "-o", work / "r"], capsys, "x.npz", "MiB")
 
@@ -453,8 +522,11 @@ def test_body_json_linking_out_of_the_view_folder(work, capsys):
 
 def test_checkpoint_for_a_decoder_without_weights(work, capsys):
     os.mkfifo(work / "ckpt")
-    refused(["render", work / "av.npz", "--turntable", "1", "-o", work / "r", "--checkpoint", work / "ckpt"],
-            capsys, "takes no checkpoint")  # fmt: skip
+    refused(
+        ["render", work / "av.npz", "--turntable", "1", "-o", work / "r", "--checkpoint", work / "ckpt"],
+        capsys,
+        "takes no checkpoint",
+    )
 
 
 def test_a_users_file_inside_a_dla_subfolder_is_never_deleted(work, capsys):
@@ -471,8 +543,10 @@ def test_names_too_long_for_the_file_system_are_refused_before_work(work, capsys
 
 
 def test_frame_rates_and_camera_positions_no_input_has(work, capsys):
-    bvh = ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n"
-           " End Site\n {\n  OFFSET 0 1 0\n }\n}\nMOTION\nFrames: 2\nFrame Time: 1e300\n0 0 0\n0 0 0\n")  # fmt: skip
+    bvh = (
+        "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n"
+        " End Site\n {\n  OFFSET 0 1 0\n }\n}\nMOTION\nFrames: 2\nFrame Time: 1e300\n0 0 0\n0 0 0\n"
+    )
     (work / "slow.bvh").write_text(bvh)
     refused(["motion", "convert", work / "slow.bvh", "-o", work / "o.npz"], capsys, "slow.bvh", "fps")
     meta = json.loads((work / "views" / "transforms.json").read_text())

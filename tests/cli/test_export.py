@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import torch
 
+from dlacli.avatar import gaussian_map as gm
 from dlacli.cli.app import main
 from dlacli.io.avatar import write_avatar
-from dlacli.avatar import gaussian_map as gm
 from dlacli.types import PHENOTYPE_KEYS, Avatar, BodyParams
 
 N = 1024
@@ -28,11 +28,20 @@ def _avatar() -> Avatar:
     z[gm.OFFSET] = rng.normal(0, 0.004, (3, RES, RES))
     z[gm.ROTATION] = rng.normal(0, 1, (4, RES, RES))
     z[gm.LOG_SCALE] = rng.normal(np.log(2.0), 0.3, (3, RES, RES))
-    body = BodyParams(phenotype={**{k: 0.5 for k in PHENOTYPE_KEYS}, "gender": 0.3, "height": 0.6}, root_rotation=np.array([0.2, -0.3, 0.5]),
-                      root_translation=np.array([0.1, -0.2, 0.05]),
-                      pose={"upperarm01.L": np.array([0.0, 0.6, 0.3]), "lowerleg01.R": np.array([0.7, 0.0, 0.0])})  # fmt: skip
-    return Avatar(z=z, encoder="unproject", decoder="identity", body=body, uv_layout="anny",
-                  extra={"samples": {"count": N, "seed": 4}})  # fmt: skip
+    body = BodyParams(
+        phenotype={**{k: 0.5 for k in PHENOTYPE_KEYS}, "gender": 0.3, "height": 0.6},
+        root_rotation=np.array([0.2, -0.3, 0.5]),
+        root_translation=np.array([0.1, -0.2, 0.05]),
+        pose={"upperarm01.L": np.array([0.0, 0.6, 0.3]), "lowerleg01.R": np.array([0.7, 0.0, 0.0])},
+    )
+    return Avatar(
+        z=z,
+        encoder="unproject",
+        decoder="identity",
+        body=body,
+        uv_layout="anny",
+        extra={"samples": {"count": N, "seed": 4}},
+    )
 
 
 @pytest.fixture(scope="module")
@@ -67,8 +76,13 @@ def _read(path):
 
     d = gsply.plyread(str(path))
     q = d.quats.astype(np.float64)
-    return (d.means.astype(np.float64), q / np.linalg.norm(q, axis=1, keepdims=True), np.exp(d.scales.astype(np.float64)),
-            1 / (1 + np.exp(-d.opacities.astype(np.float64))), 0.5 + 0.28209479177387814 * d.sh0.astype(np.float64))  # fmt: skip
+    return (
+        d.means.astype(np.float64),
+        q / np.linalg.norm(q, axis=1, keepdims=True),
+        np.exp(d.scales.astype(np.float64)),
+        1 / (1 + np.exp(-d.opacities.astype(np.float64))),
+        0.5 + 0.28209479177387814 * d.sh0.astype(np.float64),
+    )
 
 
 def _same_rotation(a, b, atol):
@@ -207,7 +221,9 @@ def test_rig_passes_its_arguments_to_the_rig_writer(avatar_path, tmp_path, capsy
 
     calls = []
     monkeypatch.setattr(rig, "write_rigged_usd", lambda avatar, path, **kw: calls.append((avatar, path, kw)))
-    _export(capsys, avatar_path, "--rig", "-o", tmp_path / "rig.usdc", "--motion", "wave", "--gaussians", 64, "--seed", 9)
+    _export(
+        capsys, avatar_path, "--rig", "-o", tmp_path / "rig.usdc", "--motion", "wave", "--gaussians", 64, "--seed", 9
+    )
     ((av, path, kw),) = calls
     assert path == tmp_path / "rig.usdc" and kw["n_gaussians"] == 64 and kw["seed"] == 9
     assert kw["motion"].num_frames == 91 and kw["checkpoint"] is None and av.decoder == "identity"
@@ -220,23 +236,26 @@ def test_rig_writes_a_usd(avatar_path, tmp_path, capsys):
     assert (tmp_path / "rig.usda").stat().st_size > 0 and (tmp_path / "rig.albedo.png").is_file()
 
 
-@pytest.mark.parametrize("argv, words", [
-    (["-o", "{w}/a.obj"], ["a.obj", "splat format"]),
-    (["-o", "{w}/a.usdc"], ["--rig"]),
-    (["--rig", "-o", "{w}/a.ply"], [".usdc"]),
-    (["--rig", "-o", "{w}/a.usdc", "--motion", "wave", "--sequence", "{w}/s"], ["--sequence", "--rig"]),
-    (["--motion", "wave", "-o", "{w}/a.ply"], ["--motion", "--frame"]),
-    (["--sequence", "{w}/s"], ["--sequence", "--motion"]),
-    (["--frame", "2", "-o", "{w}/a.ply"], ["--frame", "--motion"]),
-    (["--motion", "wave", "--frame", "91", "-o", "{w}/a.ply"], ["--frame", "90"]),
-    (["--motion", "wave", "--frame", "1", "--pose", "rest", "-o", "{w}/a.ply"], ["--pose"]),
-    (["--pose", "tpose", "-o", "{w}/a.ply"], ["--pose", "tpose"]),
-    (["--up", "x", "-o", "{w}/a.ply"], ["--up"]),
-    (["--up", "z", "-o", "{w}/a.glb"], ["--up", "glTF"]),
-    (["-o", "{w}/a.ply", "--sequence", "{w}/s", "--motion", "wave"], ["-o", "--sequence"]),
-    (["--motion", "wave", "--sequence", "{w}/s", "--format", "obj"], ["--format"]),
-    (["-o", "{av}"], ["splat format"]),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["-o", "{w}/a.obj"], ["a.obj", "splat format"]),
+        (["-o", "{w}/a.usdc"], ["--rig"]),
+        (["--rig", "-o", "{w}/a.ply"], [".usdc"]),
+        (["--rig", "-o", "{w}/a.usdc", "--motion", "wave", "--sequence", "{w}/s"], ["--sequence", "--rig"]),
+        (["--motion", "wave", "-o", "{w}/a.ply"], ["--motion", "--frame"]),
+        (["--sequence", "{w}/s"], ["--sequence", "--motion"]),
+        (["--frame", "2", "-o", "{w}/a.ply"], ["--frame", "--motion"]),
+        (["--motion", "wave", "--frame", "91", "-o", "{w}/a.ply"], ["--frame", "90"]),
+        (["--motion", "wave", "--frame", "1", "--pose", "rest", "-o", "{w}/a.ply"], ["--pose"]),
+        (["--pose", "tpose", "-o", "{w}/a.ply"], ["--pose", "tpose"]),
+        (["--up", "x", "-o", "{w}/a.ply"], ["--up"]),
+        (["--up", "z", "-o", "{w}/a.glb"], ["--up", "glTF"]),
+        (["-o", "{w}/a.ply", "--sequence", "{w}/s", "--motion", "wave"], ["-o", "--sequence"]),
+        (["--motion", "wave", "--sequence", "{w}/s", "--format", "obj"], ["--format"]),
+        (["-o", "{av}"], ["splat format"]),
+    ],
+)
 def test_usage_errors_are_one_line_and_write_nothing(avatar_path, tmp_path, capsys, argv, words):
     argv = [a.format(w=tmp_path, av=avatar_path) for a in argv]
     code, err = _run(capsys, "export", avatar_path, *argv)
@@ -256,7 +275,9 @@ def test_outputs_never_replace_inputs(avatar_path, tmp_path, capsys):
     assert code == 2 and "input" in err
     (tmp_path / "seq").mkdir()
     shutil.copy(avatar_path, tmp_path / "seq" / "frame_0000.ply")
-    code, err = _run(capsys, "export", tmp_path / "seq" / "frame_0000.ply", "--motion", "wave", "--sequence", tmp_path / "seq")
+    code, err = _run(
+        capsys, "export", tmp_path / "seq" / "frame_0000.ply", "--motion", "wave", "--sequence", tmp_path / "seq"
+    )
     assert code == 2 and "input" in err
     (tmp_path / "seq" / "notes.txt").write_text("mine")
     code, err = _run(capsys, "export", avatar_path, "--motion", "wave", "--sequence", tmp_path / "seq")

@@ -80,9 +80,14 @@ def _bad_inputs(tmp_path):
     zipped = tmp_path / "zip70.npz"  # "version needed to extract" 7.0: zipfile's NotImplementedError
     npz = (EXAMPLES / "motion.npz").read_bytes()
     zipped.write_bytes(npz.replace(b"PK\x01\x02-\x03-", b"PK\x01\x02-\x03F"))
-    return [(cut, "not a readable .npz file"), (bad_body, "'dla.body/2' is not supported"),
-            (views, "not valid JSON"), (tmp_path / "missing.ply", "no such file"),
-            (big, "holds a log-scale of 100"), (zipped, "unsupported zip feature")]
+    return [
+        (cut, "not a readable .npz file"),
+        (bad_body, "'dla.body/2' is not supported"),
+        (views, "not valid JSON"),
+        (tmp_path / "missing.ply", "no such file"),
+        (big, "holds a log-scale of 100"),
+        (zipped, "unsupported zip feature"),
+    ]
 
 
 def _check_one_line(path, needle, returncode, stdout, stderr):

@@ -45,9 +45,33 @@ def test_convert_amc_with_explicit_and_found_asf(tmp_path, third_party_data, fra
     d = third_party_data / "motion"
     runner = CliRunner()
     found, spec, option = tmp_path / "a.npz", tmp_path / "b.npz", tmp_path / "c.npz"
-    assert runner.invoke(app, ["motion", "convert", str(d / "cmu_01_01.amc"), "-o", str(found), "--fps", "10"]).exit_code == 0
-    assert runner.invoke(app, ["motion", "convert", f"{d / 'cmu_01_01.amc'}:{d / 'cmu_01.asf'}", "-o", str(spec), "--fps", "10"]).exit_code == 0
-    assert runner.invoke(app, ["motion", "convert", str(d / "cmu_01_01.amc"), "--asf", str(d / "cmu_01.asf"), "-o", str(option), "--fps", "10"]).exit_code == 0
+    assert (
+        runner.invoke(app, ["motion", "convert", str(d / "cmu_01_01.amc"), "-o", str(found), "--fps", "10"]).exit_code
+        == 0
+    )
+    assert (
+        runner.invoke(
+            app, ["motion", "convert", f"{d / 'cmu_01_01.amc'}:{d / 'cmu_01.asf'}", "-o", str(spec), "--fps", "10"]
+        ).exit_code
+        == 0
+    )
+    assert (
+        runner.invoke(
+            app,
+            [
+                "motion",
+                "convert",
+                str(d / "cmu_01_01.amc"),
+                "--asf",
+                str(d / "cmu_01.asf"),
+                "-o",
+                str(option),
+                "--fps",
+                "10",
+            ],
+        ).exit_code
+        == 0
+    )
     a, b, c = read_motion(found), read_motion(spec), read_motion(option)
     assert a.num_frames == (frames_in(d / "cmu_01_01.amc") - 1) // 12 + 1  # 120 -> 10 fps: every 12th
     np.testing.assert_array_equal(a.rotations, b.rotations)
@@ -67,10 +91,30 @@ def test_convert_builtin_and_native_roundtrip(tmp_path):
 @pytest.mark.parametrize(
     "content, name, problem",
     [
-        ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Xrotation Zrotation\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n0 0 0\n", "order.bvh", "unsupported rotation order"),
-        ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\nMOTION\nFrames: 0\nFrame Time: 0.1\n", "empty.bvh", "0 frames"),
-        ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\nMOTION\nFrames: 2\nFrame Time: 0.1\n1 2 3\n4 5\n", "cut.bvh", "truncated"),
-        ("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 nan 3\n", "nan.bvh", "non-finite"),
+        (
+            "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Xrotation Zrotation\n}\nMOTION\nFrames: "
+            "1\nFrame Time: 0.1\n0 0 0\n",
+            "order.bvh",
+            "unsupported rotation order",
+        ),
+        (
+            "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\nMOTION\nFrames: "
+            "0\nFrame Time: 0.1\n",
+            "empty.bvh",
+            "0 frames",
+        ),
+        (
+            "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\nMOTION\nFrames: "
+            "2\nFrame Time: 0.1\n1 2 3\n4 5\n",
+            "cut.bvh",
+            "truncated",
+        ),
+        (
+            "HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n}\nMOTION\nFrames: "
+            "1\nFrame Time: 0.1\n1 nan 3\n",
+            "nan.bvh",
+            "non-finite",
+        ),
         ("1\nroot 0 0 0 0 0 0\n", "lonely.amc", "no ASF skeleton found"),
         ("", "motion.txt", "unsupported motion file type"),
     ],
@@ -87,7 +131,10 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path, monkeypatch, capsys, content,
 
 def test_unknown_spec_and_bad_options(tmp_path, monkeypatch, capsys):
     result = _dla("motion", "convert", "moonwalk", "-o", str(tmp_path / "m.npz"))  # the real script
-    assert result.returncode == 2 and result.stderr == "error: moonwalk: no such file, and not a built-in motion (idle, walk, turnaround, wave)\n"
+    assert (
+        result.returncode == 2
+        and result.stderr == "error: moonwalk: no such file, and not a built-in motion (idle, walk, turnaround, wave)\n"
+    )
     code, err = _main(monkeypatch, capsys, "motion", "convert", "walk", "-o", str(tmp_path / "m.npz"), "--fps", "-3")
     assert code == 2 and "--fps" in err and len(err.strip().splitlines()) == 1
     code, err = _main(monkeypatch, capsys, "motion", "preview", "walk", "-o", str(tmp_path / "m.gif"))

@@ -30,7 +30,9 @@ FRAME = 40  # a walk frame well into the stride (the built-in walk has more fram
 WIDTH, HEIGHT = 256, 192
 INTRINSICS = (240.0, 250.0, 121.5, 101.0)  # fx, fy, cx, cy: non-square pixels, off-centre principal point
 CHROMIUM = shutil.which("chromium")
-needs_chromium = pytest.mark.skipif(CHROMIUM is None, reason="headless Chromium not installed (Debian: apt-get install chromium)")
+needs_chromium = pytest.mark.skipif(
+    CHROMIUM is None, reason="headless Chromium not installed (Debian: apt-get install chromium)"
+)
 
 
 def run(argv, capsys) -> tuple[int, str, str]:
@@ -205,17 +207,38 @@ def _camera(positions: np.ndarray):
     c2w = look_at_c2w(orbit_eyes(target, 2.3, 35.0, 10.0), target)
     fx, fy, cx, cy = INTRINSICS
     cams = Cameras.from_c2w_opengl(c2w, fx, fy, cx, cy, WIDTH, HEIGHT)
-    return Cameras(cams.viewmats.double().float(), torch.tensor([[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]], dtype=torch.float32), WIDTH, HEIGHT)
+    return Cameras(
+        cams.viewmats.double().float(),
+        torch.tensor([[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]], dtype=torch.float32),
+        WIDTH,
+        HEIGHT,
+    )
 
 
 def _chromium(url: str, tmp: Path, *action: str, budget_ms: int = 30000) -> subprocess.CompletedProcess:
     """One headless Chromium run (software WebGL2 through SwiftShader), e.g. --dump-dom or
     --screenshot=PNG, after `budget_ms` of virtual time."""
-    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-           "--disable-background-networking", "--disable-component-update", "--disable-sync", "--disable-extensions",
-           "--no-first-run", "--force-device-scale-factor=1", "--force-color-profile=srgb", "--hide-scrollbars",
-           f"--user-data-dir={tmp / 'profile'}", f"--window-size={WIDTH},{HEIGHT}", f"--virtual-time-budget={budget_ms}",
-           *action, url]  # fmt: skip
+    cmd = [
+        CHROMIUM,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--use-angle=swiftshader",
+        "--enable-unsafe-swiftshader",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--disable-extensions",
+        "--no-first-run",
+        "--force-device-scale-factor=1",
+        "--force-color-profile=srgb",
+        "--hide-scrollbars",
+        f"--user-data-dir={tmp / 'profile'}",
+        f"--window-size={WIDTH},{HEIGHT}",
+        f"--virtual-time-budget={budget_ms}",
+        *action,
+        url,
+    ]
     result = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr[-2000:]
     return result
@@ -287,10 +310,20 @@ def test_browser_render_matches_the_cpu_splatter(page, reference, tmp_path):
     covered = (alpha_cpu > 1 / 255) | (alpha_web > 1.5 / 255)
     iou = np.sum((alpha_cpu > 0.5) & (alpha_web > 0.5)) / np.sum((alpha_cpu > 0.5) | (alpha_web > 0.5))
     psnr = {name: _psnr(shots[name], refs[name], covered) for name in shots}
-    side = np.concatenate([np.concatenate([refs[n], shots[n], np.clip(8 * np.abs(refs[n].astype(int) - shots[n]), 0, 255).astype(np.uint8)], 1)
-                           for n in ("black", "white")], 0)  # fmt: skip
+    side = np.concatenate(
+        [
+            np.concatenate(
+                [refs[n], shots[n], np.clip(8 * np.abs(refs[n].astype(int) - shots[n]), 0, 255).astype(np.uint8)], 1
+            )
+            for n in ("black", "white")
+        ],
+        0,
+    )
     Image.fromarray(side).save(tmp_path / "side_by_side.png")  # CPU | browser | 8x |difference|
-    print(f"view vs CPU: PSNR {psnr} dB over {covered.sum()} px, mask IoU {iou:.4f}, side by side: {tmp_path / 'side_by_side.png'}")
+    print(
+        f"view vs CPU: PSNR {psnr} dB over {covered.sum()} px, mask IoU {iou:.4f}, side by side: "
+        f"{tmp_path / 'side_by_side.png'}"
+    )
     assert covered.sum() > 0.05 * WIDTH * HEIGHT  # the body is in the picture
     assert min(psnr.values()) > PSNR_FLOOR, psnr
     assert iou > IOU_FLOOR, iou
@@ -310,18 +343,38 @@ class _DevTools:
             os.dup2(a, 3)
             os.dup2(b, 4)
 
-        cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-               "--disable-background-networking", "--disable-component-update", "--disable-sync", "--disable-extensions",
-               "--no-first-run", "--force-device-scale-factor=1", "--force-color-profile=srgb", "--hide-scrollbars",
-               f"--user-data-dir={tmp / 'devtools-profile'}", f"--window-size={WIDTH},{HEIGHT}", "--remote-debugging-pipe",
-               "about:blank"]  # fmt: skip
-        self.proc = subprocess.Popen(cmd, pass_fds=(3, 4), preexec_fn=fds, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        cmd = [
+            CHROMIUM,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--use-angle=swiftshader",
+            "--enable-unsafe-swiftshader",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--disable-extensions",
+            "--no-first-run",
+            "--force-device-scale-factor=1",
+            "--force-color-profile=srgb",
+            "--hide-scrollbars",
+            f"--user-data-dir={tmp / 'devtools-profile'}",
+            f"--window-size={WIDTH},{HEIGHT}",
+            "--remote-debugging-pipe",
+            "about:blank",
+        ]
+        self.proc = subprocess.Popen(
+            cmd, pass_fds=(3, 4), preexec_fn=fds, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        )
         os.close(to_chrome)
         os.close(from_chrome)
         self._buf, self._id, self.session = b"", 0, None
         page = next(t for t in self.send("Target.getTargets")["targetInfos"] if t["type"] == "page")
         self.session = self.send("Target.attachToTarget", {"targetId": page["targetId"], "flatten": True})["sessionId"]
-        self.send("Emulation.setDeviceMetricsOverride", {"width": WIDTH, "height": HEIGHT, "deviceScaleFactor": 1, "mobile": False})
+        self.send(
+            "Emulation.setDeviceMetricsOverride",
+            {"width": WIDTH, "height": HEIGHT, "deviceScaleFactor": 1, "mobile": False},
+        )
 
     def send(self, method: str, params: dict | None = None) -> dict:
         self._id += 1
@@ -388,8 +441,10 @@ def test_page_plays_and_the_js_hook_places_the_camera(page, reference, tmp_path)
         cams = _camera(skin(rig, mats[frame])[0])
         fx, fy, cx, cy = INTRINSICS
         view = json.dumps(cams.viewmats[0].double().numpy().tolist())
-        state = chrome.js(f"window.dlaView.setView({{viewmat: {view}, fx: {fx}, fy: {fy}, cx: {cx}, cy: {cy}, "
-                          f"width: {WIDTH}, height: {HEIGHT}}})")  # fmt: skip
+        state = chrome.js(
+            f"window.dlaView.setView({{viewmat: {view}, fx: {fx}, fy: {fy}, cx: {cx}, cy: {cy}, "
+            f"width: {WIDTH}, height: {HEIGHT}}})"
+        )
         assert state["frame"] == frame  # setView without a frame keeps the paused one
         shot = chrome.screenshot()
     finally:

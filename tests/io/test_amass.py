@@ -27,7 +27,9 @@ def write_amass(path, width=156, frames=5, rate_key="mocap_framerate", fps=60.0,
     return arrays
 
 
-@pytest.mark.parametrize("width, rate_key", [(156, "mocap_framerate"), (165, "mocap_frame_rate"), (72, "mocap_framerate")])
+@pytest.mark.parametrize(
+    "width, rate_key", [(156, "mocap_framerate"), (165, "mocap_frame_rate"), (72, "mocap_framerate")]
+)
 def test_layouts_and_framerate_keys(tmp_path, width, rate_key):
     arrays = write_amass(tmp_path / "a.npz", width, rate_key=rate_key)
     skel = read_amass(tmp_path / "a.npz")

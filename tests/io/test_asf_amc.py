@@ -15,16 +15,52 @@ from dlacli.kinematics import forward_kinematics
 
 # ASF bone -> joint name in the MotionBuilder-style BVH that CMU's converter made of the same clip
 ASF_TO_BVH = {
-    "root": "Hips", "lhipjoint": "LHipJoint", "lfemur": "LeftUpLeg", "ltibia": "LeftLeg",
-    "lfoot": "LeftFoot", "ltoes": "LeftToeBase", "rhipjoint": "RHipJoint", "rfemur": "RightUpLeg",
-    "rtibia": "RightLeg", "rfoot": "RightFoot", "rtoes": "RightToeBase", "lowerback": "LowerBack",
-    "upperback": "Spine", "thorax": "Spine1", "lowerneck": "Neck", "upperneck": "Neck1",
-    "head": "Head", "lclavicle": "LeftShoulder", "lhumerus": "LeftArm", "lradius": "LeftForeArm",
-    "lwrist": "LeftHand", "lhand": "LeftFingerBase", "lfingers": "LFingers", "lthumb": "LThumb",
-    "rclavicle": "RightShoulder", "rhumerus": "RightArm", "rradius": "RightForeArm",
-    "rwrist": "RightHand", "rhand": "RightFingerBase", "rfingers": "RFingers", "rthumb": "RThumb",
-}  # fmt: skip
-LOWER_BODY = ["root", "lhipjoint", "lfemur", "ltibia", "lfoot", "ltoes", "rfemur", "rtibia", "rfoot", "lowerback", "upperback", "thorax"]
+    "root": "Hips",
+    "lhipjoint": "LHipJoint",
+    "lfemur": "LeftUpLeg",
+    "ltibia": "LeftLeg",
+    "lfoot": "LeftFoot",
+    "ltoes": "LeftToeBase",
+    "rhipjoint": "RHipJoint",
+    "rfemur": "RightUpLeg",
+    "rtibia": "RightLeg",
+    "rfoot": "RightFoot",
+    "rtoes": "RightToeBase",
+    "lowerback": "LowerBack",
+    "upperback": "Spine",
+    "thorax": "Spine1",
+    "lowerneck": "Neck",
+    "upperneck": "Neck1",
+    "head": "Head",
+    "lclavicle": "LeftShoulder",
+    "lhumerus": "LeftArm",
+    "lradius": "LeftForeArm",
+    "lwrist": "LeftHand",
+    "lhand": "LeftFingerBase",
+    "lfingers": "LFingers",
+    "lthumb": "LThumb",
+    "rclavicle": "RightShoulder",
+    "rhumerus": "RightArm",
+    "rradius": "RightForeArm",
+    "rwrist": "RightHand",
+    "rhand": "RightFingerBase",
+    "rfingers": "RFingers",
+    "rthumb": "RThumb",
+}
+LOWER_BODY = [
+    "root",
+    "lhipjoint",
+    "lfemur",
+    "ltibia",
+    "lfoot",
+    "ltoes",
+    "rfemur",
+    "rtibia",
+    "rfoot",
+    "lowerback",
+    "upperback",
+    "thorax",
+]
 
 
 @pytest.fixture(scope="module")

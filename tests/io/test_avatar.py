@@ -155,7 +155,10 @@ def _save(tmp_path, **changes):
         (dict(checkpoint=np.array("abc123")), "neither '' nor a lower-case sha256"),
         (dict(encoder=np.array("")), "encoder is an empty string"),
         (dict(body=np.array("{not json")), "body is not valid JSON"),
-        (dict(body=np.array(json.dumps({**BODY, "phenotype": {**BODY["phenotype"], "age": 3}}))), "bad.npz:body: phenotype.age = 3.0 is outside [0, 1]"),
+        (
+            dict(body=np.array(json.dumps({**BODY, "phenotype": {**BODY["phenotype"], "age": 3}}))),
+            "bad.npz:body: phenotype.age = 3.0 is outside [0, 1]",
+        ),
         (dict(extra=np.array("[1, 2]")), "extra must be a JSON object"),
         (dict(mystery=np.zeros(3)), "unknown array 'mystery'"),
     ],

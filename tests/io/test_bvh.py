@@ -78,7 +78,9 @@ def _write(tmp_path, text, name="clip.bvh"):
     return path
 
 
-@pytest.mark.parametrize("order", ["Xrotation Yrotation Zrotation", "Yrotation Zrotation Xrotation", "Zrotation Yrotation Xrotation"])
+@pytest.mark.parametrize(
+    "order", ["Xrotation Yrotation Zrotation", "Yrotation Zrotation Xrotation", "Zrotation Yrotation Xrotation"]
+)
 def test_euler_channel_order_semantics(tmp_path, order):
     """The first listed rotation is the outermost (intrinsic order), checked with scipy."""
     rng = np.random.default_rng(0)
@@ -116,7 +118,11 @@ def test_bad_files_name_the_file_and_problem(tmp_path, order, frames, data, prob
 
 def test_cut_files(tmp_path, third_party_data):
     text = (third_party_data / "motion" / "131_01.bvh").read_text()
-    for cut, problem in ((len(text) // 2, "truncated"), (text.index("MOTION"), "no MOTION"), (text.index("JOINT LeftKnee"), "unexpected end")):
+    for cut, problem in (
+        (len(text) // 2, "truncated"),
+        (text.index("MOTION"), "no MOTION"),
+        (text.index("JOINT LeftKnee"), "unexpected end"),
+    ):
         path = _write(tmp_path, text[:cut], "cut.bvh")
         with pytest.raises(DlaInputError, match=problem):
             read_bvh(path)

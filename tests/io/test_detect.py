@@ -127,7 +127,9 @@ def test_detection_is_silent_on_the_terminal():
     raw = subprocess.run([sys.executable, "-c", _RAW, str(sample_photo())], capture_output=True, text=True, timeout=120)
     assert raw.returncode == 0 and raw.stdout.strip() == "True"
     assert any(m in raw.stderr for m in LOG_MARKERS), raw.stderr  # the control: they do appear
-    ours = subprocess.run([sys.executable, "-c", _DETECT, str(sample_photo())], capture_output=True, text=True, timeout=120)
+    ours = subprocess.run(
+        [sys.executable, "-c", _DETECT, str(sample_photo())], capture_output=True, text=True, timeout=120
+    )
     assert ours.returncode == 0, ours.stderr
     assert ours.stdout.strip() == "(17, 3) True"
     assert ours.stderr == ""

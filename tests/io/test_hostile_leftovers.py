@@ -487,7 +487,6 @@ def test_amc_root_and_asf_units_beyond_the_bounds(tmp_path):
 
 def test_a_float64_map_beyond_float32_is_refused_not_read_as_inf(tmp_path):
     from dlacli.io.avatar import read_avatar
-
     from dlacli.io.validate import load_npz, save_npz
 
     arrays = load_npz(_avatar(tmp_path, "gpd"))

@@ -15,7 +15,6 @@ import zipfile
 import numpy as np
 import pytest
 
-from dlacli.stages.motion_source import load_motion
 from dlacli.body.retarget import resample_motion
 from dlacli.cli.app import main
 from dlacli.errors import DlaInputError
@@ -25,6 +24,7 @@ from dlacli.io.bvh import MAX_DEPTH, MAX_FRAMES, MAX_JOINTS, read_bvh
 from dlacli.io.files import MAX_TEXT_BYTES
 from dlacli.io.motion import read_motion
 from dlacli.io.npz_bounds import MAX_MEMBERS, check_npz_bounds
+from dlacli.stages.motion_source import load_motion
 from dlacli.types import Motion
 
 MiB = 1 << 20
@@ -57,8 +57,10 @@ def _write(tmp_path, name, text: str | bytes):
 
 
 def bvh(channels="CHANNELS 3 Zrotation Yrotation Xrotation", frames="2", frame_time="0.04", data="1 2 3\n4 5 6\n"):
-    return (f"HIERARCHY\nROOT Hips\n{{\n OFFSET 0 0 0\n {channels}\n End Site\n {{\n  OFFSET 0 1 0\n }}\n}}\n"
-            f"MOTION\nFrames: {frames}\nFrame Time: {frame_time}\n{data}")  # fmt: skip
+    return (
+        f"HIERARCHY\nROOT Hips\n{{\n OFFSET 0 0 0\n {channels}\n End Site\n {{\n  OFFSET 0 1 0\n }}\n}}\n"
+        f"MOTION\nFrames: {frames}\nFrame Time: {frame_time}\n{data}"
+    )
 
 
 def test_the_valid_template_reads(tmp_path):
@@ -78,9 +80,16 @@ def test_a_40_byte_file_claiming_200_million_frames(tmp_path):
 
 @pytest.mark.parametrize(
     "frame_time, problem",
-    [("0", "must be > 0"), ("-0.04", "must be > 0"), ("nan", "must be > 0"), ("inf", "must be > 0"),
-     ("1e-5", "at most 1000 fps"), ("1e-320", "at most 1000 fps"), ("fast", "bad MOTION header")],
-)  # fmt: skip
+    [
+        ("0", "must be > 0"),
+        ("-0.04", "must be > 0"),
+        ("nan", "must be > 0"),
+        ("inf", "must be > 0"),
+        ("1e-5", "at most 1000 fps"),
+        ("1e-320", "at most 1000 fps"),
+        ("fast", "bad MOTION header"),
+    ],
+)
 def test_bad_frame_time(tmp_path, frame_time, problem):
     assert problem in _error(read_bvh, _write(tmp_path, "t.bvh", bvh(frame_time=frame_time)))
 
@@ -116,8 +125,10 @@ def _nested(depth: int) -> str:
     opening = "".join(f"JOINT j{k}\n{{\nOFFSET 0 1 0\nCHANNELS 1 Xrotation\n" for k in range(1, depth))
     closing = "}\n" * depth
     data = " ".join(["0"] * (depth + 2))
-    return (f"HIERARCHY\nROOT j0\n{{\nOFFSET 0 0 0\nCHANNELS 3 Xposition Yposition Zposition\n"
-            f"{opening}{closing}MOTION\nFrames: 1\nFrame Time: 0.04\n{data}\n")  # fmt: skip
+    return (
+        f"HIERARCHY\nROOT j0\n{{\nOFFSET 0 0 0\nCHANNELS 3 Xposition Yposition Zposition\n"
+        f"{opening}{closing}MOTION\nFrames: 1\nFrame Time: 0.04\n{data}\n"
+    )
 
 
 def test_deep_nesting_is_capped_without_recursion(tmp_path):
@@ -127,7 +138,9 @@ def test_deep_nesting_is_capped_without_recursion(tmp_path):
 
 def test_too_many_joints(tmp_path):
     joints = "".join(f"JOINT j{k}\n{{\nOFFSET 0 1 0\n}}\n" for k in range(MAX_JOINTS + 5))
-    text = f"HIERARCHY\nROOT r\n{{\nOFFSET 0 0 0\nCHANNELS 1 Xrotation\n{joints}}}\nMOTION\nFrames: 1\nFrame Time: 1\n0\n"
+    text = (
+        f"HIERARCHY\nROOT r\n{{\nOFFSET 0 0 0\nCHANNELS 1 Xrotation\n{joints}}}\nMOTION\nFrames: 1\nFrame Time: 1\n0\n"
+    )
     assert f"more than {MAX_JOINTS} joints" in _error(read_bvh, _write(tmp_path, "wide.bvh", text))
 
 
@@ -141,12 +154,25 @@ def test_many_frames_are_refused_before_they_are_built(tmp_path):
 # ---------------------------------------------------------------------------------------------
 # ASF / AMC
 
-ASF_HEAD = ":version 1.10\n:name t\n:units\n  length 0.45\n  angle deg\n:root\n   order TX TY TZ RX RY RZ\n   axis XYZ\n   position 0 0 0\n   orientation 0 0 0\n"
+ASF_HEAD = (
+    ":version 1.10\n:name t\n:units\n  length 0.45\n  angle deg\n:root\n"
+    "   order TX TY TZ RX RY RZ\n   axis XYZ\n   position 0 0 0\n   orientation 0 0 0\n"
+)
 
 
 def asf(names: list[str], hierarchy: list[str]) -> str:
-    bones = "".join(f"  begin\n     name {n}\n     direction 0 1 0\n     length 1\n     axis 0 0 0 XYZ\n     dof rx\n  end\n" for n in names)
-    return ASF_HEAD + ":bonedata\n" + bones + ":hierarchy\n  begin\n" + "".join(f"    {h}\n" for h in hierarchy) + "  end\n"
+    bones = "".join(
+        f"  begin\n     name {n}\n     direction 0 1 0\n     length 1\n     axis 0 0 0 XYZ\n     dof rx\n  end\n"
+        for n in names
+    )
+    return (
+        ASF_HEAD
+        + ":bonedata\n"
+        + bones
+        + ":hierarchy\n  begin\n"
+        + "".join(f"    {h}\n" for h in hierarchy)
+        + "  end\n"
+    )
 
 
 def test_asf_chains_and_cycles(tmp_path):
@@ -158,7 +184,9 @@ def test_asf_chains_and_cycles(tmp_path):
     assert "more than" in _error(read_asf, _write(tmp_path, "many.asf", asf(many, chain)))
     assert "two parents" in _error(read_asf, _write(tmp_path, "cycle.asf", asf(["a", "b"], ["root a", "a b", "b a"])))
     assert "two parents" in _error(read_asf, _write(tmp_path, "twice.asf", asf(["a", "b"], ["root a b", "a b"])))
-    assert "not reachable" in _error(read_asf, _write(tmp_path, "island.asf", asf(["a", "b", "c"], ["root c", "a b", "b a"])))
+    assert "not reachable" in _error(
+        read_asf, _write(tmp_path, "island.asf", asf(["a", "b", "c"], ["root c", "a b", "b a"]))
+    )
     assert "not reachable" in _error(read_asf, _write(tmp_path, "self.asf", asf(["a", "b"], ["root b", "a a"])))
     assert "root a child" in _error(read_asf, _write(tmp_path, "root.asf", asf(["a"], ["root a", "a root"])))
     ok = read_asf(_write(tmp_path, "ok.asf", asf(["a", "b"], ["root a", "a b"])))
@@ -185,8 +213,10 @@ def test_bad_amc(tmp_path, amc, problem):
 
 
 def test_amc_reads_with_the_template(tmp_path):
-    skel = read_amc(_write(tmp_path, "m.amc", "1\nroot 0 0 0 0 0 0\na 1\n\n\n2\nroot 1 0 0 0 0 0\na 2\n"),
-                    _write(tmp_path, "s.asf", asf(["a"], ["root a"])))  # fmt: skip
+    skel = read_amc(
+        _write(tmp_path, "m.amc", "1\nroot 0 0 0 0 0 0\na 1\n\n\n2\nroot 1 0 0 0 0 0\na 2\n"),
+        _write(tmp_path, "s.asf", asf(["a"], ["root a"])),
+    )
     assert skel.num_frames == 2 and skel.names == ["root", "a"]
 
 
@@ -239,7 +269,9 @@ def test_huge_files_are_refused_before_reading(tmp_path):
         f.truncate(MAX_TEXT_BYTES + 1)
     assert "MiB" in _error(read_bvh, path, peak_mib=4)
     os.rename(path, tmp_path / "huge.amc")
-    assert "MiB" in _error(read_amc, tmp_path / "huge.amc", _write(tmp_path, "s.asf", asf(["a"], ["root a"])), peak_mib=4)
+    assert "MiB" in _error(
+        read_amc, tmp_path / "huge.amc", _write(tmp_path, "s.asf", asf(["a"], ["root a"])), peak_mib=4
+    )
     big_asf = tmp_path / "big.asf"
     with open(big_asf, "wb") as f:
         f.truncate(17 * MiB)
@@ -320,7 +352,10 @@ def test_zip_bombs(tmp_path):
     assert path.stat().st_size < 100_000
     assert "would unpack to" in _error(check_npz_bounds, path, 1 * MiB, peak_mib=2)
     # the central directory claims ~4 GiB per member: two of them exceed the shared 4 GiB cap
-    path = _npz(tmp_path / "claim.npz", {"poses.npy": _npy((4, 156), data=bytes(8 * 4 * 156)), "trans.npy": _npy((4, 3), data=bytes(96))})
+    path = _npz(
+        tmp_path / "claim.npz",
+        {"poses.npy": _npy((4, 156), data=bytes(8 * 4 * 156)), "trans.npy": _npy((4, 3), data=bytes(96))},
+    )
     raw = bytearray(path.read_bytes())
     at = raw.find(b"PK\x01\x02")
     while at >= 0:
@@ -349,11 +384,14 @@ def test_zip_bombs(tmp_path):
 
 def native(path, t=3, j=2, **override):
     arrays = {
-        "format": np.array("dla.motion/1"), "model": np.array("anny"),
-        "bone_labels": np.array([f"b{i}" for i in range(j)]), "rotations": np.zeros((t, j, 3), np.float32),
-        "root_rotation": np.zeros((t, 3), np.float32), "root_translation": np.zeros((t, 3), np.float32),
+        "format": np.array("dla.motion/1"),
+        "model": np.array("anny"),
+        "bone_labels": np.array([f"b{i}" for i in range(j)]),
+        "rotations": np.zeros((t, j, 3), np.float32),
+        "root_rotation": np.zeros((t, 3), np.float32),
+        "root_translation": np.zeros((t, 3), np.float32),
         "fps": np.array(30.0),
-    }  # fmt: skip
+    }
     arrays.update(override)
     np.savez(path, **arrays)
     return path
@@ -380,7 +418,13 @@ def test_bad_native_motions(tmp_path, override, problem):
 
 def test_native_motion_frame_cap_and_lying_header(tmp_path):
     t = MAX_FRAMES + 1
-    path = native(tmp_path / "long.npz", t=t, j=0, root_rotation=np.zeros((t, 3), np.float32), root_translation=np.zeros((t, 3), np.float32))
+    path = native(
+        tmp_path / "long.npz",
+        t=t,
+        j=0,
+        root_rotation=np.zeros((t, 3), np.float32),
+        root_translation=np.zeros((t, 3), np.float32),
+    )
     assert f"at most {MAX_FRAMES:,}" in _error(read_motion, path, peak_mib=30)
     path = native(tmp_path / "m.npz")
     with zipfile.ZipFile(path) as zf:
@@ -390,17 +434,32 @@ def test_native_motion_frame_cap_and_lying_header(tmp_path):
 
 
 def test_resampling_cannot_explode(tmp_path):
-    slow = Motion(["a"], np.zeros((1000, 1, 3), np.float32), np.zeros((1000, 3), np.float32), np.zeros((1000, 3), np.float32), 1e-3)
+    slow = Motion(
+        ["a"],
+        np.zeros((1000, 1, 3), np.float32),
+        np.zeros((1000, 3), np.float32),
+        np.zeros((1000, 3), np.float32),
+        1e-3,
+    )
     with pytest.raises(DlaInputError, match="--fps"):
         resample_motion(slow, 1000.0)
-    tiny = Motion(["a"], np.zeros((3, 1, 3), np.float32), np.zeros((3, 3), np.float32), np.zeros((3, 3), np.float32), 1e-320)
+    tiny = Motion(
+        ["a"], np.zeros((3, 1, 3), np.float32), np.zeros((3, 3), np.float32), np.zeros((3, 3), np.float32), 1e-320
+    )
     with pytest.raises(DlaInputError, match="--fps"):
         resample_motion(tiny, 30.0)
 
 
 def test_overflowing_positions_name_the_source(tmp_path):
-    path = _write(tmp_path, "far.bvh", bvh("CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation",
-                                           frames="1", data="1e300 1e300 1e300 0 0 0\n"))  # fmt: skip
+    path = _write(
+        tmp_path,
+        "far.bvh",
+        bvh(
+            "CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation",
+            frames="1",
+            data="1e300 1e300 1e300 0 0 0\n",
+        ),
+    )
     with pytest.raises(DlaInputError, match="overflow") as info:
         load_motion(path)
     assert str(info.value).startswith(f"{path}: ")

@@ -40,8 +40,9 @@ def _png16(path: Path, arr: np.ndarray) -> None:
         return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data))
 
     ihdr = struct.pack(">IIBBBBB", w, h, 16, colour_type, 0, 0, 0)
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw))
-                     + chunk(b"IEND", b""))
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+    )
 
 
 def test_rgba_gives_rgb_and_alpha_mask(tmp_path):
@@ -238,8 +239,9 @@ def test_real_photos_and_shipped_keypoints(third_party_data):
         img, mask, kp = read_photo(path, keypoints_path=KP_DIR / f"{path.stem}.json")
         assert img.shape[:2] == mask.shape and kp.shape == (17, 3)
         assert 0.1 < (mask > 0.5).mean() < 0.5
-        inside = mask[np.clip(kp[:, 1].astype(int), 0, mask.shape[0] - 1),
-                      np.clip(kp[:, 0].astype(int), 0, mask.shape[1] - 1)]
+        inside = mask[
+            np.clip(kp[:, 1].astype(int), 0, mask.shape[0] - 1), np.clip(kp[:, 0].astype(int), 0, mask.shape[1] - 1)
+        ]
         assert (inside > 0.5).mean() >= 0.8  # the detector's keypoints lie on the person
 
 
@@ -287,9 +289,7 @@ def test_detect_maps_blazepose_to_coco_by_name(monkeypatch):
             lms = [types.SimpleNamespace(x=i / 40, y=i / 80, visibility=i / 33) for i in range(33)]
             seg = np.zeros(img.shape[:2], np.float32)
             seg[10:20] = 1.0
-            return types.SimpleNamespace(
-                pose_landmarks=types.SimpleNamespace(landmark=lms), segmentation_mask=seg
-            )
+            return types.SimpleNamespace(pose_landmarks=types.SimpleNamespace(landmark=lms), segmentation_mask=seg)
 
     fake = types.SimpleNamespace(solutions=types.SimpleNamespace(pose=types.SimpleNamespace(Pose=_Pose)))
     monkeypatch.setitem(sys.modules, "mediapipe", fake)

@@ -59,9 +59,7 @@ def write_with_plyfile(path, cols: dict[str, np.ndarray], dtype="<f4", text=Fals
     arr = np.empty(n, dtype=[(name, dtype) for name in names])
     for name in names:
         arr[name] = cols[name]
-    plyfile.PlyData([plyfile.PlyElement.describe(arr, "vertex")], text=text, byte_order=byte_order).write(
-        str(path)
-    )
+    plyfile.PlyData([plyfile.PlyElement.describe(arr, "vertex")], text=text, byte_order=byte_order).write(str(path))
 
 
 def expected_activated(cols: dict[str, np.ndarray], degree: int):

@@ -24,7 +24,9 @@ from dlacli.io.spz import decode_spz, write_spz
 from dlacli.types import SH_C0, Gaussians
 
 SPLAT_TRANSFORM = shutil.which("splat-transform")
-needs_st = pytest.mark.skipif(SPLAT_TRANSFORM is None, reason="splat-transform not on PATH (npm i -g @playcanvas/splat-transform@2.7.1)")
+needs_st = pytest.mark.skipif(
+    SPLAT_TRANSFORM is None, reason="splat-transform not on PATH (npm i -g @playcanvas/splat-transform@2.7.1)"
+)
 N = 3000
 
 
@@ -33,9 +35,16 @@ def _gaussians(degree: int = 0, n: int = N, seed: int = 0) -> Gaussians:
     opacities 0.01-0.99, colours inside [0, 1], higher SH in [-0.5, 0.5]."""
     rng = np.random.default_rng(seed)
     q = rng.normal(size=(n, 4))
-    sh = np.concatenate([rng.uniform(-1.7, 1.7, (n, 1, 3)), rng.uniform(-0.5, 0.5, (n, (degree + 1) ** 2 - 1, 3))], axis=1)
-    arrays = (rng.uniform(-2, 2, (n, 3)), q / np.linalg.norm(q, axis=1, keepdims=True),
-              np.exp(rng.uniform(-6.9, -1.6, (n, 3))), rng.uniform(0.01, 0.99, n), sh)  # fmt: skip
+    sh = np.concatenate(
+        [rng.uniform(-1.7, 1.7, (n, 1, 3)), rng.uniform(-0.5, 0.5, (n, (degree + 1) ** 2 - 1, 3))], axis=1
+    )
+    arrays = (
+        rng.uniform(-2, 2, (n, 3)),
+        q / np.linalg.norm(q, axis=1, keepdims=True),
+        np.exp(rng.uniform(-6.9, -1.6, (n, 3))),
+        rng.uniform(0.01, 0.99, n),
+        sh,
+    )
     return Gaussians(*(torch.from_numpy(a.astype(np.float32)) for a in arrays))
 
 
@@ -59,13 +68,17 @@ def _stored(c: dict) -> dict[str, np.ndarray]:
     """Activated arrays from 3DGS PLY columns (as splat-transform writes them)."""
     rest = sorted((k for k in c if k.startswith("f_rest_")), key=lambda k: int(k[7:]))
     n, m = len(c["x"]), len(rest) // 3
-    sh_rest = np.stack([c[k] for k in rest], axis=1).reshape(n, 3, m).transpose(0, 2, 1) if rest else np.zeros((n, 0, 3))
+    sh_rest = (
+        np.stack([c[k] for k in rest], axis=1).reshape(n, 3, m).transpose(0, 2, 1) if rest else np.zeros((n, 0, 3))
+    )
     q = np.stack([c[f"rot_{i}"] for i in range(4)], axis=1)
-    return {"means": np.stack([c["x"], c["y"], c["z"]], axis=1),
-            "quats": q / np.linalg.norm(q, axis=1, keepdims=True),
-            "log_scales": np.stack([c[f"scale_{i}"] for i in range(3)], axis=1),
-            "opacities": 1.0 / (1.0 + np.exp(-c["opacity"])),
-            "sh": np.concatenate([np.stack([c[f"f_dc_{i}"] for i in range(3)], axis=1)[:, None], sh_rest], axis=1)}  # fmt: skip
+    return {
+        "means": np.stack([c["x"], c["y"], c["z"]], axis=1),
+        "quats": q / np.linalg.norm(q, axis=1, keepdims=True),
+        "log_scales": np.stack([c[f"scale_{i}"] for i in range(3)], axis=1),
+        "opacities": 1.0 / (1.0 + np.exp(-c["opacity"])),
+        "sh": np.concatenate([np.stack([c[f"f_dc_{i}"] for i in range(3)], axis=1)[:, None], sh_rest], axis=1),
+    }
 
 
 def _angle(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
@@ -173,8 +186,12 @@ def test_spz_through_splat_transform_and_gsply(tmp_path, degree):
     assert np.abs(d.means - means * [1, -1, -1]).max() <= 2.0**-13 * (1 + 1e-6)
     assert _angle(d.quats.astype(np.float64), quats * [1, 1, -1, -1]).max() <= 4 * 3**0.5 * delta
     # our reader agrees with splat-transform's on a file splat-transform wrote (version 3)
-    r = subprocess.run([SPLAT_TRANSFORM, "-q", "-w", str(tmp_path / "b.ply"), str(tmp_path / "c.spz"), "--spz-version", "3"],
-                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    r = subprocess.run(
+        [SPLAT_TRANSFORM, "-q", "-w", str(tmp_path / "b.ply"), str(tmp_path / "c.spz"), "--spz-version", "3"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     _st(tmp_path / "c.spz", tmp_path / "c.ply")
     ref, ours = _stored(_ply_columns(tmp_path / "c.ply")), decode_spz((tmp_path / "c.spz").read_bytes())
@@ -265,11 +282,17 @@ def test_glb_parsed_by_pygltflib(tmp_path, degree):
     assert ext["kernel"] == "ellipse" and ext["colorSpace"] == "srgb_rec709_display"
     for acc in doc["accessors"]:
         assert acc["count"] == N
-    want = {"POSITION", "COLOR_0", *(f"KHR_gaussian_splatting:{a}" for a in ("ROTATION", "SCALE", "OPACITY")),
-            *sh_attribute_names(degree)}  # fmt: skip
+    want = {
+        "POSITION",
+        "COLOR_0",
+        *(f"KHR_gaussian_splatting:{a}" for a in ("ROTATION", "SCALE", "OPACITY")),
+        *sh_attribute_names(degree),
+    }
     assert set(attrs) == want
     pos_acc = doc["accessors"][prim["attributes"]["POSITION"]]
-    assert np.allclose(pos_acc["min"], means.min(0).astype(np.float32)) and np.allclose(pos_acc["max"], means.max(0).astype(np.float32))
+    assert np.allclose(pos_acc["min"], means.min(0).astype(np.float32)) and np.allclose(
+        pos_acc["max"], means.max(0).astype(np.float32)
+    )
     assert np.array_equal(attrs["POSITION"], means.astype(np.float32))
     # glTF order x, y, z, w; renormalising a float32 unit quaternion moves it by <= 1 ulp (2^-24 below 1)
     assert np.abs(attrs["KHR_gaussian_splatting:ROTATION"] - quats[:, [1, 2, 3, 0]]).max() <= 2.0**-23
@@ -296,8 +319,14 @@ def test_glb_axes_are_splat_transforms(tmp_path):
     _, theirs = _glb_attributes(tmp_path / "theirs.glb")
     assert np.abs(ours["POSITION"] - theirs["POSITION"]).max() < 1e-6  # signed permutations of float32: exact up to -0
     rot = "KHR_gaussian_splatting:ROTATION"
-    assert _angle(ours[rot].astype(np.float64), theirs[rot].astype(np.float64)).max() < 1e-5  # float32 products, ~1e-7 each
-    for name in ("KHR_gaussian_splatting:SCALE", "KHR_gaussian_splatting:OPACITY", "KHR_gaussian_splatting:SH_DEGREE_0_COEF_0"):
+    assert (
+        _angle(ours[rot].astype(np.float64), theirs[rot].astype(np.float64)).max() < 1e-5
+    )  # float32 products, ~1e-7 each
+    for name in (
+        "KHR_gaussian_splatting:SCALE",
+        "KHR_gaussian_splatting:OPACITY",
+        "KHR_gaussian_splatting:SH_DEGREE_0_COEF_0",
+    ):
         assert np.abs(ours[name] / theirs[name] - 1).max() < 1e-5, name  # via log / logit and back in float32
 
 
@@ -343,5 +372,7 @@ def test_info_summarises_splat_files(tmp_path, suffix):
     assert info["kind"] == f"gaussians{suffix}" and info["count"] == len(means)
     assert info["sh_degree"] == (1 if suffix != ".splat" else 0)
     step = 2.0**-12 if suffix == ".spz" else 1e-6
-    assert np.allclose(info["bbox_min"], means.min(axis=0), atol=step) and np.allclose(info["bbox_max"], means.max(axis=0), atol=step)
+    assert np.allclose(info["bbox_min"], means.min(axis=0), atol=step) and np.allclose(
+        info["bbox_max"], means.max(axis=0), atol=step
+    )
     assert 0.0 < info["opacity_mean"] <= 1.0 and info["scale_median"] > 0

@@ -134,7 +134,9 @@ def test_extent_matches_usdgeom(tmp_path, schema, tolerance):
     path = tmp_path / "ext.usdc"
     write_usd(path, positions, quats, scales, rgb, opacities, fps=30, schema=schema, tolerance=tolerance)
     stage = open_stage(path)  # keep the stage alive while its prims are used
-    prims = [p for p in stage.Traverse() if p.GetTypeName() in ("PointInstancer", "Points", "ParticleField3DGaussianSplat")]
+    prims = [
+        p for p in stage.Traverse() if p.GetTypeName() in ("PointInstancer", "Points", "ParticleField3DGaussianSplat")
+    ]
     assert prims
     for prim in prims:
         for t in range(3):
@@ -482,8 +484,12 @@ def test_keep_frames_keeps_every_corner_of_a_piecewise_linear_path():
     corners = [0, 5, 6, 19, 33, 34, 47]
     rng = np.random.default_rng(3)
     values = rng.normal(size=(len(corners), 4, 3))
-    path = np.stack([np.array([np.interp(t, corners, values[:, i, d]) for i in range(4) for d in range(3)]).reshape(4, 3)
-                     for t in range(48)]).astype(np.float32)  # fmt: skip
+    path = np.stack(
+        [
+            np.array([np.interp(t, corners, values[:, i, d]) for i in range(4) for d in range(3)]).reshape(4, 3)
+            for t in range(48)
+        ]
+    ).astype(np.float32)
     kept = keep_frames(lerp_check(path, path, 1e-5), 48)  # 1e-5 m: far above float32 rounding of O(1) values
     assert kept.tolist() == corners
 
@@ -496,7 +502,9 @@ def analytic_motion(t=40, per_group=2048, jump=23):
     rng = np.random.default_rng(8)
     tt = np.arange(t, dtype=np.float64)
     angle = 0.6 * np.sin(tt / 12)  # [T]
-    ring0 = np.stack([np.cos(a := rng.uniform(0, 2 * np.pi, per_group)), np.sin(a), rng.uniform(-0.1, 0.1, per_group)], -1)
+    ring0 = np.stack(
+        [np.cos(a := rng.uniform(0, 2 * np.pi, per_group)), np.sin(a), rng.uniform(-0.1, 0.1, per_group)], -1
+    )
     ring = np.stack([Rotation.from_rotvec([0, 0, x]).apply(ring0) for x in angle]) + [2, 0, 0]
     sheet0 = np.stack([rng.uniform(-0.5, 0.5, per_group), np.zeros(per_group), rng.uniform(0, 1, per_group)], -1)
     phase = rng.uniform(0, 2 * np.pi, per_group)
@@ -509,8 +517,9 @@ def analytic_motion(t=40, per_group=2048, jump=23):
     base = Rotation.random(n, random_state=9)
     quats = np.empty((t, n, 4), np.float32)
     for k in range(t):
-        spin = Rotation.from_rotvec(np.concatenate([np.tile([0, 0, angle[k]], (per_group, 1)),
-                                                    np.tile([0.01 * k, 0, 0], (2 * per_group, 1))]))  # fmt: skip
+        spin = Rotation.from_rotvec(
+            np.concatenate([np.tile([0, 0, angle[k]], (per_group, 1)), np.tile([0.01 * k, 0, 0], (2 * per_group, 1))])
+        )
         quats[k] = (spin * base).as_quat()[:, [3, 0, 1, 2]]
     scales = np.broadcast_to(rng.uniform(0.002, 0.01, size=(n, 3)), (t, n, 3)).copy()
     scales[:, per_group : 2 * per_group] *= (1 + 0.3 * np.sin(tt / 20))[:, None, None]
@@ -524,7 +533,11 @@ def composed(stage, kind: str, n: int, time) -> dict[str, np.ndarray]:
     group = stage.GetPrimAtPath(path)
     parts = list(group.GetChildren()) if group.GetTypeName() == "Xform" else [group]
     parts = [p for p in parts if p.GetTypeName() != "Scope"]
-    out = {"positions": np.zeros((n, 3)), "quats": np.zeros((n, 4)), "sizes": np.zeros((n, 3 if kind != "points" else 1))}
+    out = {
+        "positions": np.zeros((n, 3)),
+        "quats": np.zeros((n, 4)),
+        "sizes": np.zeros((n, 3 if kind != "points" else 1)),
+    }
     for prim in parts:
         idx = np.asarray(prim.GetAttribute("dla:indices").Get()) if prim.GetAttribute("dla:indices") else np.arange(n)
         m = np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(time))  # row vectors: p M
@@ -570,7 +583,9 @@ def test_compact_samples_stay_within_the_tolerance(tmp_path, kind):
             slack = 2 * QUATH_RAD if kind == "instancer" else 1e-5
             angle = rotation_angle(got["quats"], quats[k].astype(np.float64))
             assert np.all(angle <= tol / sigma_max + slack), k
-    group = stage.GetPrimAtPath({"instancer": "/Avatar/Gaussians", "points": "/Avatar/Points", "particlefield": "/Avatar/Splats"}[kind])
+    group = stage.GetPrimAtPath(
+        {"instancer": "/Avatar/Gaussians", "points": "/Avatar/Points", "particlefield": "/Avatar/Splats"}[kind]
+    )
     parts = list(group.GetChildren()) if group.GetTypeName() == "Xform" else [group]
     samples = [p.GetAttribute("points" if kind == "points" else "positions").GetTimeSamples() for p in parts]
     for prim, times in zip(parts, samples):
@@ -625,7 +640,9 @@ def test_rigid_reassignment_scores_like_the_brute_force_sum():
     base = rng.normal(0, 0.2, (n, 3))
     angle = 0.5 * np.sin(np.arange(t)[:, None] / 4 + np.pi / 2 * limb)  # [T, N]
     c, s = np.cos(angle), np.sin(angle)
-    positions = np.stack([np.broadcast_to(base[:, 0], c.shape), c * base[:, 1] - s * base[:, 2], s * base[:, 1] + c * base[:, 2]], -1)
+    positions = np.stack(
+        [np.broadcast_to(base[:, 0], c.shape), c * base[:, 1] - s * base[:, 2], s * base[:, 1] + c * base[:, 2]], -1
+    )
     labels = split_parts(positions.astype(np.float32), 2)
     assert abs(np.corrcoef(labels, limb)[0, 1]) == pytest.approx(1.0)
 

@@ -77,8 +77,9 @@ def test_writes_over_the_file_size_limit_are_cannot_write(tmp_path):
     `cannot write (File too large)` about the file asked for, and leave nothing behind."""
     folder = tmp_path / "out"
     folder.mkdir()
-    done = subprocess.run([sys.executable, "-c", _WRITE, str(folder), "20000"], capture_output=True, text=True,
-                          timeout=300)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-c", _WRITE, str(folder), "20000"], capture_output=True, text=True, timeout=300
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     import json
 
@@ -119,8 +120,14 @@ def _small_avatar():
     z[gm.ROTATION.start] = 1.0  # identity rotations
     z[gm.LOG_SCALE] = np.log(2.0)
     body = BodyParams(phenotype={k: 0.5 for k in PHENOTYPE_KEYS})
-    return Avatar(z=z, encoder="unproject", decoder="identity", body=body, uv_layout="anny",
-                  extra={"samples": {"count": 1024, "seed": 4}})  # fmt: skip
+    return Avatar(
+        z=z,
+        encoder="unproject",
+        decoder="identity",
+        body=body,
+        uv_layout="anny",
+        extra={"samples": {"count": 1024, "seed": 4}},
+    )
 
 
 def test_dla_animate_over_the_file_size_limit(tmp_path):
@@ -175,8 +182,10 @@ def test_without_a_diagnostic_trap_the_warnings_are_silenced_too(tmp_path, capfd
 
 
 def test_a_long_or_hostile_format_value_is_quoted_as_an_excerpt(tmp_path):
-    for value, shown in (("x" * 20_000, "'" + "x" * 60 + "...' (20,000 characters)"),
-                         ("\x1b[31mRED", "'\\x1b[31mRED'")):  # fmt: skip
+    for value, shown in (
+        ("x" * 20_000, "'" + "x" * 60 + "...' (20,000 characters)"),
+        ("\x1b[31mRED", "'\\x1b[31mRED'"),
+    ):
         path = _layer(tmp_path, "f.usda", 'def Xform "Avatar"\n{\n}\n', fmt=value)
         with pytest.raises(DlaInputError) as err:
             read_usd(path)
@@ -208,11 +217,15 @@ def test_tf_message_keeps_the_message_and_cuts_the_values():
         pass
 
     parse = "Error in 'Parse' at line 48 in file textParserHelpers.h"
-    err = Fake(textwrap.dedent(f"""
+    err = Fake(
+        textwrap.dedent(f"""
         {parse} : 'Failed to parse value at '{BIG}' in </Avatar.x>'
         {parse} : 'f.usda:3:4: Failed to parse value at '{BIG}' in </Avatar.x>'
-        Error in 'Open' at line 1 in file stage.cpp : 'Failed to open layer @f.usda@'"""))
-    assert tf_message(err) == (f"f.usda:3:4: Failed to parse value at '{'9' * 60}...' (20,000 characters) in "
-                               "</Avatar.x>; Failed to open layer @f.usda@")  # fmt: skip
+        Error in 'Open' at line 1 in file stage.cpp : 'Failed to open layer @f.usda@'""")
+    )
+    assert tf_message(err) == (
+        f"f.usda:3:4: Failed to parse value at '{'9' * 60}...' (20,000 characters) in "
+        "</Avatar.x>; Failed to open layer @f.usda@"
+    )
     noise = tf_message(Fake("\x00" * 10_000))
     assert "\x00" not in noise and len(noise) < 400, noise

@@ -33,7 +33,9 @@ def avatar_with(offset: float = 0.0, rgb=None, seed: int = 0) -> Avatar:
     z[6] = offset  # the normal component of dxyz in the tangent frame
     z[7] = 1.0
     z[11:14] = -0.5
-    return Avatar(z=z, encoder="unproject", decoder="identity", body=BodyParams(phenotype=dict(PHENOTYPE)), uv_layout="anny")
+    return Avatar(
+        z=z, encoder="unproject", decoder="identity", body=BodyParams(phenotype=dict(PHENOTYPE)), uv_layout="anny"
+    )
 
 
 def short_walk() -> Motion:
@@ -101,7 +103,9 @@ def test_joints_bind_and_time_samples(walk_file):
     # order = anny's bones; each path ends in the bone's sanitised label and extends its parent's
     assert [j.rsplit("/", 1)[-1] for j in joints] == [joint_token(b) for b in model.bone_labels]
     for j, parent in enumerate(model.bone_parents):
-        assert joints[j] == (joint_token(model.bone_labels[j]) if parent < 0 else f"{joints[parent]}/{joint_token(model.bone_labels[j])}")
+        assert joints[j] == (
+            joint_token(model.bone_labels[j]) if parent < 0 else f"{joints[parent]}/{joint_token(model.bone_labels[j])}"
+        )
     assert list(skel.GetJointNamesAttr().Get()) == model.bone_labels
     topo = UsdSkel.Topology(skel.GetJointsAttr().Get())
     assert topo.Validate()[0]
@@ -121,7 +125,9 @@ def test_joints_bind_and_time_samples(walk_file):
     # the animated joint world transforms at frame t are anny's bone poses
     poses = get_body_model().forward_motion(avatar.body.phenotype, motion).bone_poses.double().numpy()
     for t in range(motion.num_frames):
-        world = np.asarray(query.ComputeJointWorldTransforms(UsdGeom.XformCache(Usd.TimeCode(t)), False)).transpose(0, 2, 1)
+        world = np.asarray(query.ComputeJointWorldTransforms(UsdGeom.XformCache(Usd.TimeCode(t)), False)).transpose(
+            0, 2, 1
+        )
         np.testing.assert_allclose(world, poses[t], atol=2e-5)  # float32 local translations/quatf, ~40 joints deep
 
 

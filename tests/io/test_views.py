@@ -49,7 +49,9 @@ def write_png(path, arr: np.ndarray, bit_depth: int) -> None:
         return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
 
     ihdr = struct.pack(">IIBBBBB", w, h, bit_depth, color_type, 0, 0, 0)
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+    )
 
 
 def make_folder(tmp_path, frames=None, top=None, body=True, images=True, name="views"):
@@ -171,7 +173,9 @@ def test_real_photo_alpha_is_the_mask(tmp_path, third_party_data):
     shutil.copy(photo, folder / "images" / "p.png")
     w, h = Image.open(photo).size
     frame = {"file_path": "images/p", "transform_matrix": look_at((0, -3, 0)).tolist()}  # instant-ngp: no suffix
-    (folder / "transforms.json").write_text(json.dumps({"w": w, "h": h, "fl_x": 500, "fl_y": 500, "cx": w / 2, "cy": h / 2, "frames": [frame]}))
+    (folder / "transforms.json").write_text(
+        json.dumps({"w": w, "h": h, "fl_x": 500, "fl_y": 500, "cx": w / 2, "cy": h / 2, "frames": [frame]})
+    )
     vs = read_views(folder, require_body=False)
     ref = np.asarray(Image.open(photo).convert("RGBA"), dtype=np.float64) / 255
     np.testing.assert_allclose(vs.masks[0], ref[..., 3], atol=1e-6)
@@ -242,11 +246,23 @@ def _frame(**kw):
         (None, {"camera_model": "OPENCV_FISHEYE"}, "camera_model 'OPENCV_FISHEYE' is not supported"),
         (None, {"k1": 0.1}, "lens distortion k1 = 0.1 is not supported"),
         ([_frame(p1=-0.01)], None, "frames[0]: lens distortion p1"),
-        ([_frame(transform_matrix=np.diag([1.0, 1, 0, 1]).tolist())], None, "frames[0].transform_matrix is not invertible"),
-        ([_frame(transform_matrix=np.diag([1.0, 1, -1, 1]).tolist())], None, "not a rigid camera pose (rotation part: determinant -1"),
+        (
+            [_frame(transform_matrix=np.diag([1.0, 1, 0, 1]).tolist())],
+            None,
+            "frames[0].transform_matrix is not invertible",
+        ),
+        (
+            [_frame(transform_matrix=np.diag([1.0, 1, -1, 1]).tolist())],
+            None,
+            "not a rigid camera pose (rotation part: determinant -1",
+        ),
         ([_frame(transform_matrix=np.diag([2.0, 2, 2, 1]).tolist())], None, "not a rigid camera pose"),
         ([_frame(transform_matrix=np.eye(3).tolist())], None, "transform_matrix has shape (3, 3), expected (4, 4)"),
-        ([_frame(transform_matrix=(np.eye(4) + np.diag([0, 0, 0, 1.0])).tolist())], None, "last row is [0.0, 0.0, 0.0, 2.0]"),
+        (
+            [_frame(transform_matrix=(np.eye(4) + np.diag([0, 0, 0, 1.0])).tolist())],
+            None,
+            "last row is [0.0, 0.0, 0.0, 2.0]",
+        ),
         ([_frame(time=1.5)], None, "frames[0].time = 1.5 must be a non-negative integer"),
         ([_frame(time=-1)], None, "must be a non-negative integer"),
         ([_frame(w=10)], None, "different image sizes 8x6, 10x6"),
@@ -354,7 +370,11 @@ def test_golden_folder(formats_dir):
 def test_palette_jpeg_and_one_bit_inputs(tmp_path):
     frames = [
         {"file_path": "images/a.png", "transform_matrix": look_at((0, -3, 0)).tolist()},
-        {"file_path": "images/b.jpg", "mask_path": "images/b_mask.png", "transform_matrix": look_at((3, 0, 0)).tolist()},
+        {
+            "file_path": "images/b.jpg",
+            "mask_path": "images/b_mask.png",
+            "transform_matrix": look_at((3, 0, 0)).tolist(),
+        },
     ]
     folder = make_folder(tmp_path, frames, images=False)
     pal = Image.new("P", (W, H), 0)

@@ -9,9 +9,9 @@ import dataclasses
 import pytest
 import torch
 
+from dlacli.avatar.checkpoint import load_checkpoint, save_checkpoint
 from dlacli.errors import DlaInputError
 from dlacli.nn import discriminator as D
-from dlacli.avatar.checkpoint import load_checkpoint, save_checkpoint
 
 F32 = torch.float32
 
@@ -46,13 +46,21 @@ def test_pix2pix_layout():
     net = D.PatchDiscriminator(D.DiscriminatorConfig())
     convs = [m for m in net.modules() if isinstance(m, torch.nn.Conv2d)]
     assert [(c.in_channels, c.out_channels, c.stride[0]) for c in convs] == [
-        (3, 64, 2), (64, 128, 2), (128, 256, 2), (256, 512, 1), (512, 1, 1)]  # fmt: skip
+        (3, 64, 2),
+        (64, 128, 2),
+        (128, 256, 2),
+        (256, 512, 1),
+        (512, 1, 1),
+    ]
     assert all(c.kernel_size == (4, 4) for c in convs)
     norms = [m for m in net.modules() if isinstance(m, torch.nn.InstanceNorm2d)]
     assert len(norms) == 3 and all(n.affine for n in norms)
     assert not any(isinstance(m, torch.nn.modules.batchnorm._BatchNorm) for m in net.modules())
-    assert all(isinstance(m, torch.nn.LeakyReLU) and m.negative_slope == 0.2
-               for m in net.modules() if isinstance(m, (torch.nn.LeakyReLU, torch.nn.ReLU)))  # fmt: skip
+    assert all(
+        isinstance(m, torch.nn.LeakyReLU) and m.negative_slope == 0.2
+        for m in net.modules()
+        if isinstance(m, (torch.nn.LeakyReLU, torch.nn.ReLU))
+    )
 
 
 def test_gradients_reach_every_parameter_and_the_input():

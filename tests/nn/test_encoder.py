@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from dlacli.errors import DlaInputError
 from dlacli.avatar.checkpoint import load_checkpoint, save_checkpoint
+from dlacli.errors import DlaInputError
 from dlacli.nn.encoder import (
     PRESETS,
     EncoderConfig,
@@ -180,7 +180,8 @@ def test_kl_matches_torch_distributions():
     mean = torch.randn(2, 4, 5, 5, generator=g, dtype=torch.float64)
     logvar = torch.randn(2, 4, 5, 5, generator=g, dtype=torch.float64)
     ref = torch.distributions.kl_divergence(
-        torch.distributions.Normal(mean, torch.exp(0.5 * logvar)), torch.distributions.Normal(0.0, 1.0)).mean()
+        torch.distributions.Normal(mean, torch.exp(0.5 * logvar)), torch.distributions.Normal(0.0, 1.0)
+    ).mean()
     torch.testing.assert_close(kl_divergence(mean, logvar), ref, rtol=1e-12, atol=0)
 
 

@@ -11,10 +11,10 @@ import pytest
 import torch
 from torch import nn
 
-from dlacli.body.regions import PARTS, segmentation_onehot
-from dlacli.errors import DlaInputError
 from dlacli.avatar.checkpoint import load_checkpoint, save_checkpoint
 from dlacli.avatar.gaussian_map import CHANNELS, LOG_SCALE, OFFSET, OPACITY, RGB, ROTATION
+from dlacli.body.regions import PARTS, segmentation_onehot
+from dlacli.errors import DlaInputError
 from dlacli.nn.gpd import (
     PRESETS,
     GaussianParameterDecoder,

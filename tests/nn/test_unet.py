@@ -11,9 +11,9 @@ import math
 import pytest
 import torch
 
+from dlacli.avatar.checkpoint import config_from_dict, load_checkpoint, save_checkpoint
 from dlacli.errors import DlaInputError
 from dlacli.nn import unet as U
-from dlacli.avatar.checkpoint import config_from_dict, load_checkpoint, save_checkpoint
 
 F32 = torch.float32
 DEPTH = 40  # ~rounding steps from input to output of the tiny net (its layers), for tolerances
@@ -188,7 +188,8 @@ def test_activations_and_ordering_per_pixel(tol):
                     sig = [1.0 / (1.0 + math.exp(-x)) for x in (r[3], r[11], r[12], r[13])]
                     scale = [U.SCALE_BASE * math.exp(min(max(x, U.LOG_SCALE_MIN), U.LOG_SCALE_MAX)) for x in r[4:7]]
                     close = lambda got, want, m: torch.testing.assert_close(  # noqa: E731
-                        got, torch.tensor(want, dtype=F32), rtol=0, atol=tol(F32, m, ops=8))
+                        got, torch.tensor(want, dtype=F32), rtol=0, atol=tol(F32, m, ops=8)
+                    )
                     close(g.means[bi, n], mean, max(map(abs, mean)) + 1)
                     close(g.quats[bi, n], [c / qn for c in q], 1.0)
                     close(g.opacities[bi, n], sig[0], 1.0)

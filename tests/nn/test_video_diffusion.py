@@ -33,19 +33,38 @@ def _tiny_pipeline(folder):
     tok = Tokenizer(models.WordLevel({w: i for i, w in enumerate(words)}, unk_token="[UNK]"))
     tok.pre_tokenizer = pre_tokenizers.Whitespace()
     tokenizer = PreTrainedTokenizerFast(tokenizer_object=tok, pad_token="[PAD]", unk_token="[UNK]", eos_token="</s>")
-    cfg = UMT5Config(vocab_size=len(words), d_model=16, d_kv=8, d_ff=32, num_layers=1, num_heads=2,
-                     relative_attention_num_buckets=8)  # fmt: skip
+    cfg = UMT5Config(
+        vocab_size=len(words), d_model=16, d_kv=8, d_ff=32, num_layers=1, num_heads=2, relative_attention_num_buckets=8
+    )
     text_encoder = UMT5EncoderModel(cfg).eval()
     z = 4
-    vae = AutoencoderKLWan(base_dim=8, z_dim=z, dim_mult=[1, 1, 1, 1], num_res_blocks=1,
-                           temperal_downsample=[False, True, True], latents_mean=[0.0] * z, latents_std=[1.0] * z)  # fmt: skip
+    vae = AutoencoderKLWan(
+        base_dim=8,
+        z_dim=z,
+        dim_mult=[1, 1, 1, 1],
+        num_res_blocks=1,
+        temperal_downsample=[False, True, True],
+        latents_mean=[0.0] * z,
+        latents_std=[1.0] * z,
+    )
     transformer = WanVACETransformer3DModel(
-        patch_size=(1, 2, 2), num_attention_heads=2, attention_head_dim=8, in_channels=z, out_channels=z,
-        text_dim=16, freq_dim=32, ffn_dim=32, num_layers=2, rope_max_seq_len=32, vace_layers=[0, 1],
+        patch_size=(1, 2, 2),
+        num_attention_heads=2,
+        attention_head_dim=8,
+        in_channels=z,
+        out_channels=z,
+        text_dim=16,
+        freq_dim=32,
+        ffn_dim=32,
+        num_layers=2,
+        rope_max_seq_len=32,
+        vace_layers=[0, 1],
         vace_in_channels=2 * z + 64,  # inactive + reactive latents + the 8 x 8 packed mask
-    )  # fmt: skip
+    )
     scheduler = UniPCMultistepScheduler(prediction_type="flow_prediction", use_flow_sigmas=True, flow_shift=3.0)
-    pipe = WanVACEPipeline(tokenizer=tokenizer, text_encoder=text_encoder, vae=vae, scheduler=scheduler, transformer=transformer)
+    pipe = WanVACEPipeline(
+        tokenizer=tokenizer, text_encoder=text_encoder, vae=vae, scheduler=scheduler, transformer=transformer
+    )
     pipe.save_pretrained(folder)
     return pipe
 
@@ -118,7 +137,9 @@ def test_first_order_scheduler():
 
     from dlacli.nn.video_diffusion import first_order_scheduler
 
-    flow = first_order_scheduler(UniPCMultistepScheduler(prediction_type="flow_prediction", use_flow_sigmas=True, flow_shift=5.0))
+    flow = first_order_scheduler(
+        UniPCMultistepScheduler(prediction_type="flow_prediction", use_flow_sigmas=True, flow_shift=5.0)
+    )
     assert isinstance(flow, FlowMatchEulerDiscreteScheduler) and flow.config.shift == 5.0
     eps = first_order_scheduler(DDPMScheduler(beta_schedule="scaled_linear"))
     assert isinstance(eps, DDIMScheduler) and eps.config.beta_schedule == "scaled_linear"
@@ -152,7 +173,9 @@ def test_orbit_skeleton_turns_around(subject):
     assert front.all()
     ls, rs = 5, 6  # COCO left / right shoulder
     assert px[0, ls, 0] > px[0, rs, 0] and px[40, ls, 0] < px[40, rs, 0]
-    depth = np.einsum("ij,kj->ki", cams.viewmats[20, :3, :3].double().numpy(), kp)[:, 2] + cams.viewmats[20, 2, 3].item()
+    depth = (
+        np.einsum("ij,kj->ki", cams.viewmats[20, :3, :3].double().numpy(), kp)[:, 2] + cams.viewmats[20, 2, 3].item()
+    )
     assert depth[ls] < depth[rs]
 
 
@@ -193,8 +216,26 @@ def test_dla_dream_diffusion_cli(tiny, third_party_data, tmp_path):
         pytest.skip(f"missing keypoints {kp}")
     folder, _ = tiny
     out = tmp_path / "views"
-    args = ["dream", str(photo), "-o", str(out), "--backend", "diffusion", "--model", str(folder),
-            "--keypoints", str(kp), "--res", "64", "--frames", "4", "--steps", "2", "--fit-steps", "3"]  # fmt: skip
+    args = [
+        "dream",
+        str(photo),
+        "-o",
+        str(out),
+        "--backend",
+        "diffusion",
+        "--model",
+        str(folder),
+        "--keypoints",
+        str(kp),
+        "--res",
+        "64",
+        "--frames",
+        "4",
+        "--steps",
+        "2",
+        "--fit-steps",
+        "3",
+    ]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     vs = read_views(out)

@@ -274,8 +274,20 @@ def test_tilted_square_barycentrics_are_perspective_correct():
 CUBE_V = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
 # two triangles per face, in the order -x, +x, -y, +y, -z, +z (face id // 2 = cube side)
 CUBE_F = np.array(
-    [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-     [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+    [
+        [0, 1, 3],
+        [0, 3, 2],
+        [4, 6, 7],
+        [4, 7, 5],
+        [0, 4, 5],
+        [0, 5, 1],
+        [2, 3, 7],
+        [2, 7, 6],
+        [0, 2, 6],
+        [0, 6, 4],
+        [1, 5, 7],
+        [1, 7, 3],
+    ]
 )
 
 
@@ -325,8 +337,10 @@ def test_batched_cameras_and_per_camera_vertices_match_single_runs():
     direct = rasterize_camera_space(cam_space, CUBE_F, cams.Ks, 40, 36)
     assert np.array_equal(direct.face_id, out.face_id)
     # per-camera attributes: interpolated camera-space points have the z-buffer's depth
-    for pts in (interpolate(cam_space, CUBE_F, out.face_id, out.bary),
-                interpolate(torch.from_numpy(cam_space), CUBE_F, out.face_id, out.bary).numpy()):
+    for pts in (
+        interpolate(cam_space, CUBE_F, out.face_id, out.bary),
+        interpolate(torch.from_numpy(cam_space), CUBE_F, out.face_id, out.bary).numpy(),
+    ):
         assert pts.shape == (3, 36, 40, 3)
         np.testing.assert_allclose(pts[..., 2][out.mask], out.depth[out.mask], rtol=1e-5)
         assert np.all(pts[~out.mask] == 0)

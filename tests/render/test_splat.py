@@ -225,8 +225,7 @@ def test_stop_rule_and_alpha_cap(render):
     assert torch.allclose(out.rgb[0], rgb.expand(2, 2, 3), atol=1e-9)
     assert torch.allclose(out.alpha[0], torch.full((2, 2), 1 - t, dtype=F64), atol=1e-12)
     # opacity 1 at the very centre: alpha is capped at 0.999
-    one = Gaussians(means[:1], quats[:1], torch.full((1, 3), 1e-4, dtype=F64),
-                    torch.ones(1, dtype=F64), sh[:1])
+    one = Gaussians(means[:1], quats[:1], torch.full((1, 3), 1e-4, dtype=F64), torch.ones(1, dtype=F64), sh[:1])
     single = render(one, _head_on_camera(1, 1, f))
     assert abs(single.alpha.item() - 0.999) < 1e-12
     # opacity below 1/255 never shows
@@ -241,11 +240,11 @@ def test_sh_basis_matches_scipy():
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     theta, phi = np.arccos(d[:, 2]), np.arctan2(d[:, 1], d[:, 0])
     basis = sh_basis(3, torch.from_numpy(d)).numpy()
-    for l in range(4):
-        for m in range(-l, l + 1):
-            y = special.sph_harm_y(l, abs(m), theta, phi)  # Condon-Shortley phase included
+    for deg in range(4):
+        for m in range(-deg, deg + 1):
+            y = special.sph_harm_y(deg, abs(m), theta, phi)  # Condon-Shortley phase included
             want = y.real if m == 0 else math.sqrt(2) * (y.real if m > 0 else y.imag)
-            assert np.abs(basis[:, l * l + l + m] - want).max() < 1e-12, (l, m)
+            assert np.abs(basis[:, deg * deg + deg + m] - want).max() < 1e-12, (deg, m)
 
 
 def test_projection_culls():
@@ -276,8 +275,9 @@ def test_edge_cases_finite(case, size):
     gen = torch.Generator().manual_seed(0)
     spread = opts.get("spread", 0.5)
     zlo, zhi = opts.get("z", (1.0, 3.0))
-    means = torch.cat([(torch.rand(n, 2, generator=gen) - 0.5) * spread,
-                       torch.rand(n, 1, generator=gen) * (zhi - zlo) + zlo], -1)
+    means = torch.cat(
+        [(torch.rand(n, 2, generator=gen) - 0.5) * spread, torch.rand(n, 1, generator=gen) * (zhi - zlo) + zlo], -1
+    )
     quats = torch.randn(n, 4, generator=gen)
     scales = torch.full((n, 3), opts["scale"]) if "scale" in opts else torch.rand(n, 3, generator=gen) * 0.1
     if "opacity" in opts:
@@ -286,8 +286,7 @@ def test_edge_cases_finite(case, size):
         opac = torch.rand(n, generator=gen)
     g = with_grad(Gaussians(means, quats, scales, opac, torch.randn(n, 4, 3, generator=gen)))
     w, h = size
-    out = render_gaussians(g, _head_on_camera(w, h, 0.8 * w + 2, dtype=torch.float32),
-                           background=[0.2, 0.3, 0.4])
+    out = render_gaussians(g, _head_on_camera(w, h, 0.8 * w + 2, dtype=torch.float32), background=[0.2, 0.3, 0.4])
     assert out.rgb.shape == (1, h, w, 3) and out.alpha.shape == out.depth.shape == (1, h, w)
     for t in out:
         assert torch.isfinite(t).all()
@@ -301,8 +300,9 @@ def test_edge_cases_finite(case, size):
 
 
 def test_empty_scene_renders_background():
-    g = with_grad(Gaussians(torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0, 3),
-                            torch.zeros(0), torch.zeros(0, 1, 3)))
+    g = with_grad(
+        Gaussians(torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0, 3), torch.zeros(0), torch.zeros(0, 1, 3))
+    )
     cams = look_at_cameras([(0, -3, 0), (3, 0, 0)], 5, 3, 4.0, dtype=torch.float32)
     bg = torch.tensor([[0.1, 0.2, 0.3], [0.4, 0.5, 0.6]])
     out = render_gaussians(g, cams, background=bg)

@@ -14,7 +14,7 @@ from PIL import Image
 from dlacli.bench.metrics import alpha_iou
 from dlacli.body.builtin_motions import builtin_motion
 from dlacli.io.avatar import write_avatar
-from dlacli.io.motion import read_motion, write_motion
+from dlacli.io.motion import write_motion
 from dlacli.io.usd_read import read_usd, validate_usd
 from dlacli.io.views import read_transforms, read_views
 from dlacli.stages.lift import LiftConfig, lift
@@ -55,7 +55,18 @@ def test_animate_usd_and_preview(avatar_path, tmp_path):
 def test_render_novel_poses_matches_ground_truth(subject, avatar_path, tmp_path):
     novel = subject / "novel_poses"
     out = tmp_path / "renders"
-    r = _dla("render", avatar_path, "--cameras", novel / "transforms.json", "--motion", novel / "motion.npz", "-o", out, "--gaussians", N)
+    r = _dla(
+        "render",
+        avatar_path,
+        "--cameras",
+        novel / "transforms.json",
+        "--motion",
+        novel / "motion.npz",
+        "-o",
+        out,
+        "--gaussians",
+        N,
+    )
     assert r.returncode == 0, r.stderr
     meta = read_transforms(novel)
     expected = sorted(f"f{t:04d}_c{c:03d}.png" for c, t in enumerate(meta["times"]))
@@ -69,7 +80,20 @@ def test_render_novel_poses_matches_ground_truth(subject, avatar_path, tmp_path)
 
 def test_render_turntable_and_video(avatar_path, tmp_path):
     out = tmp_path / "turn"
-    r = _dla("render", avatar_path, "--turntable", 3, "--size", 48, "-o", out, "--video", tmp_path / "t.mp4", "--gaussians", N)
+    r = _dla(
+        "render",
+        avatar_path,
+        "--turntable",
+        3,
+        "--size",
+        48,
+        "-o",
+        out,
+        "--video",
+        tmp_path / "t.mp4",
+        "--gaussians",
+        N,
+    )
     assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in out.iterdir()) == [f"f0000_c{c:03d}.png" for c in range(3)]
     assert len([f for f in imageio.get_reader(tmp_path / "t.mp4")]) == 3
@@ -77,7 +101,10 @@ def test_render_turntable_and_video(avatar_path, tmp_path):
 
 def test_unknown_motion_joint_is_one_line(avatar_path, tmp_path):
     bad = tmp_path / "bad.npz"
-    write_motion(Motion(["upperarm01.L", "tail01"], np.zeros((3, 2, 3), np.float32), np.zeros((3, 3)), np.zeros((3, 3)), 30.0), bad)
+    write_motion(
+        Motion(["upperarm01.L", "tail01"], np.zeros((3, 2, 3), np.float32), np.zeros((3, 3)), np.zeros((3, 3)), 30.0),
+        bad,
+    )
     out = tmp_path / "out.usdc"
     r = _dla("animate", avatar_path, bad, "-o", out, "--gaussians", N)
     assert r.returncode == 2

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from dlacli.render.splat import render_gaussians
 from dlacli.avatar import gaussian_map as gm
+from dlacli.render.splat import render_gaussians
 from dlacli.types import BodyParams, Gaussians
 
 R = 24
@@ -21,7 +21,9 @@ def _maps(b: int) -> torch.Tensor:
     z[:, gm.OPACITY] = 1.0 + torch.rand(b, 1, R, R, generator=g)
     z[:, gm.RGB] = torch.rand(b, 3, R, R, generator=g)
     z[:, gm.OFFSET] = 0.01 * torch.randn(b, 3, R, R, generator=g)
-    z[:, gm.ROTATION] = torch.tensor([1.0, 0.0, 0.0, 0.0])[None, :, None, None] + 0.1 * torch.randn(b, 4, R, R, generator=g)
+    z[:, gm.ROTATION] = torch.tensor([1.0, 0.0, 0.0, 0.0])[None, :, None, None] + 0.1 * torch.randn(
+        b, 4, R, R, generator=g
+    )
     z[:, gm.LOG_SCALE] = np.log(3.0) + 0.2 * torch.randn(b, 3, R, R, generator=g)
     return z
 
@@ -31,8 +33,9 @@ def _two_poses() -> torch.Tensor:
 
     model = get_body_model()
     rest = model.forward_body(BodyParams()).vertices  # [1, V, 3]
-    bent = model.forward_body(BodyParams(pose={"upperarm01.L": np.array([0.0, 0.0, 0.8]),
-                                               "upperleg01.R": np.array([0.6, 0.0, 0.0])})).vertices  # fmt: skip
+    bent = model.forward_body(
+        BodyParams(pose={"upperarm01.L": np.array([0.0, 0.0, 0.8]), "upperleg01.R": np.array([0.6, 0.0, 0.0])})
+    ).vertices
     return torch.cat([rest, bent])  # [2, V, 3]
 
 
@@ -87,5 +90,7 @@ def test_leading_dimensions_of_any_shape():
     assert out.rgb.shape == (2, 3, 2, 32, 32, 3)
     for i in range(2):
         for j in range(3):
-            alone = render_gaussians(Gaussians.from_rgb(means[i, j], quats[i, j], scales[i, j], opac[i, j], rgb[i, j]), cams)
+            alone = render_gaussians(
+                Gaussians.from_rgb(means[i, j], quats[i, j], scales[i, j], opac[i, j], rgb[i, j]), cams
+            )
             assert torch.equal(out.rgb[i, j], alone.rgb) and torch.equal(out.depth[i, j], alone.depth)

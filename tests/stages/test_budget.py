@@ -8,8 +8,18 @@ import math
 import numpy as np
 import pytest
 
-from dlacli.stages.budget import (LADDER, auto_gaussians, choose_for_views, choose_gaussians, measure_budget,
-                                  predicted_psnr, recorded_budget, sampling_noise, scaled_count, subject_pixels)  # fmt: skip
+from dlacli.stages.budget import (
+    LADDER,
+    auto_gaussians,
+    choose_for_views,
+    choose_gaussians,
+    measure_budget,
+    predicted_psnr,
+    recorded_budget,
+    sampling_noise,
+    scaled_count,
+    subject_pixels,
+)
 
 N = 4096  # the count the test avatar is lifted with
 COUNTS = (256, 1024, 4096)
@@ -108,16 +118,25 @@ def test_sampling_noise_is_half_the_difference_of_two_seeds(lifted):
     avatar, views = lifted
     noise = sampling_noise(avatar, views.cameras, (256, 1024))
     for n, s in noise.items():
-        a, b = (np.stack([x.rgba for x in sorted(render_avatar(avatar, views.cameras, views.times, n_gaussians=n, seed=k),
-                                                 key=lambda x: x.camera)]) for k in (0, 1))  # fmt: skip
+        a, b = (
+            np.stack(
+                [
+                    x.rgba
+                    for x in sorted(
+                        render_avatar(avatar, views.cameras, views.times, n_gaussians=n, seed=k), key=lambda x: x.camera
+                    )
+                ]
+            )
+            for k in (0, 1)
+        )
         sel = np.maximum(a[..., 3], b[..., 3]) > 0.5
         assert s == pytest.approx(0.5 * np.mean((a[..., :3][sel].astype(np.float64) - b[..., :3][sel]) ** 2), rel=1e-9)
         assert s > 0  # two different sample sets do not draw the same image
 
 
 def test_lift_auto_records_its_choice_and_animate_auto_carries_it(lifted, tmp_path):
-    from dlacli.io.avatar import read_avatar, write_avatar
     from dlacli.avatar.posed import sample_settings
+    from dlacli.io.avatar import read_avatar, write_avatar
     from dlacli.types import Cameras
 
     avatar, views = lifted
@@ -160,18 +179,37 @@ def test_cli_gaussians_auto(lifted, tmp_path, capsys):
     avatar, views = lifted
     chosen, choice = choose_for_views(avatar, views, COUNTS)
     write_avatar(chosen, tmp_path / "a.npz")
-    code, _, err = _main(["render", tmp_path / "a.npz", "--turntable", 2, "--size", 32, "--gaussians", "auto", "-o", tmp_path / "r"], capsys)
+    code, _, err = _main(
+        ["render", tmp_path / "a.npz", "--turntable", 2, "--size", 32, "--gaussians", "auto", "-o", tmp_path / "r"],
+        capsys,
+    )
     assert code == 0, err
     assert "--gaussians auto" in err and "lift-time budget" in err
     assert len(list((tmp_path / "r").glob("f*_c*.png"))) == 2
     assert Image.open(tmp_path / "r" / "f0000_c000.png").size == (32, 32)
-    code, _, err = _main(["animate", tmp_path / "a.npz", "wave", "-o", tmp_path / "w.usda", "--gaussians", "AUTO",
-                          "--preview-size", 32, "--fps", 2], capsys)  # fmt: skip
+    code, _, err = _main(
+        [
+            "animate",
+            tmp_path / "a.npz",
+            "wave",
+            "-o",
+            tmp_path / "w.usda",
+            "--gaussians",
+            "AUTO",
+            "--preview-size",
+            32,
+            "--fps",
+            2,
+        ],
+        capsys,
+    )
     assert code == 0, err
     count = int(err.split("--gaussians auto: ")[1].split(" ")[0].replace(",", ""))
     assert count in LADDER
     from dlacli.limits import MAX_GAUSSIANS
 
     for bad in ("1", "lots", str(MAX_GAUSSIANS + 1)):
-        code, _, err = _main(["render", tmp_path / "a.npz", "--turntable", 1, "--gaussians", bad, "-o", tmp_path / "x"], capsys)
+        code, _, err = _main(
+            ["render", tmp_path / "a.npz", "--turntable", 1, "--gaussians", bad, "-o", tmp_path / "x"], capsys
+        )
         assert code == 2 and err.startswith("error: --gaussians:") and len(err.strip().splitlines()) == 1, err

@@ -83,8 +83,7 @@ write_avatar(result.avatar, out)
 
 
 def _env(threads: int) -> dict:
-    return dict(os.environ, NUMBA_NUM_THREADS=str(threads), OMP_NUM_THREADS=str(threads),
-                MKL_NUM_THREADS=str(threads))
+    return dict(os.environ, NUMBA_NUM_THREADS=str(threads), OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads))
 
 
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
@@ -92,8 +91,7 @@ def test_splat_forward_and_backward_do_not_depend_on_threads(dtype):
     # float64 is the sensitive case: with one gradient slab per worker summed at the end, the
     # Gaussians' gradients differed in the last bits between 1 and 2 threads (float32 storage
     # hid most of it, not all)
-    r = subprocess.run([sys.executable, "-c", _KERNEL_SCRIPT, dtype], env=_env(2),
-                       capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-c", _KERNEL_SCRIPT, dtype], env=_env(2), capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     res = json.loads(r.stdout.strip().splitlines()[-1])
     assert res["nonzero"] == []  # the scene renders and every gradient is non-trivial
@@ -110,8 +108,10 @@ def test_lift_writes_the_same_avatar_for_1_and_2_threads(subject, tmp_path):
         out = tmp_path / f"t{threads}" / "avatar.npz"
         out.parent.mkdir()
         cmd = [sys.executable, "-c", _LIFT_SCRIPT, str(subject), str(out), "40030", "16"]
-        procs[threads] = (out, subprocess.Popen(cmd, env=_env(threads), stdout=subprocess.PIPE,
-                                                stderr=subprocess.PIPE, text=True))
+        procs[threads] = (
+            out,
+            subprocess.Popen(cmd, env=_env(threads), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True),
+        )
     arrays, maps = {}, {}
     for threads, (out, proc) in procs.items():
         _, err = proc.communicate()

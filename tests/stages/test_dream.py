@@ -53,8 +53,14 @@ def posed():
     pc = coco_keypoints(verts.astype(np.float64)) @ vm[:3, :3].T + vm[:3, 3]
     kp = np.concatenate([pc[:, :2] / pc[:, 2:] * [k[0, 0], k[1, 1]] + [k[0, 2], k[1, 2]], np.ones((17, 1))], 1)
     fit = FitResult(body, cam, verts, kp.astype(np.float32), 0.0, 1.0)
-    return {"rgb": rgb.astype(np.float32), "alpha": alpha.astype(np.float32), "fit": fit, "colours": colours,
-            "faces": m.faces, "verts": verts}
+    return {
+        "rgb": rgb.astype(np.float32),
+        "alpha": alpha.astype(np.float32),
+        "fit": fit,
+        "colours": colours,
+        "faces": m.faces,
+        "verts": verts,
+    }
 
 
 @pytest.fixture(scope="module")
@@ -174,7 +180,7 @@ def test_silhouette_excess_measures_what_sticks_out(folder, posed):
     rows = np.nonzero(body[1].any(axis=1))[0]
     x0 = cols.max() + 12  # well past the 2 px allowance (the photo's mask is the body itself here)
     assert x0 + 20 < RES
-    sheet[1, rows.min():rows.max() + 1, x0:x0 + 20] = 1.0
+    sheet[1, rows.min() : rows.max() + 1, x0 : x0 + 20] = 1.0
     got = silhouette_excess(sheet, vs.cameras, verts)
     expected = (rows.max() + 1 - rows.min()) * 20 / body[1].sum()
     assert got[1] == pytest.approx(expected, rel=1e-9)
@@ -269,8 +275,12 @@ def test_failed_write_leaves_nothing(posed, tmp_path):
 
 # ------------------------------------------------------------------------------- real photos
 
-PHOTOS = ("pexels-barbara-olsen-7869640", "pexels-julia-m-cameron-4145040",
-          "pexels-marta-wave-6437749", "pexels-photo-6311555-removebg")  # fmt: skip
+PHOTOS = (
+    "pexels-barbara-olsen-7869640",
+    "pexels-julia-m-cameron-4145040",
+    "pexels-marta-wave-6437749",
+    "pexels-photo-6311555-removebg",
+)
 KEYPOINTS = Path(__file__).resolve().parent.parent / "data" / "keypoints"
 
 
@@ -322,7 +332,9 @@ def test_gray16_photo_with_mask_file(third_party_data, tmp_path):
     Image.fromarray(gray.round().astype(np.uint16)).save(tmp_path / "gray16.png")
     Image.fromarray(rgba[..., 3]).save(tmp_path / "mask.png")
     assert Image.open(tmp_path / "gray16.png").mode.startswith("I")
-    out = dream(tmp_path / "gray16.png", tmp_path / "views", keypoints=kp, mask=tmp_path / "mask.png", res=64, fit_steps=3)
+    out = dream(
+        tmp_path / "gray16.png", tmp_path / "views", keypoints=kp, mask=tmp_path / "mask.png", res=64, fit_steps=3
+    )
     vs = read_views(out)
     assert vs.images.shape == (4, 64, 64, 3)
     person = vs.masks[0] > 0.5

@@ -141,8 +141,19 @@ def test_cli_interp_video(subject, tmp_path):
     b.z[1:4] = 1.0 - b.z[1:4]  # inverted colours
     write_avatar(a, tmp_path / "a.npz")
     write_avatar(b, tmp_path / "b.npz")
-    r = _run("interp", str(tmp_path / "a.npz"), str(tmp_path / "b.npz"), "--steps", "3", "-o", str(tmp_path / "m"),
-             "--video", str(tmp_path / "m.mp4"), "--size", "48")
+    r = _run(
+        "interp",
+        str(tmp_path / "a.npz"),
+        str(tmp_path / "b.npz"),
+        "--steps",
+        "3",
+        "-o",
+        str(tmp_path / "m"),
+        "--video",
+        str(tmp_path / "m.mp4"),
+        "--size",
+        "48",
+    )
     assert r.returncode == 0, r.stderr
     frames = [f.astype(float) for f in imageio.get_reader(tmp_path / "m.mp4")]
     assert len(frames) == 3 and frames[0].shape[:2] == (48, 48)

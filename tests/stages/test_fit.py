@@ -127,9 +127,12 @@ def make_subject():
     pheno = {"height": 0.6, "weight": 0.35, "gender": 0.3, "age": 0.6}
     rot = torch.zeros(1, model.num_bones, 3)
     for bone, aa in (
-        ("lowerleg01.L", (0.6, 0, 0)), ("upperleg01.L", (-0.4, 0, 0)),
-        ("lowerarm01.R", (0.3, 0.4, 0)), ("upperarm01.L", (0, 0.5, 0.3)), ("spine03", (0.1, 0, 0.05)),
-    ):  # fmt: skip
+        ("lowerleg01.L", (0.6, 0, 0)),
+        ("upperleg01.L", (-0.4, 0, 0)),
+        ("lowerarm01.R", (0.3, 0.4, 0)),
+        ("upperarm01.L", (0, 0.5, 0.3)),
+        ("spine03", (0.1, 0, 0.05)),
+    ):
         rot[0, model.bone_index(bone)] = torch.tensor(aa)
     rr, rt = torch.tensor([[0.0, 0.0, 0.3]]), torch.tensor([[0.1, 3.5, 0.2]])
     out = model.forward(pheno, rot, rr, rt)
@@ -140,7 +143,9 @@ def make_subject():
     w2c = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1.0]])
     cam = Cameras(
         torch.tensor(w2c[None], dtype=torch.float32),
-        torch.tensor([[[f, 0, cx], [0, f, cy], [0, 0, 1]]], dtype=torch.float32), W, H,
+        torch.tensor([[[f, 0, cx], [0, f, cy], [0, 0, 1]]], dtype=torch.float32),
+        W,
+        H,
     )
     mask = render_mesh(verts, model.faces, np.ones_like(verts), cam, antialias=2)[0, ..., 3]
     kp = np.concatenate([uv, np.ones((17, 1))], 1).astype(np.float32)
@@ -156,8 +161,9 @@ def subject():
 @pytest.fixture(scope="module")
 def clean_fit(subject):
     calls = []
-    res = fit_body(subject["image"], subject["mask"], subject["kp"], steps=STEPS,
-                   progress=lambda d, t: calls.append((d, t)))
+    res = fit_body(
+        subject["image"], subject["mask"], subject["kp"], steps=STEPS, progress=lambda d, t: calls.append((d, t))
+    )
     return res, calls
 
 
@@ -172,8 +178,9 @@ def test_synthetic_fit_reprojects_and_covers_the_mask(subject, clean_fit):
     assert err.max() < 6.0, err
     assert res.mask_iou > 0.9
     # the silhouette IoU recomputed here with render_mesh and the returned camera
-    sil = render_mesh(res.vertices, get_body_model().faces, np.ones_like(res.vertices), res.camera,
-                      antialias=1)[0, ..., 3]
+    sil = render_mesh(res.vertices, get_body_model().faces, np.ones_like(res.vertices), res.camera, antialias=1)[
+        0, ..., 3
+    ]
     inter = ((sil > 0.5) & (subject["mask"] > 0.5)).sum()
     union = ((sil > 0.5) | (subject["mask"] > 0.5)).sum()
     assert abs(inter / union - res.mask_iou) < 1e-6
@@ -260,13 +267,14 @@ def test_overlay_marks_keypoints_and_silhouette(subject, clean_fit):
     res, _ = clean_fit
     img = np.zeros((H, W, 3), np.float32)
     ov = overlay_png(img, res).astype(int)
-    sil = render_mesh(res.vertices, get_body_model().faces, np.ones_like(res.vertices), res.camera,
-                      antialias=1)[0, ..., 3]
+    sil = render_mesh(res.vertices, get_body_model().faces, np.ones_like(res.vertices), res.camera, antialias=1)[
+        0, ..., 3
+    ]
     # tinted inside the silhouette (blue dominant), black far outside it
     inside = sil > 0.99
     assert ov[inside][:, 2].mean() > 80 and ov[inside][:, 2].mean() > ov[inside][:, 0].mean()
     far = np.ones_like(inside)
-    far[max(0, int(subject["kp"][:, 1].min()) - 40):, :] = False
+    far[max(0, int(subject["kp"][:, 1].min()) - 40) :, :] = False
     assert far.any() and ov[far].max() == 0
     # a given keypoint is drawn as a green dot
     x, y = np.round(subject["kp"][0, :2]).astype(int)

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 
@@ -52,8 +51,8 @@ def test_presets_agree_and_variants_switch_the_ablations():
 
 
 def test_checkpoint_round_trip_gives_the_same_avatar_maps(tiny_checkpoint, subject):
-    from dlacli.geometry import camera_centers
     from dlacli.avatar.checkpoint import load_checkpoint
+    from dlacli.geometry import camera_centers
     from dlacli.nn.learned import conditioning
 
     path, digest, net = tiny_checkpoint
@@ -71,9 +70,9 @@ def test_checkpoint_round_trip_gives_the_same_avatar_maps(tiny_checkpoint, subje
 def test_codec_decodes_a_learned_avatar_as_the_batched_path_does(tiny_checkpoint, subject):
     """Decoded.at (the codec's per-frame path used by animate/render) equals the network's batched
     decode with the same conditioning maps, and the delta depends on pose and on camera."""
+    from dlacli.avatar.codec import Decoded
     from dlacli.body.uv import UV_LAYOUT
     from dlacli.geometry import camera_centers
-    from dlacli.avatar.codec import Decoded
     from dlacli.nn.learned import conditioning
     from dlacli.types import Avatar
 
@@ -116,9 +115,8 @@ def test_lift_learned_refines_z_against_the_input_views(tiny_checkpoint, subject
     hist = [refined.avatar.extra["lift"]["final_loss"]]
     assert hist[0] is not None
     # the renders of the refined Z are closer to the inputs than those of the encoder's Z
+    from dlacli.stages.learned import load_learned, render_targets
     from dlacli.stages.lift import _resized_targets
-    from dlacli.stages.learned import render_targets
-    from dlacli.stages.learned import load_learned
 
     net, _ = load_learned(str(path))
     rgb, mask, cams = _resized_targets(views, 64)
@@ -133,8 +131,9 @@ def test_lift_learned_refines_z_against_the_input_views(tiny_checkpoint, subject
 
 
 def _dla(*args, env=None):
-    return subprocess.run([sys.executable, "-m", "dlacli.cli.app", *map(str, args)], capture_output=True,
-                          text=True, env=env)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-m", "dlacli.cli.app", *map(str, args)], capture_output=True, text=True, env=env
+    )
 
 
 def test_cli_lift_learned_then_animate_and_swap(tiny_checkpoint, subject, tmp_path, monkeypatch):

@@ -112,8 +112,9 @@ def test_contact_sheet_without_ground_truth(subject, tmp_path):
     res = lift(read_views(subject), LiftConfig(steps=0, gaussians=4096), novel=novel)
     pred, truth, mask = res.novel_view
     assert np.array_equal(truth, novel.images[0] * novel.masks[0][..., None]) or np.allclose(
-        truth, novel.images[0] * novel.masks[0][..., None], atol=1e-6)  # 128 px: not resized
-    tile = res.contact_sheet[256:, 4 * 256:]  # bottom row, fifth column: the render
+        truth, novel.images[0] * novel.masks[0][..., None], atol=1e-6
+    )  # 128 px: not resized
+    tile = res.contact_sheet[256:, 4 * 256 :]  # bottom row, fifth column: the render
     assert tile[1:-1, 1:-1].max() > 0 and pred.shape == truth.shape
 
 

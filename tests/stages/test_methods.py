@@ -37,8 +37,8 @@ def test_specs_name_the_registry_and_refuse_in_one_line():
 
 def test_the_built_in_methods_record_their_own_name(tmp_path):
     """A method's name is the encoder its avatars record (the learned one: tests/stages/test_learned.py)."""
-    from dlacli.io.views import read_views
     from dlacli.data.synth import synth
+    from dlacli.io.views import read_views
 
     views = read_views(synth(8105, tmp_path / "s", res=32, novel_views=0, novel_poses=0))
     avatar = methods.make_spec("unproject", resolution=32, gaussians=512).lift(views).avatar
@@ -67,8 +67,8 @@ def _main(argv, capsys) -> tuple[int, str, str]:
 
 def test_a_new_method_is_known_by_one_name_everywhere(toy, tmp_path, capsys):
     from dlacli.bench.rows import label, read_rows
-    from dlacli.io.avatar import read_avatar
     from dlacli.data.synth import synth
+    from dlacli.io.avatar import read_avatar
 
     views = synth(8103, tmp_path / "views", res=32, novel_views=0, novel_poses=0)
     # dla lift: the spec's options and the flags that set the toy's config fields

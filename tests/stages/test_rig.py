@@ -8,10 +8,10 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
+from dlacli.avatar.codec import Decoder, register_decoder
 from dlacli.body.builtin_motions import builtin_motion
 from dlacli.body.model import get_body_model
 from dlacli.stages.animate import pose_avatar
-from dlacli.avatar.codec import Decoder, register_decoder
 from dlacli.stages.rig import build_rig, polar_rotation, skin, skinning_matrices
 from dlacli.types import Avatar, BodyParams, Motion
 
@@ -31,9 +31,17 @@ def synthetic_avatar(seed: int = 0, offset_sigma: float = 0.01, decoder: str = "
     z[7] = 1.0
     z[8:11] = rng.normal(0.0, 0.2, (3, R, R))
     z[11:13], z[13] = -0.5, -1.6
-    body = BodyParams(phenotype={"gender": 0.3, "age": 0.6, "muscle": 0.5, "weight": 0.6, "height": 0.4, "proportions": 0.5})
-    return Avatar(z=z, encoder="unproject", decoder=decoder, body=body, uv_layout="anny",
-                  extra={"samples": {"count": N, "seed": 3}})  # fmt: skip
+    body = BodyParams(
+        phenotype={"gender": 0.3, "age": 0.6, "muscle": 0.5, "weight": 0.6, "height": 0.4, "proportions": 0.5}
+    )
+    return Avatar(
+        z=z,
+        encoder="unproject",
+        decoder=decoder,
+        body=body,
+        uv_layout="anny",
+        extra={"samples": {"count": N, "seed": 3}},
+    )
 
 
 def short_walk(step: int = 22) -> Motion:
@@ -80,7 +88,9 @@ def test_rig_shapes_and_weights(rig, avatar, tol):
 def test_rig_rest_is_dla_zero_pose(avatar, rig, tol):
     """The rest Gaussians are what dla's own skinning gives in the zero pose."""
     j = get_body_model().num_bones
-    zero = Motion(get_body_model().bone_labels, np.zeros((1, j, 3), np.float32), np.zeros((1, 3)), np.zeros((1, 3)), 30.0)
+    zero = Motion(
+        get_body_model().bone_labels, np.zeros((1, j, 3), np.float32), np.zeros((1, 3)), np.zeros((1, 3)), 30.0
+    )
     anim = pose_avatar(avatar, zero)
     np.testing.assert_allclose(rig.positions, anim.positions[0], atol=tol(np.float32, 2.0, ops=8))
     np.testing.assert_allclose(rig.scales, anim.scales[0], rtol=1e-6)
@@ -113,10 +123,12 @@ def test_skin_one_rigid_transform_is_that_transform(rig, seed, tol):
 def test_polar_rotation_matches_svd():
     """Newton's polar iteration against the SVD definition U = W V^T (det > 0)."""
     rng = np.random.default_rng(4)
-    a = np.concatenate([
-        Rotation.random(200, random_state=1).as_matrix() * rng.uniform(0.5, 1.0, (200, 1, 1)),  # blended-like
-        rng.normal(size=(200, 3, 3)),  # generic
-    ])  # fmt: skip
+    a = np.concatenate(
+        [
+            Rotation.random(200, random_state=1).as_matrix() * rng.uniform(0.5, 1.0, (200, 1, 1)),  # blended-like
+            rng.normal(size=(200, 3, 3)),  # generic
+        ]
+    )
     a[np.linalg.det(a) < 0] *= -1.0  # det > 0, as blends of rotations with weights >= 0 have in practice
     w, _, vt = np.linalg.svd(a)
     d = np.sign(np.linalg.det(w @ vt))

@@ -123,15 +123,17 @@ def test_images_agree_with_the_true_body(subjects):
 
 def test_cli(tmp_path):
     out = tmp_path / "subject"
-    res = CliRunner().invoke(app, ["synth", "--seed", "3", "-o", str(out), "--res", "32",
-                                   "--novel-views", "0", "--novel-poses", "0"])  # fmt: skip
+    res = CliRunner().invoke(
+        app, ["synth", "--seed", "3", "-o", str(out), "--res", "32", "--novel-views", "0", "--novel-poses", "0"]
+    )
     assert res.exit_code == 0, res.output
     assert res.stdout.strip() == str(out)
     assert sorted(p.name for p in out.iterdir()) == ["body.json", "images", "transforms.json"]
 
 
-@pytest.mark.parametrize("args, where", [(["--res", "4"], "--res"), (["--seed", "-2"], "--seed"),
-                                         (["--novel-views", "-1"], "--novel-views")])  # fmt: skip
+@pytest.mark.parametrize(
+    "args, where", [(["--res", "4"], "--res"), (["--seed", "-2"], "--seed"), (["--novel-views", "-1"], "--novel-views")]
+)
 def test_bad_arguments(tmp_path, args, where):
     from dlacli.data.synth import synth as run
     from dlacli.errors import DlaInputError
@@ -257,8 +259,8 @@ def test_specular_depends_on_the_view_diffuse_does_not():
     # the peak: one light, normal = its direction, eye on the mirror direction (here: the normal too)
     one = Lighting(0.0, light.directions[:1], light.colours[:1])
     for m in ("skin", "hair", "shoes", "suit", "eyes"):
-        l = light.directions[:1]
-        diffuse, spec = lit_terms(np.array([MATERIALS.index(m)]), l, l, np.zeros(1), one)
+        d = light.directions[:1]
+        diffuse, spec = lit_terms(np.array([MATERIALS.index(m)]), d, d, np.zeros(1), one)
         np.testing.assert_allclose(spec[0], SPECULAR[m][0] * light.colours[0], rtol=1e-12)
         np.testing.assert_allclose(diffuse[0], light.colours[0], rtol=1e-12)  # n.l = 1, no ambient
 
@@ -278,8 +280,9 @@ def test_ambient_occlusion_against_analytic_scenes():
     from dlacli.data.appearance import AO_DIRECTIONS, ambient_occlusion, sphere_directions
 
     # a convex body occludes nothing of itself: a UV sphere has AO 1 everywhere
-    th, ph = np.meshgrid(np.linspace(0.05, np.pi - 0.05, 24), np.linspace(0, 2 * np.pi, 48, endpoint=False),
-                         indexing="ij")  # fmt: skip
+    th, ph = np.meshgrid(
+        np.linspace(0.05, np.pi - 0.05, 24), np.linspace(0, 2 * np.pi, 48, endpoint=False), indexing="ij"
+    )
     sphere = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1).reshape(-1, 3) * 0.4
     idx = np.arange(24 * 48).reshape(24, 48)
     a, b = idx[:-1], np.roll(idx, -1, axis=1)[:-1]
@@ -348,7 +351,7 @@ def test_albedo_is_the_headlight_formula():
 
 
 def test_wardrobes():
-    """"default" is the documented outfit rule; "full" keeps the phenotype and pose of the seed
+    """ "default" is the documented outfit rule; "full" keeps the phenotype and pose of the seed
     and draws every kind from the shipped garments."""
     from dlacli.body.garments import GARMENT_KIND
     from dlacli.data.subject import HAIRS, SHOES, SUITS_FEMALE, SUITS_MALE, sample_subject
@@ -479,13 +482,20 @@ def test_dataset_resumes_and_refuses_other_settings(datasets, tmp_path, capsys):
     assert code == 2 and "holds no manifest.json: not a dla dataset folder" in err
 
 
-@pytest.mark.parametrize("args, problem", [
-    (["--seed", "1", "--seeds", "1-2"], "exactly one"), ([], "exactly one"),
-    (["--seeds", "5-2"], "must be 0 <= A <= B"), (["--seeds", "1,1"], "twice"), (["--seeds", "x"], "expected A-B"),
-    (["--seed", "1", "--jobs", "2"], "dataset mode"), (["--seed", "1", "--appearance", "glossy"], "--appearance"),
-    (["--seeds", "1", "--wardrobe", "fancy"], "--wardrobe"),
-    (["--seeds", "1", "--motions", "nowhere.bvh"], "nowhere.bvh"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "args, problem",
+    [
+        (["--seed", "1", "--seeds", "1-2"], "exactly one"),
+        ([], "exactly one"),
+        (["--seeds", "5-2"], "must be 0 <= A <= B"),
+        (["--seeds", "1,1"], "twice"),
+        (["--seeds", "x"], "expected A-B"),
+        (["--seed", "1", "--jobs", "2"], "dataset mode"),
+        (["--seed", "1", "--appearance", "glossy"], "--appearance"),
+        (["--seeds", "1", "--wardrobe", "fancy"], "--wardrobe"),
+        (["--seeds", "1", "--motions", "nowhere.bvh"], "nowhere.bvh"),
+    ],
+)
 def test_cli_mode_errors(tmp_path, capsys, args, problem):
     code, _, err = _dla(["synth", "-o", tmp_path / "x", "--res", "16", *args], capsys)
     assert code == 2 and problem in err and len(err.strip().splitlines()) == 1, err

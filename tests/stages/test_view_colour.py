@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
+from dlacli.avatar.codec import PoseConditioning, ViewCosineDecoder, view_cosine
 from dlacli.errors import DlaInputError
 from dlacli.io.views import read_views
-from dlacli.avatar.codec import PoseConditioning, ViewCosineDecoder, view_cosine
 from dlacli.stages.lift import MIN_FALLOFF, LiftConfig, lift
 
 N = 32_768
@@ -27,7 +27,9 @@ def test_decoder_applies_the_cosine_law():
     z = torch.rand(15, r, r, generator=g, dtype=torch.float64)
     z[14] = torch.rand(r, r, generator=g, dtype=torch.float64) * 1.4 - 0.5  # k in [-0.5, 0.9]
     normals = _unit(torch.randn(3, r, r, generator=g, dtype=torch.float64))
-    rays = torch.cat([_unit(torch.randn(3, r, r, generator=g, dtype=torch.float64)), torch.zeros(3, r, r, dtype=torch.float64)])
+    rays = torch.cat(
+        [_unit(torch.randn(3, r, r, generator=g, dtype=torch.float64)), torch.zeros(3, r, r, dtype=torch.float64)]
+    )
     dec = ViewCosineDecoder()
     f_c = dec.canonical(z)
     f = f_c + dec.delta(z, PoseConditioning(torch.zeros(3, r, r), normals), rays)
@@ -103,10 +105,10 @@ def test_view_colour_improves_novel_views(subject256):
 def test_lift_shows_what_render_draws(subject):
     """The contact sheet's re-renders (lift's own view colours) equal `dla render`'s path
     through the view-cosine decoder, camera by camera."""
+    from dlacli.avatar import gaussian_map as gm
+    from dlacli.body.model import get_body_model
     from dlacli.stages.lift import _resized_targets, render_views
     from dlacli.stages.render import render_avatar
-    from dlacli.body.model import get_body_model
-    from dlacli.avatar import gaussian_map as gm
 
     views = read_views(subject)
     avatar = lift(views, LiftConfig(steps=0, gaussians=N)).avatar

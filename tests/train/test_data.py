@@ -39,7 +39,7 @@ def _inside_fraction(masks: torch.Tensor, pixels: np.ndarray) -> np.ndarray:
         near = np.zeros((h, w), bool)
         for dy in range(3):
             for dx in range(3):
-                near |= m[dy:dy + h, dx:dx + w]
+                near |= m[dy : dy + h, dx : dx + w]
         x, y = np.floor(pixels[k, :, 0]).astype(int), np.floor(pixels[k, :, 1]).astype(int)
         ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
         hit = np.zeros(x.shape, bool)

@@ -31,8 +31,20 @@ def data64(tmp_path_factory):
 def _cfg(**kw):
     from dlacli.train.loop import TrainConfig
 
-    base = dict(preset="tiny", batch=1, targets=1, steps_low=2, steps_full=2, low_size=SIZE, full_size=SIZE,
-                lr_g=1e-3, lr_d=1e-5, validation=1, eval_every=1000, checkpoint_every=1000)  # fmt: skip
+    base = dict(
+        preset="tiny",
+        batch=1,
+        targets=1,
+        steps_low=2,
+        steps_full=2,
+        low_size=SIZE,
+        full_size=SIZE,
+        lr_g=1e-3,
+        lr_d=1e-5,
+        validation=1,
+        eval_every=1000,
+        checkpoint_every=1000,
+    )
     return TrainConfig(**{**base, **kw})
 
 
@@ -70,13 +82,36 @@ def test_two_gloo_processes_equal_one_process_with_the_combined_batch(data64, tm
     first step makes of that gradient difference (w = w0 - lr g / (|g| + eps))."""
     from safetensors.torch import load_file
 
-    common = ["--data", data64, "--steps-low", 1, "--steps-full", 0, "--low-size", SIZE, "--full-size", SIZE, "--validation", 1,
-              "--targets", 1, "--lr", 1e-3]  # fmt: skip
+    common = [
+        "--data",
+        data64,
+        "--steps-low",
+        1,
+        "--steps-full",
+        0,
+        "--low-size",
+        SIZE,
+        "--full-size",
+        SIZE,
+        "--validation",
+        1,
+        "--targets",
+        1,
+        "--lr",
+        1e-3,
+    ]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     one = _train_cli(*common, "--batch", 2, "-o", tmp_path / "one", env=env)
     assert one.returncode == 0, one.stderr
-    two = _train_cli(*common, "--batch", 1, "-o", tmp_path / "two", env=env,
-                     launcher=(str(BIN / "torchrun"), "--standalone", "--nproc_per_node", "2"))  # fmt: skip
+    two = _train_cli(
+        *common,
+        "--batch",
+        1,
+        "-o",
+        tmp_path / "two",
+        env=env,
+        launcher=(str(BIN / "torchrun"), "--standalone", "--nproc_per_node", "2"),
+    )
     assert two.returncode == 0, two.stderr
     assert two.stdout.strip() == str(tmp_path / "two" / "ckpt-000001" / "generator")  # rank 0 reports alone
     rec1, rec2 = (json.loads((tmp_path / r / "train.json").read_text()) for r in ("one", "two"))
@@ -110,8 +145,12 @@ def test_tiny_model_overfits_two_subjects(data64, tmp_path):
     """Stage low only (L_UG + L1), the same 2 subjects every step: the loss falls by half."""
     from dlacli.train.loop import train
 
-    rec = train(data64, tmp_path / "run", _cfg(batch=2, targets=2, steps_low=40, steps_full=0, validation=1,
-                                               lr_g=3e-3), log=lambda s: None)  # fmt: skip
+    rec = train(
+        data64,
+        tmp_path / "run",
+        _cfg(batch=2, targets=2, steps_low=40, steps_full=0, validation=1, lr_g=3e-3),
+        log=lambda s: None,
+    )
     totals = [h["total"] for h in rec["history"]]
     start, end = np.mean(totals[:3]), np.mean(totals[-3:])
     assert end < 0.5 * start, (start, end)

@@ -26,8 +26,9 @@ import shutil
 import struct
 import types
 import typing
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import torch
 from torch import nn
@@ -152,8 +153,10 @@ def _coerce(v, hint, where, name: str):
         else:
             items = [_coerce(x, a, where, f"{name}[{i}]") for i, (x, a) in enumerate(zip(v, args))]
         return tuple(items) if origin is tuple else items
-    raise _Unsupported(f"config field {name} has type {_type_name(hint)}; checkpoints hold bool, int, float, str, "
-                       "None, tuple[...]/list[...] of those and nested dataclasses")  # fmt: skip
+    raise _Unsupported(
+        f"config field {name} has type {_type_name(hint)}; checkpoints hold bool, int, float, str, "
+        "None, tuple[...]/list[...] of those and nested dataclasses"
+    )
 
 
 def config_from_dict(cls: type, data: dict, where=None, prefix: str = ""):
@@ -163,7 +166,10 @@ def config_from_dict(cls: type, data: dict, where=None, prefix: str = ""):
     names = {f.name for f in fields}
     unknown, missing = sorted(set(data) - names), sorted(names - set(data))
     if unknown:
-        raise DlaInputError(where, f"config has unknown field(s) {one_line(', '.join(prefix + n for n in unknown[:20]))} for {cls.__name__}")
+        raise DlaInputError(
+            where,
+            f"config has unknown field(s) {one_line(', '.join(prefix + n for n in unknown[:20]))} for {cls.__name__}",
+        )
     if missing:
         raise DlaInputError(where, f"config lacks field(s) {', '.join(prefix + n for n in missing)} of {cls.__name__}")
     hints = typing.get_type_hints(cls)
@@ -184,7 +190,9 @@ def _normal_config(config) -> dict:
     except (TypeError, ValueError, _Unsupported, DlaInputError) as err:
         raise ValueError(f"save_checkpoint: {type(config).__name__} cannot be stored as JSON: {err}") from None
     if type(config).__eq__ is not object.__eq__ and rebuilt != config:
-        raise ValueError(f"save_checkpoint: {type(config).__name__} does not survive a JSON round trip: {config} -> {rebuilt}")
+        raise ValueError(
+            f"save_checkpoint: {type(config).__name__} does not survive a JSON round trip: {config} -> {rebuilt}"
+        )
     return json.loads(json.dumps(_config_dict(rebuilt)))  # ints in float fields become floats
 
 
@@ -216,8 +224,14 @@ def _encode_state(obj, tensors: dict, path: str):
     if isinstance(obj, dict):
         if all(isinstance(k, str) and not k.startswith("$") for k in obj):
             return {k: _encode_state(v, tensors, f"{path}.{k}") for k, v in obj.items()}
-        return {"$items": [[_encode_state(k, tensors, path), _encode_state(v, tensors, f"{path}.{k}")] for k, v in obj.items()]}
-    raise TypeError(f"save_checkpoint: optimizer state holds a {type(obj).__name__} at {path}; cannot store it without pickle")
+        return {
+            "$items": [
+                [_encode_state(k, tensors, path), _encode_state(v, tensors, f"{path}.{k}")] for k, v in obj.items()
+            ]
+        }
+    raise TypeError(
+        f"save_checkpoint: optimizer state holds a {type(obj).__name__} at {path}; cannot store it without pickle"
+    )
 
 
 def _decode_state(obj, tensors: dict, where):
@@ -226,7 +240,7 @@ def _decode_state(obj, tensors: dict, where):
     if not isinstance(obj, dict):
         return obj
     if len(obj) == 1 and next(iter(obj)).startswith("$"):
-        (tag, v), = obj.items()  # fmt: skip
+        ((tag, v),) = obj.items()
         if tag == "$tensor" and isinstance(v, str) and v in tensors:
             return tensors[v]
         if tag == "$float" and v in ("inf", "-inf", "nan"):
@@ -284,8 +298,15 @@ def _check_sizes(data: bytes, where) -> None:
     header = parse_json(data[8 : 8 + n], where, "its header", constants=False)
     if not isinstance(header, dict):
         raise DlaInputError(where, "not a safetensors file (its header is not a JSON object)")
-    ends = [e["data_offsets"][-1] for k, e in header.items() if k != "__metadata__" and isinstance(e, dict)
-            and isinstance(e.get("data_offsets"), list) and e["data_offsets"] and isinstance(e["data_offsets"][-1], int)]  # fmt: skip
+    ends = [
+        e["data_offsets"][-1]
+        for k, e in header.items()
+        if k != "__metadata__"
+        and isinstance(e, dict)
+        and isinstance(e.get("data_offsets"), list)
+        and e["data_offsets"]
+        and isinstance(e["data_offsets"][-1], int)
+    ]
     need = 8 + n + max(ends, default=0)
     if len(data) < need:
         raise DlaInputError(where, f"truncated: {len(data)} bytes, its header describes {need}")
@@ -306,7 +327,9 @@ def _safetensors(data: bytes, where) -> dict[str, torch.Tensor]:
 # save
 
 
-def save_checkpoint(path, module: nn.Module, config, *, step: int = 0, optimizer=None, extra: dict | None = None) -> str:
+def save_checkpoint(
+    path, module: nn.Module, config, *, step: int = 0, optimizer=None, extra: dict | None = None
+) -> str:
     """Write the checkpoint folder `path` atomically; return its content hash (64 hex digits).
 
     module is rebuilt at load time as `type(module)(config)`; optimizer (any torch optimizer) is
@@ -317,8 +340,16 @@ def save_checkpoint(path, module: nn.Module, config, *, step: int = 0, optimizer
     config_json = _normal_config(config)
     weights = _weights_bytes(module)
     digest = content_hash(class_path, config_class_path, config_json, weights)
-    record = {"format": FORMAT, "class": class_path, "config_class": config_class_path, "config": config_json,
-              "step": step, "hash": digest, "optimizer": None, "extra": dict(extra or {})}  # fmt: skip
+    record = {
+        "format": FORMAT,
+        "class": class_path,
+        "config_class": config_class_path,
+        "config": config_json,
+        "step": step,
+        "hash": digest,
+        "optimizer": None,
+        "extra": dict(extra or {}),
+    }
     opt_bytes = None
     if optimizer is not None:
         from safetensors.torch import save
@@ -326,8 +357,11 @@ def save_checkpoint(path, module: nn.Module, config, *, step: int = 0, optimizer
         tensors: dict[str, torch.Tensor] = {}
         state = _encode_state(optimizer.state_dict(), tensors, "opt")
         opt_bytes = save(tensors)
-        record["optimizer"] = {"class": f"{type(optimizer).__module__}.{type(optimizer).__qualname__}",
-                               "sha256": hashlib.sha256(opt_bytes).hexdigest(), "state": state}  # fmt: skip
+        record["optimizer"] = {
+            "class": f"{type(optimizer).__module__}.{type(optimizer).__qualname__}",
+            "sha256": hashlib.sha256(opt_bytes).hexdigest(),
+            "state": state,
+        }
     try:
         text = json.dumps(record, indent=2, allow_nan=False) + "\n"
     except (TypeError, ValueError) as err:
@@ -370,8 +404,11 @@ def _read_record(folder: Path) -> dict:
         if key not in rec:
             raise DlaInputError(where, f"lacks the key {key!r}")
         if not isinstance(rec[key], kind) or isinstance(rec[key], bool) or (key == "step" and rec[key] < 0):
-            raise DlaInputError(where, f"{key!r} must be a JSON {'object' if kind is dict else kind.__name__}"
-                                       f"{' >= 0' if key == 'step' else ''}")  # fmt: skip
+            raise DlaInputError(
+                where,
+                f"{key!r} must be a JSON {'object' if kind is dict else kind.__name__}"
+                f"{' >= 0' if key == 'step' else ''}",
+            )
     if not _HEX.fullmatch(rec["hash"]):
         raise DlaInputError(where, f"hash {excerpt(rec['hash'])} is not 64 lower-case hex digits")
     opt = rec.get("optimizer")
@@ -388,8 +425,11 @@ def _verified_weights(folder: Path, rec: dict) -> bytes:
     _check_sizes(weights, weights_path)
     got = content_hash(rec["class"], rec["config_class"], rec["config"], weights)
     if got != rec["hash"]:
-        raise DlaInputError(folder, f"content hash {short_id(got)}... differs from the recorded {short_id(rec['hash'])}...: "
-                                    f"{WEIGHTS} or the config was changed or damaged")  # fmt: skip
+        raise DlaInputError(
+            folder,
+            f"content hash {short_id(got)}... differs from the recorded {short_id(rec['hash'])}...: "
+            f"{WEIGHTS} or the config was changed or damaged",
+        )
     return weights
 
 
@@ -401,14 +441,24 @@ def checkpoint_info(path, *, verify: bool = True) -> Info:
         _verified_weights(folder, rec)
         if rec.get("optimizer") is not None:
             _optimizer_tensors(folder, rec["optimizer"])
-    return Info(folder, rec["class"], rec["config_class"], rec["config"], rec["step"], rec["hash"],
-                rec.get("optimizer"), rec.get("extra", {}))  # fmt: skip
+    return Info(
+        folder,
+        rec["class"],
+        rec["config_class"],
+        rec["config"],
+        rec["step"],
+        rec["hash"],
+        rec.get("optimizer"),
+        rec.get("extra", {}),
+    )
 
 
 def _optimizer_tensors(folder: Path, opt: dict) -> dict[str, torch.Tensor]:
     data = read_bytes(folder / OPTIMIZER, MAX_BINARY_BYTES)
     if hashlib.sha256(data).hexdigest() != opt["sha256"]:
-        raise DlaInputError(folder / OPTIMIZER, f"sha256 differs from the one {CONFIG} records: the file was changed or damaged")
+        raise DlaInputError(
+            folder / OPTIMIZER, f"sha256 differs from the one {CONFIG} records: the file was changed or damaged"
+        )
     return _safetensors(data, folder / OPTIMIZER)
 
 
@@ -420,7 +470,10 @@ def _check_path(dotted: str, what: str, where, allowed: tuple[str, ...]) -> None
     if not _DOTTED.fullmatch(dotted):
         raise DlaInputError(where, f"{what} {excerpt(dotted)} is not a dotted Python path")
     if not _inside(dotted.rsplit(".", 1)[0], allowed):
-        raise DlaInputError(where, f"{what} {excerpt(dotted)} is outside {', '.join(allowed)}; dla imports checkpoint classes only from there")
+        raise DlaInputError(
+            where,
+            f"{what} {excerpt(dotted)} is outside {', '.join(allowed)}; dla imports checkpoint classes only from there",
+        )
 
 
 def _import(dotted: str, what: str, where, allowed: tuple[str, ...]):
@@ -428,7 +481,9 @@ def _import(dotted: str, what: str, where, allowed: tuple[str, ...]):
     try:
         mod = importlib.import_module(mod_name)
     except ImportError as err:
-        raise DlaInputError(where, f"{what} {excerpt(dotted)} cannot be imported ({one_line(err)}); is this dla version too old?") from None
+        raise DlaInputError(
+            where, f"{what} {excerpt(dotted)} cannot be imported ({one_line(err)}); is this dla version too old?"
+        ) from None
     obj = getattr(mod, attr, None)
     if not isinstance(obj, type):
         raise DlaInputError(where, f"{what} {excerpt(dotted)} does not exist in this dla version")
@@ -447,7 +502,10 @@ def load_checkpoint(path, *, map_location="cpu", allowed_prefixes: Iterable[str]
     allowed = tuple(allowed_prefixes)
     _check_path(rec["class"], "class", where, allowed)  # both before importing either
     _check_path(rec["config_class"], "config_class", where, allowed)
-    cls, config_cls = _import(rec["class"], "class", where, allowed), _import(rec["config_class"], "config_class", where, allowed)
+    cls, config_cls = (
+        _import(rec["class"], "class", where, allowed),
+        _import(rec["config_class"], "config_class", where, allowed),
+    )
     if not issubclass(cls, nn.Module):
         raise DlaInputError(where, f"class {rec['class']!r} is not a torch nn.Module")
     if not dataclasses.is_dataclass(config_cls):
@@ -467,8 +525,16 @@ def load_checkpoint(path, *, map_location="cpu", allowed_prefixes: Iterable[str]
     aliases = _aliases(expected)
     want = {k: tuple(t.shape) for k, t in expected.items() if k not in aliases}
     missing, unexpected = sorted(set(want) - set(tensors)), sorted(set(tensors) - set(want))
-    wrong = [f"{k} {tuple(tensors[k].shape)} vs {want[k]}" for k in want if k in tensors and tuple(tensors[k].shape) != want[k]]
-    for label, items in (("lacks", missing), ("has unexpected", unexpected), ("has wrong shapes (file vs network)", wrong)):
+    wrong = [
+        f"{k} {tuple(tensors[k].shape)} vs {want[k]}"
+        for k in want
+        if k in tensors and tuple(tensors[k].shape) != want[k]
+    ]
+    for label, items in (
+        ("lacks", missing),
+        ("has unexpected", unexpected),
+        ("has wrong shapes (file vs network)", wrong),
+    ):
         if items:
             more = f", ... ({len(items)} in all)" if len(items) > 3 else ""
             raise DlaInputError(folder / WEIGHTS, f"{label} tensors for {cls.__name__}: {', '.join(items[:3])}{more}")
@@ -541,11 +607,15 @@ def resolve_checkpoint(hash_or_path, *, search: Iterable[str | os.PathLike] | No
                 found.setdefault(digest, cand)
     if len(found) > 1:
         listed = "; ".join(f"{short_id(d)} ({p})" for d, p in sorted(found.items())[:5])
-        raise DlaInputError(f"checkpoint {prefix}", f"prefix is ambiguous, it matches {len(found)}: {listed}; give more digits")
+        raise DlaInputError(
+            f"checkpoint {prefix}", f"prefix is ambiguous, it matches {len(found)}: {listed}; give more digits"
+        )
     if not found:
         where = ", ".join(str(r) for r in roots)
-        raise DlaInputError(f"checkpoint {prefix}", f"not found in {where}; pass --checkpoint PATH, "
-                                                    f"or copy the checkpoint folder into {roots[-1]}")  # fmt: skip
+        raise DlaInputError(
+            f"checkpoint {prefix}",
+            f"not found in {where}; pass --checkpoint PATH, or copy the checkpoint folder into {roots[-1]}",
+        )
     return next(iter(found.values()))
 
 

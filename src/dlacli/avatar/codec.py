@@ -16,8 +16,8 @@ the checkpoint resolver.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import torch
@@ -102,7 +102,9 @@ class ViewCosineDecoder(IdentityDecoder):
         from dlacli.avatar.gaussian_map import CHANNELS
 
         if z.shape[0] != CHANNELS + 1:
-            raise DlaInputError(self.where, f"view-cosine decoder needs z with {CHANNELS + 1} channels, got {tuple(z.shape)}")
+            raise DlaInputError(
+                self.where, f"view-cosine decoder needs z with {CHANNELS + 1} channels, got {tuple(z.shape)}"
+            )
         return z[:CHANNELS]
 
     def delta(self, z: torch.Tensor, pose: PoseConditioning | None, rays: torch.Tensor | None) -> torch.Tensor | None:
@@ -126,7 +128,11 @@ def same_space(a: Avatar, b: Avatar) -> tuple[Avatar, Avatar]:
         k = np.zeros((1, *x.z.shape[1:]), np.float32)
         return replace(x, z=np.concatenate([x.z.astype(np.float32), k]), decoder=ViewCosineDecoder.name, canonical=None)
 
-    if {a.decoder, b.decoder} == {ViewCosineDecoder.name, IdentityDecoder.name} and not a.checkpoint and not b.checkpoint:
+    if (
+        {a.decoder, b.decoder} == {ViewCosineDecoder.name, IdentityDecoder.name}
+        and not a.checkpoint
+        and not b.checkpoint
+    ):
         return (promote(a), b) if a.decoder == IdentityDecoder.name else (a, promote(b))
     return a, b
 
@@ -175,13 +181,17 @@ def resolve_decoder(avatar: Avatar, where: str = "avatar", checkpoint: str | Non
     if factory is not None:
         return factory(checkpoint or avatar.checkpoint, checkpoint or where)
     if not avatar.checkpoint:
-        raise DlaInputError(where, f"decoder {avatar.decoder!r} is not available in this version (known: {', '.join(decoder_names())})")
+        raise DlaInputError(
+            where, f"decoder {avatar.decoder!r} is not available in this version (known: {', '.join(decoder_names())})"
+        )
     from dlacli.avatar.checkpoint import load_checkpoint, resolve_checkpoint
 
     path = resolve_checkpoint(checkpoint or avatar.checkpoint)
     loaded = load_checkpoint(path)
     if checkpoint is not None and loaded.hash != avatar.checkpoint:
-        raise DlaInputError(checkpoint, f"holds weights {loaded.hash[:16]}, but {where} was made with {avatar.checkpoint[:16]}")
+        raise DlaInputError(
+            checkpoint, f"holds weights {loaded.hash[:16]}, but {where} was made with {avatar.checkpoint[:16]}"
+        )
     net = loaded.module
     if not isinstance(net, Decoder) or getattr(net, "name", None) != avatar.decoder:
         raise DlaInputError(path, f"holds a {type(net).__name__}, not the {avatar.decoder!r} decoder {where} names")
@@ -218,7 +228,9 @@ class Decoded:
         from dlacli.body.uv import UV_LAYOUT
 
         if avatar.uv_layout != UV_LAYOUT:
-            raise DlaInputError(where, f"uv_layout {avatar.uv_layout!r} is not one this version decodes ({UV_LAYOUT!r})")
+            raise DlaInputError(
+                where, f"uv_layout {avatar.uv_layout!r} is not one this version decodes ({UV_LAYOUT!r})"
+            )
         decoder = resolve_decoder(avatar, where, checkpoint)
         f_c = None
         if avatar.canonical is not None and not decoder.linear:
@@ -227,7 +239,7 @@ class Decoded:
         self._bind(decoder, z, f_c, dict(avatar.body.phenotype), None)
 
     @classmethod
-    def of(cls, decoder: Decoder, z: torch.Tensor, rest_vertices=None, phenotype: dict | None = None) -> "Decoded":
+    def of(cls, decoder: Decoder, z: torch.Tensor, rest_vertices=None, phenotype: dict | None = None) -> Decoded:
         """A code z [C, H, W] that is no avatar file (yet): one being refined or trained (z may
         require grad; F_c and every F is differentiable in it). The body's zero-pose vertices
         rest_vertices [V, 3] (or its phenotype, to compute them) serve pose conditioning."""

@@ -29,8 +29,12 @@ from dlacli.types import Gaussians
 
 CHANNELS = 14
 OPACITY, RGB, OFFSET, ROTATION, LOG_SCALE = (
-    slice(0, 1), slice(1, 4), slice(4, 7), slice(7, 11), slice(11, 14),
-)  # fmt: skip
+    slice(0, 1),
+    slice(1, 4),
+    slice(4, 7),
+    slice(7, 11),
+    slice(11, 14),
+)
 
 
 @dataclass
@@ -110,7 +114,8 @@ def skinned_params(
 
     frames_T, frames_R, frames_S, frames_Q = frames
     assert fmap.ndim == 3 or fmap.shape[0] == frames_T.shape[0], (
-        f"a batch of {fmap.shape[0]} maps needs as many frames, got {frames_T.shape[0]}")
+        f"a batch of {fmap.shape[0]} maps needs as many frames, got {frames_T.shape[0]}"
+    )
     params = lookup(fmap, samples.uv)  # [(P,) N, 14]
     dquat = params[..., ROTATION]
     dquat = dquat / dquat.norm(dim=-1, keepdim=True).clamp_min(1e-8)

@@ -18,8 +18,8 @@ code: a `Decoded.of(decoder, z)` with z requiring grad gives Gaussians with grad
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 import torch

@@ -26,8 +26,8 @@ import os
 import resource
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -105,9 +105,16 @@ def score_avatar(avatar, folder: Path) -> dict[str, dict[str, float]]:
     return out
 
 
-def run(seeds: list[int], methods: list[MethodSpec], res: int = 512, appearance: str = "lit",
-        wardrobe: str = "heldout", novel_views: int = 12, novel_poses: int = 8,
-        log: Callable[[str], None] = print) -> list[dict]:  # fmt: skip
+def run(
+    seeds: list[int],
+    methods: list[MethodSpec],
+    res: int = 512,
+    appearance: str = "lit",
+    wardrobe: str = "heldout",
+    novel_views: int = 12,
+    novel_poses: int = 8,
+    log: Callable[[str], None] = print,
+) -> list[dict]:
     """dla.bench/1 rows: one per seed, method and split."""
     from dlacli.bench.rows import make_row
     from dlacli.data.synth import synth
@@ -118,8 +125,15 @@ def run(seeds: list[int], methods: list[MethodSpec], res: int = 512, appearance:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
-            folder = synth(seed, Path(tmp) / f"s{seed}", res=res, novel_views=novel_views, novel_poses=novel_poses,
-                           appearance=appearance, wardrobe=wardrobe)  # fmt: skip
+            folder = synth(
+                seed,
+                Path(tmp) / f"s{seed}",
+                res=res,
+                novel_views=novel_views,
+                novel_poses=novel_poses,
+                appearance=appearance,
+                wardrobe=wardrobe,
+            )
             for spec in methods:
                 path = Path(tmp) / f"s{seed}_{len(rows)}.npz"
                 seconds, peak = timed_lift(spec, folder, path)
@@ -128,10 +142,16 @@ def run(seeds: list[int], methods: list[MethodSpec], res: int = 512, appearance:
                 config = {**spec.options(), "res": res, "appearance": appearance, "wardrobe": wardrobe}
                 if "checkpoint" in config:  # the weights by hash, not by local path; what they are
                     lift = avatar.extra.get("lift", {})
-                    config.update(checkpoint=avatar.checkpoint[:16], preset=lift.get("preset"), variant=lift.get("variant"))
+                    config.update(
+                        checkpoint=avatar.checkpoint[:16], preset=lift.get("preset"), variant=lift.get("variant")
+                    )
                 for split in SPLITS:
                     rows.append(make_row(spec.name, config, split, seconds, peak, result[split], subject=seed))
-                log(f"seed {seed} {spec.label}: lift {seconds:.1f} s, {peak:.0f} MB; " + "; ".join(
-                    f"{s} {result[s]['psnr_masked']:.2f} dB masked, IoU {result[s]['iou']:.3f}" for s in SPLITS))
+                log(
+                    f"seed {seed} {spec.label}: lift {seconds:.1f} s, {peak:.0f} MB; "
+                    + "; ".join(
+                        f"{s} {result[s]['psnr_masked']:.2f} dB masked, IoU {result[s]['iou']:.3f}" for s in SPLITS
+                    )
+                )
                 os.unlink(path)
     return rows

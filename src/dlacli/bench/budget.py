@@ -16,8 +16,8 @@ from __future__ import annotations
 import statistics
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -57,9 +57,17 @@ def _usd_cost(avatar, n: int, frames: int, folder: Path) -> tuple[float, float]:
     return size, seconds
 
 
-def run(seeds: list[int], counts: list[int], uv_resolutions: list[int], render_size: int = 512,
-        method: MethodSpec | None = None, novel_views: int = 4, novel_poses: int = 2,
-        usd_frames: int = 8, log: Callable[[str], None] = print) -> list[dict]:  # fmt: skip
+def run(
+    seeds: list[int],
+    counts: list[int],
+    uv_resolutions: list[int],
+    render_size: int = 512,
+    method: MethodSpec | None = None,
+    novel_views: int = 4,
+    novel_poses: int = 2,
+    usd_frames: int = 8,
+    log: Callable[[str], None] = print,
+) -> list[dict]:
     """Budget rows (dlacli.bench.rows "budget") for every seed x UV resolution x count x split;
     `method`: a stages.methods spec that takes `resolution` (default: unproject)."""
     from dlacli.bench.rows import budget_row, default_device
@@ -77,8 +85,11 @@ def run(seeds: list[int], counts: list[int], uv_resolutions: list[int], render_s
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
             subject = make_subject(seed, render_size, novel_views, novel_poses)
-            splits = (("inputs", subject.views, None), ("novel_views", subject.novel_views, None),
-                      ("novel_poses", subject.novel_poses, subject.motion))  # fmt: skip
+            splits = (
+                ("inputs", subject.views, None),
+                ("novel_views", subject.novel_views, None),
+                ("novel_poses", subject.novel_poses, subject.motion),
+            )
             for res in uv_resolutions:
                 t0 = time.perf_counter()
                 avatar = spec.with_options(resolution=res).lift(subject.views).avatar
@@ -90,12 +101,29 @@ def run(seeds: list[int], counts: list[int], uv_resolutions: list[int], render_s
                     for split, views, motion in splits:
                         pred, gt, per_image = _timed_split(avatar, views, n, motion)
                         metrics = scores(pred, gt, views.masks)
-                        rows.append(budget_row(spec.name, {**cfg, "uv_resolution": res, "usd_frames": usd_frames}, split, lift_s,
-                                               metrics, n, render_size, per_image * 1e3, usd_mib, usd_s, noise[n],
-                                               subject=seed, device=device))  # fmt: skip
+                        rows.append(
+                            budget_row(
+                                spec.name,
+                                {**cfg, "uv_resolution": res, "usd_frames": usd_frames},
+                                split,
+                                lift_s,
+                                metrics,
+                                n,
+                                render_size,
+                                per_image * 1e3,
+                                usd_mib,
+                                usd_s,
+                                noise[n],
+                                subject=seed,
+                                device=device,
+                            )
+                        )
                         line.append(f"{split} {metrics['psnr_masked']:.2f}")
                     usd = f", USD {usd_mib:.1f} MiB" if usd_mib is not None else ""
-                    log(f"seed {seed} uv {res} n {n}: masked PSNR {', '.join(line)}; {per_image * 1e3:.0f} ms/image{usd}")
+                    log(
+                        f"seed {seed} uv {res} n {n}: masked PSNR {', '.join(line)}; {per_image * 1e3:.0f} "
+                        f"ms/image{usd}"
+                    )
     return rows
 
 
@@ -118,10 +146,13 @@ def curve(rows: list[dict], split: str, metric: str = "psnr_masked") -> dict[tup
         for n, rs in sorted(by_n.items()):
             usd = [r["usd_mib"] for r in rs if r["usd_mib"] is not None]
             noise = [r["noise"] for r in rs if r["noise"] is not None]
-            out[key][n] = {"value": statistics.fmean(r["metrics"][metric] for r in rs),
-                           "render_ms": statistics.median(r["render_ms"] for r in rs),
-                           "usd_mib": statistics.median(usd) if usd else None,
-                           "noise": statistics.fmean(noise) if noise else None, "subjects": len(rs)}  # fmt: skip
+            out[key][n] = {
+                "value": statistics.fmean(r["metrics"][metric] for r in rs),
+                "render_ms": statistics.median(r["render_ms"] for r in rs),
+                "usd_mib": statistics.median(usd) if usd else None,
+                "noise": statistics.fmean(noise) if noise else None,
+                "subjects": len(rs),
+            }
     return out
 
 
@@ -137,5 +168,7 @@ def choices(rows: list[dict], tolerance_db: float | None = None) -> dict[tuple[s
         for key, by_n in curve(rows, split).items():
             out.setdefault(key, {})[name] = choose_gaussians({n: p["value"] for n, p in by_n.items()}, tol)
             if split == "inputs" and all(p["noise"] is not None for p in by_n.values()):
-                out[key]["self-consistency"] = choose_gaussians(predicted_psnr({n: p["noise"] for n, p in by_n.items()}), tol)
+                out[key]["self-consistency"] = choose_gaussians(
+                    predicted_psnr({n: p["noise"] for n, p in by_n.items()}), tol
+                )
     return out

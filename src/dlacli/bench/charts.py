@@ -35,8 +35,12 @@ def _save(fig, path, rect=(0, 0, 1, 1)) -> Path:
     return path
 
 
-def draw_chart(rows: list[dict], path: str | os.PathLike, metric: str = "psnr_masked",
-               splits: tuple[str, ...] = ("novel_views", "novel_poses", "novel_view_pose")) -> Path:  # fmt: skip
+def draw_chart(
+    rows: list[dict],
+    path: str | os.PathLike,
+    metric: str = "psnr_masked",
+    splits: tuple[str, ...] = ("novel_views", "novel_poses", "novel_view_pose"),
+) -> Path:
     """Time (log) against `metric`, one panel per split present, one marker per point, the Pareto
     frontier as a line; written to a PNG (matplotlib, extra `bench`)."""
     plt = _pyplot()
@@ -53,18 +57,33 @@ def draw_chart(rows: list[dict], path: str | os.PathLike, metric: str = "psnr_ma
         for m, marker in zip(methods, "osD^v<>ph*"):
             sel = [p for p in pts if p["method"] == m]
             ax.scatter([p["seconds"] for p in sel], [p["value"] for p in sel], marker=marker, s=40, label=m, zorder=3)
-            words = [p["label"][len(m):].split() for p in sel]
+            words = [p["label"][len(m) :].split() for p in sel]
             shared = set.intersection(*map(set, words)) if len(sel) > 1 else set()  # said once, in the legend's sense
             for k, (p, w) in enumerate(zip(sel, words)):
-                ax.annotate(" ".join(x for x in w if x not in shared), (p["seconds"], p["value"]), fontsize=7,
-                            xytext=(4, 3 - 9 * (k % 3)), textcoords="offset points")  # fmt: skip
+                ax.annotate(
+                    " ".join(x for x in w if x not in shared),
+                    (p["seconds"], p["value"]),
+                    fontsize=7,
+                    xytext=(4, 3 - 9 * (k % 3)),
+                    textcoords="offset points",
+                )
         front = pareto_front(pts)
-        ax.step([p["seconds"] for p in front], [p["value"] for p in front], where="post", color="0.3",
-                linewidth=1, zorder=2, label="Pareto frontier")  # fmt: skip
+        ax.step(
+            [p["seconds"] for p in front],
+            [p["value"] for p in front],
+            where="post",
+            color="0.3",
+            linewidth=1,
+            zorder=2,
+            label="Pareto frontier",
+        )
         ax.set_xscale("log")
         ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
-        ax.xaxis.set_minor_formatter(matplotlib.ticker.FuncFormatter(  # label 2 and 5 of each decade
-            lambda v, _: f"{v:g}" if v > 0 and round(v / 10 ** math.floor(math.log10(v))) in (2, 5) else ""))
+        ax.xaxis.set_minor_formatter(
+            matplotlib.ticker.FuncFormatter(  # label 2 and 5 of each decade
+                lambda v, _: f"{v:g}" if v > 0 and round(v / 10 ** math.floor(math.log10(v))) in (2, 5) else ""
+            )
+        )
         ax.set_xlabel("lift time per subject, s (log)")
         ax.set_ylabel({"psnr_masked": "PSNR inside the mask, dB", "psnr": "PSNR, dB"}.get(metric, metric))
         ax.set_title(split.replace("_", " "))
@@ -90,7 +109,7 @@ def draw_stability_chart(rows: list[dict], path: str | os.PathLike, metric: str 
     cols = min(5, len(names))
     nrows = -(-len(names) // cols)
     fig, axes = plt.subplots(nrows, cols, figsize=(3.6 * cols, 3.0 * nrows), squeeze=False)
-    for ax in axes.flat[len(names):]:
+    for ax in axes.flat[len(names) :]:
         ax.axis("off")
     for ax, name in zip(axes.flat, names):
         levels: list[float] = []
@@ -102,8 +121,15 @@ def draw_stability_chart(rows: list[dict], path: str | os.PathLike, metric: str 
         for split, style in (("novel_views", "-"), ("novel_poses", "--")):
             for m, curve in sorted(per_split[split].get(name, {}).items()):
                 xs = [x_of[lv] for lv, *_ in curve]
-                ax.plot(xs, [v for _, v, *_ in curve], style, marker="o", ms=3, color=colours[m],
-                        label=f"{m}, {split.replace('_', ' ')}")  # fmt: skip
+                ax.plot(
+                    xs,
+                    [v for _, v, *_ in curve],
+                    style,
+                    marker="o",
+                    ms=3,
+                    color=colours[m],
+                    label=f"{m}, {split.replace('_', ' ')}",
+                )
                 bad |= {x_of[lv] for lv, _, _, fails in curve if fails}
                 if split == "novel_views" and curve and curve[0][1] == curve[0][1]:  # its baseline - DROP_DB
                     ax.axhline(curve[0][1] - DROP_DB, color=colours[m], linestyle=":", linewidth=0.8)
@@ -141,13 +167,23 @@ def draw_budget_chart(rows: list[dict], path: str | os.PathLike) -> Path:
         for data, style, what in ((nv, "-", "novel views"), (inp, "--", "inputs")):
             if key in data:
                 ns = sorted(data[key])
-                left.plot(ns, [data[key][n]["value"] for n in ns], style, marker="o", ms=3, color=colour, label=f"{label}, {what}")
+                left.plot(
+                    ns,
+                    [data[key][n]["value"] for n in ns],
+                    style,
+                    marker="o",
+                    ms=3,
+                    color=colour,
+                    label=f"{label}, {what}",
+                )
         pick = picks.get(key, {}).get("inputs")
         if pick is not None and key in nv and pick in nv[key]:
             left.scatter([pick], [nv[key][pick]["value"]], s=120, facecolors="none", edgecolors=colour, zorder=4)
         data = nv.get(key) or inp[key]
         ns = sorted(data)
-        right.plot(ns, [data[n]["render_ms"] for n in ns], "-", marker="o", ms=3, color=colour, label=f"{label}: render ms")
+        right.plot(
+            ns, [data[n]["render_ms"] for n in ns], "-", marker="o", ms=3, color=colour, label=f"{label}: render ms"
+        )
         usd = [(n, data[n]["usd_mib"]) for n in ns if data[n]["usd_mib"] is not None]
         if usd:
             size_ax.plot(*zip(*usd), "--", marker="s", ms=3, color=colour, label=f"{label}: USD MiB")

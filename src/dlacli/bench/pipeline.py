@@ -12,8 +12,8 @@ from __future__ import annotations
 import statistics
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -22,14 +22,20 @@ from dlacli.bench.score import METRICS, score_split
 _score = score_split  # the name tests/stages score lifts with
 
 
-def run(seeds: list[int], steps: list[int], res: int = 512, novel_views: int = 12,
-        novel_poses: int = 8, animate_frames: int = 120, log: Callable[[str], None] = print) -> dict:  # fmt: skip
+def run(
+    seeds: list[int],
+    steps: list[int],
+    res: int = 512,
+    novel_views: int = 12,
+    novel_poses: int = 8,
+    animate_frames: int = 120,
+    log: Callable[[str], None] = print,
+) -> dict:
     from dlacli.body.builtin_motions import builtin_motion
     from dlacli.data.synth import synth
     from dlacli.io.motion import read_motion
     from dlacli.io.views import read_views
     from dlacli.stages.animate import pose_avatar, write_animation
-    from dlacli.data.synth import synth
     from dlacli.stages.methods import make_spec
 
     rows = []
@@ -45,15 +51,25 @@ def run(seeds: list[int], steps: list[int], res: int = 512, novel_views: int = 1
                 t0 = time.perf_counter()
                 avatar = make_spec("unproject", steps=n_steps).lift(views).avatar
                 lift_s = time.perf_counter() - t0
-                row = {"seed": seed, "steps": n_steps, "lift_s": lift_s,
-                       "novel_views": score_split(avatar, nv), "novel_poses": score_split(avatar, npose, motion)}  # fmt: skip
+                row = {
+                    "seed": seed,
+                    "steps": n_steps,
+                    "lift_s": lift_s,
+                    "novel_views": score_split(avatar, nv),
+                    "novel_poses": score_split(avatar, npose, motion),
+                }
                 rows.append(row)
-                log(f"seed {seed} steps {n_steps}: lift {lift_s:.1f} s, novel views {row['novel_views']}, novel poses {row['novel_poses']}")
+                log(
+                    f"seed {seed} steps {n_steps}: lift {lift_s:.1f} s, novel views {row['novel_views']}, novel "
+                    f"poses {row['novel_poses']}"
+                )
             walk = builtin_motion("walk")
             idx = np.arange(animate_frames) % walk.num_frames
             from dlacli.types import Motion
 
-            clip = Motion(walk.bone_labels, walk.rotations[idx], walk.root_rotation[idx], walk.root_translation[idx], walk.fps)
+            clip = Motion(
+                walk.bone_labels, walk.rotations[idx], walk.root_rotation[idx], walk.root_translation[idx], walk.fps
+            )
             t0 = time.perf_counter()
             anim = pose_avatar(avatar, clip)
             write_animation(anim, Path(tmp) / "anim.usdc")
@@ -64,17 +80,28 @@ def run(seeds: list[int], steps: list[int], res: int = 512, novel_views: int = 1
         sel = [r for r in rows if r["steps"] == n_steps]
         summary[str(n_steps)] = {
             "lift_s_median": statistics.median(r["lift_s"] for r in sel),
-            **{f"{split}_{k}_mean": float(np.mean([r[split][k] for r in sel]))
-               for split in ("novel_views", "novel_poses") for k in METRICS},
-        }  # fmt: skip
-    return {"rows": rows, "summary": summary, "animate_s_median": statistics.median(animate_s),
-            "animate_frames": animate_frames, "res": res}  # fmt: skip
+            **{
+                f"{split}_{k}_mean": float(np.mean([r[split][k] for r in sel]))
+                for split in ("novel_views", "novel_poses")
+                for k in METRICS
+            },
+        }
+    return {
+        "rows": rows,
+        "summary": summary,
+        "animate_s_median": statistics.median(animate_s),
+        "animate_frames": animate_frames,
+        "res": res,
+    }
 
 
 def markdown_table(result: dict) -> str:
     """The summary as a markdown table (one row per number of steps)."""
-    head = ("| steps | lift s (median) | novel views PSNR / masked / SSIM / IoU | novel poses PSNR / masked / SSIM / IoU |\n"
-            "|---|---|---|---|")  # fmt: skip
+    head = (
+        "| steps | lift s (median) | novel views PSNR / masked / SSIM / IoU | novel poses PSNR / masked / SSIM / "
+        "IoU |\n"
+        "|---|---|---|---|"
+    )
     lines = [head]
     for steps, s in result["summary"].items():
         nv = " / ".join(f"{s[f'novel_views_{k}_mean']:.{2 if k.startswith('psnr') else 3}f}" for k in METRICS)
@@ -91,6 +118,15 @@ def result_rows(result: dict) -> list[dict]:
     rows = []
     for r in result["rows"]:
         for split in ("novel_views", "novel_poses"):
-            rows.append(make_row("unproject", {"steps": r["steps"], "res": result["res"]}, split, r["lift_s"], None,
-                                 r[split], subject=r["seed"]))  # fmt: skip
+            rows.append(
+                make_row(
+                    "unproject",
+                    {"steps": r["steps"], "res": result["res"]},
+                    split,
+                    r["lift_s"],
+                    None,
+                    r[split],
+                    subject=r["seed"],
+                )
+            )
     return rows

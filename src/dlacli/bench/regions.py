@@ -14,10 +14,14 @@ from scipy import ndimage
 
 BAND = 3  # pixels
 GROUPS = {
-    "face": ("face",), "hair": ("hair",), "hands": ("left_hand", "right_hand"),
-    "arms": ("left_arm", "right_arm"), "torso": ("torso",), "legs": ("left_leg", "right_leg"),
+    "face": ("face",),
+    "hair": ("hair",),
+    "hands": ("left_hand", "right_hand"),
+    "arms": ("left_arm", "right_arm"),
+    "torso": ("torso",),
+    "legs": ("left_leg", "right_leg"),
     "feet": ("left_foot", "right_foot"),
-}  # fmt: skip
+}
 REGIONS = (*GROUPS, "off body", "silhouette band")
 
 
@@ -52,8 +56,11 @@ def region_psnr(pred: np.ndarray, gt: np.ndarray, labels: np.ndarray) -> dict[st
         if not sel.any():
             continue
         mse = se[sel].mean()
-        out[name] = {"psnr": float("inf") if mse == 0 else float(-10 * np.log10(mse)),
-                     "pixels": float(sel.sum() / total_px), "error": float(se[sel].sum() / max(total_se, 1e-30))}  # fmt: skip
+        out[name] = {
+            "psnr": float("inf") if mse == 0 else float(-10 * np.log10(mse)),
+            "pixels": float(sel.sum() / total_px),
+            "error": float(se[sel].sum() / max(total_se, 1e-30)),
+        }
     return out
 
 
@@ -63,7 +70,9 @@ def _heat(x: np.ndarray) -> np.ndarray:
     return np.clip(np.concatenate([3 * x, 3 * x - 1, 3 * x - 2], -1), 0.0, 1.0)
 
 
-def error_picture(gt: np.ndarray, pred: np.ndarray, labels: np.ndarray, scale: float = 4.0, tile: int = 384) -> np.ndarray:
+def error_picture(
+    gt: np.ndarray, pred: np.ndarray, labels: np.ndarray, scale: float = 4.0, tile: int = 384
+) -> np.ndarray:
     """One view: ground truth | render | |error| x scale as a heat map | the regions (each a grey
     level, the silhouette band white), cut to a square around the person (8 px margin) and
     scaled to `tile` pixels (nearest neighbour, so pixels stay visible) -> uint8 [tile, 4 tile, 3]."""
@@ -79,6 +88,8 @@ def error_picture(gt: np.ndarray, pred: np.ndarray, labels: np.ndarray, scale: f
         r0 = int(np.clip((rows.min() + rows.max() - side) // 2, 0, h - side))
         c0 = int(np.clip((cols.min() + cols.max() - side) // 2, 0, w - side))
         tiles = [t[r0 : r0 + side, c0 : c0 + side] for t in tiles]
-    tiles = [np.asarray(Image.fromarray((np.clip(t, 0, 1) * 255 + 0.5).astype(np.uint8)).resize((tile, tile), Image.NEAREST))
-             for t in tiles]
+    tiles = [
+        np.asarray(Image.fromarray((np.clip(t, 0, 1) * 255 + 0.5).astype(np.uint8)).resize((tile, tile), Image.NEAREST))
+        for t in tiles
+    ]
     return np.concatenate(tiles, axis=1)

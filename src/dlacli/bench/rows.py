@@ -34,15 +34,23 @@ from __future__ import annotations
 import json
 import os
 import statistics
-from typing import Any, Iterable
+from collections.abc import Iterable
+from typing import Any
 
 from dlacli.bench.score import METRICS
 from dlacli.errors import DlaInputError
 
 FORMAT = "dla.bench/1"
 SPLITS = ("novel_views", "novel_poses", "novel_view_pose", "inputs")
-_FIELDS = {"method": str, "config": dict, "device": str, "split": str, "seconds": (int, float),
-           "peak_mb": (int, float, type(None)), "metrics": dict}  # fmt: skip
+_FIELDS = {
+    "method": str,
+    "config": dict,
+    "device": str,
+    "split": str,
+    "seconds": (int, float),
+    "peak_mb": (int, float, type(None)),
+    "metrics": dict,
+}
 
 
 KINDS = ("accuracy", "stability", "budget", "speed")
@@ -50,12 +58,33 @@ STATUSES = ("ok", "nan", "empty", "error")
 _NUMBER = (int, float)
 _OPT_NUMBER = (int, float, type(None))
 _STABILITY = {"perturbation": str, "level": _NUMBER, "status": str, "error": (str, type(None))}
-_BUDGET = {"gaussians": int, "render_size": int, "render_ms": _NUMBER, "usd_mib": _OPT_NUMBER,
-           "usd_s": _OPT_NUMBER, "noise": _OPT_NUMBER}  # fmt: skip
-_SPEED = {"suite": str, "case": str, "method": str, "config": dict, "device": str, "run": str,
-          "seconds": _OPT_NUMBER, "repeats": int}  # fmt: skip
-_SPEED_OPTIONAL = {"min_seconds": _OPT_NUMBER, "first_seconds": _OPT_NUMBER, "peak_mb": _OPT_NUMBER,
-                   "size_mib": _OPT_NUMBER, "items": _OPT_NUMBER, "torch_loaded": bool, "skipped": str}  # fmt: skip
+_BUDGET = {
+    "gaussians": int,
+    "render_size": int,
+    "render_ms": _NUMBER,
+    "usd_mib": _OPT_NUMBER,
+    "usd_s": _OPT_NUMBER,
+    "noise": _OPT_NUMBER,
+}
+_SPEED = {
+    "suite": str,
+    "case": str,
+    "method": str,
+    "config": dict,
+    "device": str,
+    "run": str,
+    "seconds": _OPT_NUMBER,
+    "repeats": int,
+}
+_SPEED_OPTIONAL = {
+    "min_seconds": _OPT_NUMBER,
+    "first_seconds": _OPT_NUMBER,
+    "peak_mb": _OPT_NUMBER,
+    "size_mib": _OPT_NUMBER,
+    "items": _OPT_NUMBER,
+    "torch_loaded": bool,
+    "skipped": str,
+}
 
 
 def kind(row: dict) -> str:
@@ -143,16 +172,34 @@ def check_row(row: Any, where: str = "row") -> dict:
     return row
 
 
-def make_row(method: str, config: dict, split: str, seconds: float, peak_mb: float | None,
-             metrics: dict, subject: int | None = None, device: str | None = None) -> dict:  # fmt: skip
+def make_row(
+    method: str,
+    config: dict,
+    split: str,
+    seconds: float,
+    peak_mb: float | None,
+    metrics: dict,
+    subject: int | None = None,
+    device: str | None = None,
+) -> dict:
     """A validated row (device defaults to this process's: "cpu (N threads)" or the CUDA name)."""
     if device is None:
         import torch
 
-        device = torch.cuda.get_device_name() if torch.cuda.is_available() else f"cpu ({torch.get_num_threads()} threads)"
-    row = {"format": FORMAT, "method": method, "config": dict(config), "device": device, "subject": subject,
-           "split": split, "seconds": float(seconds), "peak_mb": None if peak_mb is None else float(peak_mb),
-           "metrics": {k: float(v) for k, v in metrics.items()}}  # fmt: skip
+        device = (
+            torch.cuda.get_device_name() if torch.cuda.is_available() else f"cpu ({torch.get_num_threads()} threads)"
+        )
+    row = {
+        "format": FORMAT,
+        "method": method,
+        "config": dict(config),
+        "device": device,
+        "subject": subject,
+        "split": split,
+        "seconds": float(seconds),
+        "peak_mb": None if peak_mb is None else float(peak_mb),
+        "metrics": {k: float(v) for k, v in metrics.items()},
+    }
     return check_row(row)
 
 
@@ -163,41 +210,112 @@ def default_device() -> str:
     return torch.cuda.get_device_name() if torch.cuda.is_available() else f"cpu ({torch.get_num_threads()} threads)"
 
 
-def stability_row(method: str, config: dict, split: str, seconds: float, peak_mb: float | None, metrics: dict,
-                  perturbation: str, level: float, status: str = "ok", error: str | None = None,
-                  subject: int | None = None, device: str | None = None) -> dict:  # fmt: skip
+def stability_row(
+    method: str,
+    config: dict,
+    split: str,
+    seconds: float,
+    peak_mb: float | None,
+    metrics: dict,
+    perturbation: str,
+    level: float,
+    status: str = "ok",
+    error: str | None = None,
+    subject: int | None = None,
+    device: str | None = None,
+) -> dict:
     """A validated "stability" row: one method on one perturbed subject and split."""
-    row = {"format": FORMAT, "kind": "stability", "method": method, "config": dict(config),
-           "device": device or default_device(), "subject": subject, "split": split, "seconds": float(seconds),
-           "peak_mb": None if peak_mb is None else float(peak_mb), "metrics": {k: float(v) for k, v in metrics.items()},
-           "perturbation": perturbation, "level": float(level), "status": status, "error": error}  # fmt: skip
+    row = {
+        "format": FORMAT,
+        "kind": "stability",
+        "method": method,
+        "config": dict(config),
+        "device": device or default_device(),
+        "subject": subject,
+        "split": split,
+        "seconds": float(seconds),
+        "peak_mb": None if peak_mb is None else float(peak_mb),
+        "metrics": {k: float(v) for k, v in metrics.items()},
+        "perturbation": perturbation,
+        "level": float(level),
+        "status": status,
+        "error": error,
+    }
     return check_row(row)
 
 
-def budget_row(method: str, config: dict, split: str, seconds: float, metrics: dict, gaussians: int,
-               render_size: int, render_ms: float, usd_mib: float | None = None, usd_s: float | None = None,
-               noise: float | None = None, subject: int | None = None, device: str | None = None) -> dict:  # fmt: skip
+def budget_row(
+    method: str,
+    config: dict,
+    split: str,
+    seconds: float,
+    metrics: dict,
+    gaussians: int,
+    render_size: int,
+    render_ms: float,
+    usd_mib: float | None = None,
+    usd_s: float | None = None,
+    noise: float | None = None,
+    subject: int | None = None,
+    device: str | None = None,
+) -> dict:
     """A validated "budget" row: one avatar drawn with `gaussians` Gaussians, scored on a split."""
     opt = lambda v: None if v is None else float(v)  # noqa: E731
-    row = {"format": FORMAT, "kind": "budget", "method": method, "config": dict(config),
-           "device": device or default_device(), "subject": subject, "split": split, "seconds": float(seconds),
-           "peak_mb": None, "metrics": {k: float(v) for k, v in metrics.items()}, "gaussians": int(gaussians),
-           "render_size": int(render_size), "render_ms": float(render_ms), "usd_mib": opt(usd_mib),
-           "usd_s": opt(usd_s), "noise": opt(noise)}  # fmt: skip
+    row = {
+        "format": FORMAT,
+        "kind": "budget",
+        "method": method,
+        "config": dict(config),
+        "device": device or default_device(),
+        "subject": subject,
+        "split": split,
+        "seconds": float(seconds),
+        "peak_mb": None,
+        "metrics": {k: float(v) for k, v in metrics.items()},
+        "gaussians": int(gaussians),
+        "render_size": int(render_size),
+        "render_ms": float(render_ms),
+        "usd_mib": opt(usd_mib),
+        "usd_s": opt(usd_s),
+        "noise": opt(noise),
+    }
     return check_row(row)
 
 
-def speed_row(suite: str, case: str, method: str, config: dict, seconds: float | None, repeats: int, run: str,
-              device: str | None = None, **optional) -> dict:  # fmt: skip
+def speed_row(
+    suite: str,
+    case: str,
+    method: str,
+    config: dict,
+    seconds: float | None,
+    repeats: int,
+    run: str,
+    device: str | None = None,
+    **optional,
+) -> dict:
     """A validated "speed" row (optional fields: module doc; None values are left out)."""
-    row = {"format": FORMAT, "kind": "speed", "suite": suite, "case": case, "method": method, "config": dict(config),
-           "device": device or default_device(), "run": run, "seconds": None if seconds is None else float(seconds),
-           "repeats": int(repeats)}  # fmt: skip
+    row = {
+        "format": FORMAT,
+        "kind": "speed",
+        "suite": suite,
+        "case": case,
+        "method": method,
+        "config": dict(config),
+        "device": device or default_device(),
+        "run": run,
+        "seconds": None if seconds is None else float(seconds),
+        "repeats": int(repeats),
+    }
     unknown = set(optional) - set(_SPEED_OPTIONAL)
     if unknown:
         raise ValueError(f"speed_row: unknown fields {sorted(unknown)}")
-    row.update({k: (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else v)
-                for k, v in optional.items() if v is not None})  # fmt: skip
+    row.update(
+        {
+            k: (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else v)
+            for k, v in optional.items()
+            if v is not None
+        }
+    )
     return check_row(row)
 
 
@@ -261,9 +379,16 @@ def points(rows: list[dict], split: str, metric: str = "psnr_masked") -> list[di
         if row["split"] == split:
             key = json.dumps([row["method"], row["config"]], sort_keys=True)  # the full config, not the label
             groups.setdefault(key, []).append(row)
-    pts = [{"label": label(rs[0]), "method": rs[0]["method"], "seconds": statistics.median(r["seconds"] for r in rs),
-            "value": statistics.fmean(r["metrics"][metric] for r in rs), "subjects": len(rs)}
-           for rs in groups.values()]  # fmt: skip
+    pts = [
+        {
+            "label": label(rs[0]),
+            "method": rs[0]["method"],
+            "seconds": statistics.median(r["seconds"] for r in rs),
+            "value": statistics.fmean(r["metrics"][metric] for r in rs),
+            "subjects": len(rs),
+        }
+        for rs in groups.values()
+    ]
     return sorted(pts, key=lambda p: p["label"])
 
 
@@ -273,8 +398,12 @@ def pareto_front(pts: list[dict]) -> list[dict]:
     frontier is slower and more accurate)."""
     front = []
     for p in pts:
-        beaten = any(q["seconds"] <= p["seconds"] and q["value"] >= p["value"]
-                     and (q["seconds"] < p["seconds"] or q["value"] > p["value"]) for q in pts)  # fmt: skip
+        beaten = any(
+            q["seconds"] <= p["seconds"]
+            and q["value"] >= p["value"]
+            and (q["seconds"] < p["seconds"] or q["value"] > p["value"])
+            for q in pts
+        )
         if not beaten:
             front.append(p)
     return sorted(front, key=lambda p: (p["seconds"], p["value"]))

@@ -35,9 +35,9 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
 
 from dlacli.limits import DEFAULT_GAUSSIANS
 
@@ -72,8 +72,17 @@ class SpeedConfig:
 
 def quick_config() -> SpeedConfig:
     """A smoke-test size of every suite (seconds on two cores)."""
-    return SpeedConfig(splat_cases=((2_048, 64), (8_192, 128)), repeats=2, gaussians=8_192, frames=4, res=96,
-                       lift_steps=(0, 2), startup_runs=2, usd_gaussians=4_096, usd_tolerances_mm=(0.0,))  # fmt: skip
+    return SpeedConfig(
+        splat_cases=((2_048, 64), (8_192, 128)),
+        repeats=2,
+        gaussians=8_192,
+        frames=4,
+        res=96,
+        lift_steps=(0, 2),
+        startup_runs=2,
+        usd_gaussians=4_096,
+        usd_tolerances_mm=(0.0,),
+    )
 
 
 def _median_min(fn: Callable[[], object], repeats: int, sync: Callable[[], None] = lambda: None) -> tuple[float, float]:
@@ -123,8 +132,18 @@ def _startup(cfg: SpeedConfig, row) -> list[dict]:
     for case, argv in commands.items():
         runs = [once(argv) for _ in range(max(1, cfg.startup_runs))]
         times = [t for t, _ in runs]
-        out.append(row("startup", case, "cli", {}, statistics.median(times), len(times), min_seconds=min(times),
-                       torch_loaded=any(loaded for _, loaded in runs)))  # fmt: skip
+        out.append(
+            row(
+                "startup",
+                case,
+                "cli",
+                {},
+                statistics.median(times),
+                len(times),
+                min_seconds=min(times),
+                torch_loaded=any(loaded for _, loaded in runs),
+            )
+        )
     import shutil
 
     shutil.rmtree(tmp, ignore_errors=True)
@@ -155,12 +174,13 @@ def _splat_scene(n: int, res: int, sh_degree: int, seed: int = 0):
     f = 0.5 * res / math.tan(math.radians(25.0))
     c2w = np.eye(4)  # OpenGL axes: camera +X = world +X, +Y = world +Z, looks along world +Y
     c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = [1, 0, 0], [0, 0, 1], [0, -1, 0], [0, -3, 0]
-    return Gaussians(means, quats, scales, opac, sh), Cameras.from_c2w_opengl(c2w[None], f, f, res / 2, res / 2, res, res)
+    return Gaussians(means, quats, scales, opac, sh), Cameras.from_c2w_opengl(
+        c2w[None], f, f, res / 2, res / 2, res, res
+    )
 
 
 def _splat_case(path: str, n: int, res: int, repeats: int, sh_degree: int, budget_s: float) -> dict:
     import os
-    import statistics
     import threading
     import time
 
@@ -203,7 +223,9 @@ def _splat_case(path: str, n: int, res: int, repeats: int, sh_degree: int, budge
     rec["first_seconds"] = time.perf_counter() - t0
     rec["coverage"] = float((out.alpha > 0.5).float().mean())
     if path in ("torch", "dense") and rec["first_seconds"] * 4 * (1 + repeats) > budget_s:
-        rec["skipped"] = f"first forward took {rec['first_seconds']:.1f} s; its runs would pass the {budget_s:.0f} s budget"
+        rec["skipped"] = (
+            f"first forward took {rec['first_seconds']:.1f} s; its runs would pass the {budget_s:.0f} s budget"
+        )
         return rec
     rec["fwd"] = _median_min(fwd, repeats, sync)  # (one more warm-up call, then the timed ones)
     rec["fwd_bwd"] = _median_min(fwd_bwd, repeats, sync)
@@ -236,18 +258,25 @@ def _splat_case(path: str, n: int, res: int, repeats: int, sh_degree: int, budge
     return rec
 
 
-def _run_splat_case(path: str, n: int, res: int, cfg: SpeedConfig, pythonpath: str | None = None,
-                    numba_cache: str | None = None) -> dict:  # fmt: skip
+def _run_splat_case(
+    path: str, n: int, res: int, cfg: SpeedConfig, pythonpath: str | None = None, numba_cache: str | None = None
+) -> dict:
     src = "from __future__ import annotations\nimport statistics\nimport time\n\n" + "\n\n".join(
-        inspect.getsource(f) for f in (_median_min, _splat_scene, _splat_case))
+        inspect.getsource(f) for f in (_median_min, _splat_scene, _splat_case)
+    )
     src += "\n\nimport json, sys\nprint(json.dumps(_splat_case(*json.loads(sys.argv[1]))))\n"
-    env = dict(os.environ, OMP_WAIT_POLICY=os.environ.get("OMP_WAIT_POLICY", "PASSIVE"),
-               MALLOC_MMAP_THRESHOLD_=str(128 * 1024))  # big blocks from / back to the OS: the sampled RSS follows them  # fmt: skip
+    env = dict(
+        os.environ, OMP_WAIT_POLICY=os.environ.get("OMP_WAIT_POLICY", "PASSIVE"), MALLOC_MMAP_THRESHOLD_=str(128 * 1024)
+    )  # big blocks from / back to the OS: the sampled RSS follows them
     if numba_cache:
         env["NUMBA_CACHE_DIR"] = numba_cache
     if pythonpath:
-        env["PYTHONPATH"] = os.pathsep.join([pythonpath, *[p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]])
-    args = json.dumps([path if path != "numba_baseline" else "numba", n, res, cfg.repeats, cfg.sh_degree, cfg.torch_budget_s])
+        env["PYTHONPATH"] = os.pathsep.join(
+            [pythonpath, *[p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]]
+        )
+    args = json.dumps(
+        [path if path != "numba_baseline" else "numba", n, res, cfg.repeats, cfg.sh_degree, cfg.torch_budget_s]
+    )
     done = subprocess.run([sys.executable, "-c", src, args], capture_output=True, text=True, env=env, check=False)
     if done.returncode != 0:
         return {"skipped": "failed: " + (done.stderr.strip().splitlines() or ["no output"])[-1][:200]}
@@ -290,21 +319,50 @@ def _splat(cfg: SpeedConfig, row, log) -> list[dict]:
                 continue
             if path == "numba" and cfg.baseline:
                 for r in range(max(1, cfg.rounds)):
-                    todo += [("numba", r), ("numba_baseline", r)] if r % 2 == 0 else [("numba_baseline", r), ("numba", r)]
+                    todo += (
+                        [("numba", r), ("numba_baseline", r)] if r % 2 == 0 else [("numba_baseline", r), ("numba", r)]
+                    )
             else:
                 todo.append((path, 0))
         for path, rnd in todo:
             rec = _run_splat_case(path, n, res, cfg, cfg.baseline if path == "numba_baseline" else None)
             c = {**case_cfg, **({"round": rnd} if cfg.baseline and path.startswith("numba") else {})}
             if "skipped" in rec and "fwd" not in rec:
-                out.append(row("splat", "fwd", path, c, None, 0, skipped=rec["skipped"], first_seconds=rec.get("first_seconds")))
+                out.append(
+                    row(
+                        "splat", "fwd", path, c, None, 0, skipped=rec["skipped"], first_seconds=rec.get("first_seconds")
+                    )
+                )
                 log(f"splat {path} n={n} res={res}: skipped ({rec['skipped']})")
                 continue
-            out.append(row("splat", "fwd", path, c, rec["fwd"][0], cfg.repeats, min_seconds=rec["fwd"][1],
-                           first_seconds=rec["first_seconds"]))  # fmt: skip
-            out.append(row("splat", "fwd_bwd", path, c, rec["fwd_bwd"][0], cfg.repeats, min_seconds=rec["fwd_bwd"][1],
-                           peak_mb=rec.get("peak_mb")))  # fmt: skip
-            log(f"splat {path} n={n} res={res}: fwd {rec['fwd'][0] * 1e3:.1f} ms, fwd+bwd {rec['fwd_bwd'][0] * 1e3:.1f} ms")
+            out.append(
+                row(
+                    "splat",
+                    "fwd",
+                    path,
+                    c,
+                    rec["fwd"][0],
+                    cfg.repeats,
+                    min_seconds=rec["fwd"][1],
+                    first_seconds=rec["first_seconds"],
+                )
+            )
+            out.append(
+                row(
+                    "splat",
+                    "fwd_bwd",
+                    path,
+                    c,
+                    rec["fwd_bwd"][0],
+                    cfg.repeats,
+                    min_seconds=rec["fwd_bwd"][1],
+                    peak_mb=rec.get("peak_mb"),
+                )
+            )
+            log(
+                f"splat {path} n={n} res={res}: fwd {rec['fwd'][0] * 1e3:.1f} ms, fwd+bwd "
+                f"{rec['fwd_bwd'][0] * 1e3:.1f} ms"
+            )
     return out
 
 
@@ -315,10 +373,10 @@ def _body(cfg: SpeedConfig, row, log) -> list[dict]:
     import numpy as np
     import torch
 
+    from dlacli.avatar import gaussian_map as gm
     from dlacli.body.model import get_body_model
     from dlacli.body.skinning import skin_gaussians
     from dlacli.body.uv import tangent_frames
-    from dlacli.avatar import gaussian_map as gm
 
     t0 = time.perf_counter()
     body = get_body_model()
@@ -346,8 +404,10 @@ def _body(cfg: SpeedConfig, row, log) -> list[dict]:
         cases = {
             "tangent_frames": lambda: tangent_frames(verts, samples.face_id, samples.bary),
             "skin": lambda: skin_gaussians(*frames, zeros, dquat, ones),
-            "pose_and_skin": lambda: gm.skinned_params(fmap, samples, gm.sample_frames(body.forward({}, *p1).vertices, samples)),
-        }  # fmt: skip
+            "pose_and_skin": lambda: gm.skinned_params(
+                fmap, samples, gm.sample_frames(body.forward({}, *p1).vertices, samples)
+            ),
+        }
         for case, fn in cases.items():
             med, lo = _median_min(fn, cfg.repeats)
             out.append(row("body", case, "cpu", {"gaussians": n}, med, cfg.repeats, min_seconds=lo, items=1))
@@ -363,7 +423,6 @@ def _subject_and_avatar(cfg: SpeedConfig, log):
     if "avatar" not in cfg._cache:
         from dlacli.data.synth import synth
         from dlacli.io.views import read_views
-        from dlacli.data.synth import synth
         from dlacli.stages.methods import make_spec
 
         tmp = tempfile.mkdtemp(prefix="dla-speed-")
@@ -416,10 +475,23 @@ def _animate(cfg: SpeedConfig, row, log) -> list[dict]:
     write_animation(anim, path, "points", 0.001)
     usd_s = time.perf_counter() - t0
     cfg._cache["anim"] = anim
-    log(f"animate {cfg.frames} frames x {cfg.gaussians} Gaussians: pose {pose_s / cfg.frames * 1e3:.1f} ms/frame, USD {usd_s:.2f} s")
-    return [row("animate", "pose", "cpu", c, pose_s / cfg.frames, 1, items=cfg.frames),
-            row("animate", "usd_write", "cpu", {**c, "schema": "points", "tolerance_mm": 1.0}, usd_s, 1,
-                size_mib=path.stat().st_size / 2**20, items=cfg.frames)]  # fmt: skip
+    log(
+        f"animate {cfg.frames} frames x {cfg.gaussians} Gaussians: pose {pose_s / cfg.frames * 1e3:.1f} ms/frame, "
+        f"USD {usd_s:.2f} s"
+    )
+    return [
+        row("animate", "pose", "cpu", c, pose_s / cfg.frames, 1, items=cfg.frames),
+        row(
+            "animate",
+            "usd_write",
+            "cpu",
+            {**c, "schema": "points", "tolerance_mm": 1.0},
+            usd_s,
+            1,
+            size_mib=path.stat().st_size / 2**20,
+            items=cfg.frames,
+        ),
+    ]
 
 
 def walk_like(t: int, n: int, fps: float = 30.0, seed: int = 0):
@@ -438,7 +510,9 @@ def walk_like(t: int, n: int, fps: float = 30.0, seed: int = 0):
     angle = np.radians(30) * np.sin(2 * np.pi * secs[:, None] + phase)  # [T, LIMBS] about +X
     c, s = np.cos(angle)[:, limb], np.sin(angle)[:, limb]
     rel = base - pivot[limb]
-    positions = np.stack([np.broadcast_to(rel[:, 0], c.shape), c * rel[:, 1] - s * rel[:, 2], s * rel[:, 1] + c * rel[:, 2]], -1)
+    positions = np.stack(
+        [np.broadcast_to(rel[:, 0], c.shape), c * rel[:, 1] - s * rel[:, 2], s * rel[:, 1] + c * rel[:, 2]], -1
+    )
     positions += pivot[limb]
     positions[..., 1] -= 1.3 * secs[:, None]
     positions[..., 2] += 0.02 * np.sin(4 * np.pi * secs)[:, None]
@@ -459,15 +533,30 @@ def _usd(cfg: SpeedConfig, row, log) -> list[dict]:
         write_usd(path, positions[:1, :8], quats[:1, :8], scales[:8], rgb[:8], opacities[:8], 30.0)  # import pxr first
         for schema in cfg.usd_schemas:
             for tol in cfg.usd_tolerances_mm:
+
                 def write(schema=schema, tol=tol):
                     write_usd(path, positions, quats, scales, rgb, opacities, 30.0, schema=schema, tolerance=tol / 1000)
 
                 repeats = max(1, min(cfg.repeats, 3))
                 med, lo = _median_min(write, repeats)
                 size = path.stat().st_size / 2**20
-                out.append(row("usd", "write", "cpu", {"gaussians": n, "frames": t, "schema": schema, "tolerance_mm": tol},
-                               med, repeats, min_seconds=lo, size_mib=size, items=n * t))  # fmt: skip
-                log(f"usd {schema} tolerance {tol} mm: {med:.2f} s, {size:.1f} MiB ({n * t / med / 1e6:.1f} M Gaussian-frames/s)")
+                out.append(
+                    row(
+                        "usd",
+                        "write",
+                        "cpu",
+                        {"gaussians": n, "frames": t, "schema": schema, "tolerance_mm": tol},
+                        med,
+                        repeats,
+                        min_seconds=lo,
+                        size_mib=size,
+                        items=n * t,
+                    )
+                )
+                log(
+                    f"usd {schema} tolerance {tol} mm: {med:.2f} s, {size:.1f} MiB ({n * t / med / 1e6:.1f} M "
+                    "Gaussian-frames/s)"
+                )
     return out
 
 
@@ -486,16 +575,22 @@ def _render(cfg: SpeedConfig, row, log) -> list[dict]:
     t0 = time.perf_counter()
     list(render_avatar(avatar, cams, [None] * 8, n_gaussians=cfg.gaussians))
     per_image = (time.perf_counter() - t0) / 8
-    log(f"render {cfg.gaussians} Gaussians at {cfg.res} px: animation {1 / per_frame:.1f} fps, turntable {per_image * 1e3:.0f} ms/image")
-    return [row("render", "animation_frame", "cpu", {**c, "frames": k}, per_frame, k, items=1),
-            row("render", "turntable_image", "cpu", {**c, "cameras": 8}, per_image, 8, items=1)]  # fmt: skip
+    log(
+        f"render {cfg.gaussians} Gaussians at {cfg.res} px: animation {1 / per_frame:.1f} fps, turntable "
+        f"{per_image * 1e3:.0f} ms/image"
+    )
+    return [
+        row("render", "animation_frame", "cpu", {**c, "frames": k}, per_frame, k, items=1),
+        row("render", "turntable_image", "cpu", {**c, "cameras": 8}, per_image, 8, items=1),
+    ]
 
 
 # ------------------------------------------------------------------------------------ driver
 
 
-def run(suites: list[str] | tuple[str, ...] = SUITES, cfg: SpeedConfig | None = None,
-        log: Callable[[str], None] = print) -> list[dict]:  # fmt: skip
+def run(
+    suites: list[str] | tuple[str, ...] = SUITES, cfg: SpeedConfig | None = None, log: Callable[[str], None] = print
+) -> list[dict]:
     """The suites' speed rows (dlacli.bench.rows "speed"), one `run` id for all."""
     from dlacli.bench.rows import default_device, speed_row
 
@@ -511,9 +606,15 @@ def run(suites: list[str] | tuple[str, ...] = SUITES, cfg: SpeedConfig | None = 
     def row(suite, case, method, config, seconds, repeats, **optional):
         return speed_row(suite, case, method, config, seconds, repeats, run_id, device, **optional)
 
-    fns = {"startup": lambda: _startup(cfg, row), "splat": lambda: _splat(cfg, row, log), "body": lambda: _body(cfg, row, log),
-           "lift": lambda: _lift(cfg, row, log), "animate": lambda: _animate(cfg, row, log),
-           "usd": lambda: _usd(cfg, row, log), "render": lambda: _render(cfg, row, log)}  # fmt: skip
+    fns = {
+        "startup": lambda: _startup(cfg, row),
+        "splat": lambda: _splat(cfg, row, log),
+        "body": lambda: _body(cfg, row, log),
+        "lift": lambda: _lift(cfg, row, log),
+        "animate": lambda: _animate(cfg, row, log),
+        "usd": lambda: _usd(cfg, row, log),
+        "render": lambda: _render(cfg, row, log),
+    }
     rows: list[dict] = []
     try:
         for suite in SUITES:
@@ -545,6 +646,14 @@ def ratios(rows: list[dict], reference: str, suite: str = "splat") -> list[dict]
         ref = statistics.median(by[reference])
         for method, secs in sorted(by.items()):
             if method != reference:
-                out.append({"run": run_id, "case": case, "config": json.loads(cfg), "method": method,
-                            "reference": reference, "ratio": ref / statistics.median(secs)})  # fmt: skip
+                out.append(
+                    {
+                        "run": run_id,
+                        "case": case,
+                        "config": json.loads(cfg),
+                        "method": method,
+                        "reference": reference,
+                        "ratio": ref / statistics.median(secs),
+                    }
+                )
     return out

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import numpy as np
 
@@ -47,8 +47,14 @@ class Subject:
     info: dict  # measured facts about the subject (hand clearance, fill of the frame)
 
 
-def make_subject(seed: int, res: int, novel_views: int = 4, novel_poses: int = 2,
-                 pose: Callable | None = None, distance: float | None = None) -> Subject:  # fmt: skip
+def make_subject(
+    seed: int,
+    res: int,
+    novel_views: int = 4,
+    novel_poses: int = 2,
+    pose: Callable | None = None,
+    distance: float | None = None,
+) -> Subject:
     """The synth subject `seed` at res px (as dlacli.data.synth.synth, in memory): `pose(spec)`
     returns the input pose [J, 3] in place of the relaxed one; `distance` (metres) moves the
     input cameras (novel views and poses keep the standard rig)."""
@@ -87,15 +93,19 @@ def make_subject(seed: int, res: int, novel_views: int = 4, novel_poses: int = 2
     nv = _view_set(render(body, verts, ncams, seed), ncams, truth, [None] * novel_views, {})
     motion = novel_motion(seed, base, novel_poses)
     posed_body = DressedBody(base) if pose is not None else body
-    posed = posed_body.vertices(motion.rotations, torch.from_numpy(motion.root_rotation), torch.from_numpy(motion.root_translation))
+    posed = posed_body.vertices(
+        motion.rotations, torch.from_numpy(motion.root_rotation), torch.from_numpy(motion.root_translation)
+    )
     k = len(POSE_AZIMUTHS)
     cams1 = synth_orbit_cameras(POSE_AZIMUTHS, INPUT_ELEVATION, res)
     pcams = Cameras(cams1.viewmats.repeat(novel_poses, 1, 1), cams1.Ks.repeat(novel_poses, 1, 1), res, res)
     prgba = render(posed_body, np.repeat(posed, k, axis=0), pcams, seed)
     npose = _view_set(prgba, pcams, _body_params(base, None), [t for t in range(novel_poses) for _ in range(k)], {})
     rows = np.nonzero(views.masks.max(axis=(0, 2)) > 0.5)[0]
-    info = {"fill": float((rows.max() - rows.min() + 1) / res) if rows.size else 0.0,
-            "hand_clearance_m": hand_clearance(spec)}  # fmt: skip
+    info = {
+        "fill": float((rows.max() - rows.min() + 1) / res) if rows.size else 0.0,
+        "hand_clearance_m": hand_clearance(spec),
+    }
     return Subject(int(seed), views, nv, npose, motion, info)
 
 
@@ -146,7 +156,9 @@ def misregister_px(views: ViewSet, pixels: float, rng: np.random.Generator) -> V
         dy, dx = pixels * math.sin(a), pixels * math.cos(a)
         images[v] = ndimage.shift(views.images[v], (dy, dx, 0), order=1, mode="constant", cval=0.0)
         masks[v] = ndimage.shift(views.masks[v], (dy, dx), order=1, mode="constant", cval=0.0)
-    return replace(views, images=np.clip(images, 0, 1).astype(np.float32), masks=np.clip(masks, 0, 1).astype(np.float32))
+    return replace(
+        views, images=np.clip(images, 0, 1).astype(np.float32), masks=np.clip(masks, 0, 1).astype(np.float32)
+    )
 
 
 def misregister_deg(views: ViewSet, degrees: float, rng: np.random.Generator) -> ViewSet:
@@ -178,9 +190,14 @@ def fewer_views(views: ViewSet, count: float, rng: np.random.Generator) -> ViewS
     keep = list(VIEW_SUBSETS[int(count)])
     idx = torch.tensor(keep)
     cams = Cameras(views.cameras.viewmats[idx], views.cameras.Ks[idx], views.cameras.width, views.cameras.height)
-    return replace(views, images=views.images[keep], masks=views.masks[keep], cameras=cams,
-                   file_paths=[views.file_paths[k] for k in keep] if views.file_paths else [],
-                   times=[views.times[k] for k in keep])  # fmt: skip
+    return replace(
+        views,
+        images=views.images[keep],
+        masks=views.masks[keep],
+        cameras=cams,
+        file_paths=[views.file_paths[k] for k in keep] if views.file_paths else [],
+        times=[views.times[k] for k in keep],
+    )
 
 
 def extreme_pose(spec, degrees: float) -> np.ndarray:
@@ -223,18 +240,21 @@ class Perturbation:
         return self.views is None
 
 
-PERTURBATIONS = {p.name: p for p in (
-    Perturbation("pose_noise", "degrees per bone", (0.0, 1.0, 2.0, 5.0, 10.0), views=pose_noise),
-    Perturbation("shape_noise", "phenotype s.d.", (0.0, 0.02, 0.05, 0.1, 0.2), views=shape_noise),
-    Perturbation("colour_shift", "log-gain s.d.", (0.0, 0.05, 0.1, 0.2, 0.4), views=colour_shift),
-    Perturbation("misregister_px", "pixels", (0.0, 1.0, 2.0, 4.0, 8.0), views=misregister_px),
-    Perturbation("misregister_deg", "degrees of azimuth", (0.0, 1.0, 2.0, 5.0, 10.0), views=misregister_deg),
-    Perturbation("fewer_views", "views", (4.0, 3.0, 2.0, 1.0), views=fewer_views),
-    Perturbation("extreme_pose", "degrees", (0.0, 40.0, 80.0, 120.0), pose=extreme_pose),
-    Perturbation("self_contact", "degrees of arm adduction", (0.0, 8.0, 16.0, 24.0), pose=self_contact),
-    Perturbation("small_in_frame", "x camera distance", (1.0, 1.5, 2.0, 3.0, 4.0), distance=True),
-    Perturbation("large_in_frame", "x camera distance", (1.0, 0.9, 0.8, 0.75), distance=True),
-)}  # fmt: skip
+PERTURBATIONS = {
+    p.name: p
+    for p in (
+        Perturbation("pose_noise", "degrees per bone", (0.0, 1.0, 2.0, 5.0, 10.0), views=pose_noise),
+        Perturbation("shape_noise", "phenotype s.d.", (0.0, 0.02, 0.05, 0.1, 0.2), views=shape_noise),
+        Perturbation("colour_shift", "log-gain s.d.", (0.0, 0.05, 0.1, 0.2, 0.4), views=colour_shift),
+        Perturbation("misregister_px", "pixels", (0.0, 1.0, 2.0, 4.0, 8.0), views=misregister_px),
+        Perturbation("misregister_deg", "degrees of azimuth", (0.0, 1.0, 2.0, 5.0, 10.0), views=misregister_deg),
+        Perturbation("fewer_views", "views", (4.0, 3.0, 2.0, 1.0), views=fewer_views),
+        Perturbation("extreme_pose", "degrees", (0.0, 40.0, 80.0, 120.0), pose=extreme_pose),
+        Perturbation("self_contact", "degrees of arm adduction", (0.0, 8.0, 16.0, 24.0), pose=self_contact),
+        Perturbation("small_in_frame", "x camera distance", (1.0, 1.5, 2.0, 3.0, 4.0), distance=True),
+        Perturbation("large_in_frame", "x camera distance", (1.0, 0.9, 0.8, 0.75), distance=True),
+    )
+}
 
 
 def quick_levels(p: Perturbation, k: int) -> tuple[float, ...]:
@@ -270,7 +290,10 @@ def score(avatar: Avatar, subject: Subject) -> tuple[str, dict[str, dict[str, fl
     if visible_gaussians(avatar) == 0:
         return "empty", {}
     out = {}
-    for split, views, motion in (("novel_views", subject.novel_views, None), ("novel_poses", subject.novel_poses, subject.motion)):
+    for split, views, motion in (
+        ("novel_views", subject.novel_views, None),
+        ("novel_poses", subject.novel_poses, subject.motion),
+    ):
         pred, gt = render_split(avatar, views, motion)
         if not np.isfinite(pred).all():
             return "nan", {}
@@ -298,14 +321,35 @@ def _rows(spec: MethodSpec, res, subject, pert: Perturbation, level, result, dev
     from dlacli.bench.rows import stability_row
 
     cfg = {**spec.options(), "res": res, **{f"subject_{k}": round(v, 4) for k, v in subject.info.items()}}
-    return [stability_row(spec.name, cfg, split, result["seconds"], None, result["metrics"].get(split, {}), pert.name,
-                          level, result["status"], result["error"], subject=subject.seed, device=device)
-            for split in ("novel_views", "novel_poses")]  # fmt: skip
+    return [
+        stability_row(
+            spec.name,
+            cfg,
+            split,
+            result["seconds"],
+            None,
+            result["metrics"].get(split, {}),
+            pert.name,
+            level,
+            result["status"],
+            result["error"],
+            subject=subject.seed,
+            device=device,
+        )
+        for split in ("novel_views", "novel_poses")
+    ]
 
 
-def run(seeds: list[int], methods: list[MethodSpec], perturbations: list[str] | None = None, res: int = 256,
-        levels: int | None = None, novel_views: int = 4, novel_poses: int = 2,
-        log: Callable[[str], None] = print) -> list[dict]:  # fmt: skip
+def run(
+    seeds: list[int],
+    methods: list[MethodSpec],
+    perturbations: list[str] | None = None,
+    res: int = 256,
+    levels: int | None = None,
+    novel_views: int = 4,
+    novel_poses: int = 2,
+    log: Callable[[str], None] = print,
+) -> list[dict]:
     """Every method (stages.methods specs) on every level of every perturbation, per seed ->
     stability rows. `levels`: at most this many levels per perturbation (`quick_levels`). The
     clean run is made once per method and seed and reported as each perturbation's baseline."""
@@ -326,9 +370,14 @@ def run(seeds: list[int], methods: list[MethodSpec], perturbations: list[str] | 
                 else:
                     rng = np.random.default_rng([seed, list(PERTURBATIONS).index(name), i])
                     if pert.subject_level():
-                        subject = make_subject(seed, res, novel_views, novel_poses,
-                                               pose=(lambda spec, lv_=level: pert.pose(spec, lv_)) if pert.pose else None,
-                                               distance=level * _rig_distance() if pert.distance else None)  # fmt: skip
+                        subject = make_subject(
+                            seed,
+                            res,
+                            novel_views,
+                            novel_poses,
+                            pose=(lambda spec, lv_=level, p_=pert: p_.pose(spec, lv_)) if pert.pose else None,
+                            distance=level * _rig_distance() if pert.distance else None,
+                        )
                         inputs = subject.views
                     else:
                         subject, inputs = clean, pert.views(clean.views, level, rng)
@@ -336,8 +385,16 @@ def run(seeds: list[int], methods: list[MethodSpec], perturbations: list[str] | 
                 for spec, result in zip(methods, results):
                     rows += _rows(spec, res, subject, pert, level, result, device)
                     nv = result["metrics"].get("novel_views", {}).get("psnr_masked")
-                    log(f"seed {seed} {name} {level:g}: {spec.label} {result['status']}"
-                        + (f", novel views masked PSNR {nv:.2f}" if nv is not None else f" ({result['error']})" if result["error"] else ""))  # fmt: skip
+                    log(
+                        f"seed {seed} {name} {level:g}: {spec.label} {result['status']}"
+                        + (
+                            f", novel views masked PSNR {nv:.2f}"
+                            if nv is not None
+                            else f" ({result['error']})"
+                            if result["error"]
+                            else ""
+                        )
+                    )
     return rows
 
 
@@ -367,8 +424,13 @@ def curves(rows: list[dict], split: str = "novel_views", metric: str = "psnr_mas
         else:
             cell[2] += 1
     order = sorted(out, key=lambda p: (list(PERTURBATIONS).index(p) if p in PERTURBATIONS else len(PERTURBATIONS), p))
-    return {p: {m: [(lv, float(np.mean(v)) if v else float("nan"), n, f) for lv, (v, n, f) in out[p][m].items()]
-                for m in sorted(out[p])} for p in order}  # fmt: skip
+    return {
+        p: {
+            m: [(lv, float(np.mean(v)) if v else float("nan"), n, f) for lv, (v, n, f) in out[p][m].items()]
+            for m in sorted(out[p])
+        }
+        for p in order
+    }
 
 
 def drop_level(curve: list[tuple], drop_db: float = DROP_DB) -> float | None:
@@ -377,7 +439,7 @@ def drop_level(curve: list[tuple], drop_db: float = DROP_DB) -> float | None:
     if not curve or not math.isfinite(curve[0][1]):
         return curve[0][0] if curve else None
     base = curve[0][1]
-    for level, value, runs, fails in curve[1:]:
+    for level, value, _runs, fails in curve[1:]:
         if (not math.isfinite(value) and fails) or value <= base - drop_db:
             return level
     return None

@@ -11,7 +11,7 @@ pose, so the soles rest on anny's zero-pose ground.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -84,8 +84,7 @@ def walk() -> Motion:
         p = phase + (0.0 if side == "L" else np.pi)
         b.rotate(f"upperleg01.{side}", x=-hip * np.sin(p))
         # the knee bends in the swing (when the thigh moves forward) and a little at heel strike
-        b.rotate(f"lowerleg01.{side}", x=np.radians(30.0) * np.clip(np.cos(p), 0.0, None) ** 2
-                 + np.radians(6.0))  # fmt: skip
+        b.rotate(f"lowerleg01.{side}", x=np.radians(30.0) * np.clip(np.cos(p), 0.0, None) ** 2 + np.radians(6.0))
         b.rotate(f"foot.{side}", x=-np.radians(8.0) * np.sin(p))
         b.rotate(f"upperarm01.{side}", y=sign * np.radians(28.0), x=hip * 0.8 * np.sin(p))
         b.rotate(f"lowerarm01.{side}", x=-np.radians(10.0) - np.radians(8.0) * np.clip(np.sin(p), 0, None))

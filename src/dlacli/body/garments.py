@@ -44,14 +44,28 @@ HM08_EYES = (14598, 14742)
 ASSET_DIR = Path(__file__).resolve().parent.parent / "assets" / "garments"
 # Every shipped garment and what it is (assets/garments/LICENSE.md lists the files and their sources).
 GARMENT_KIND = {
-    "female_casualsuit01": "suit", "female_casualsuit02": "suit", "female_elegantsuit01": "suit",
-    "male_casualsuit01": "suit", "male_casualsuit02": "suit", "male_casualsuit03": "suit",
-    "male_casualsuit04": "suit", "male_casualsuit05": "suit", "male_casualsuit06": "suit",
+    "female_casualsuit01": "suit",
+    "female_casualsuit02": "suit",
+    "female_elegantsuit01": "suit",
+    "male_casualsuit01": "suit",
+    "male_casualsuit02": "suit",
+    "male_casualsuit03": "suit",
+    "male_casualsuit04": "suit",
+    "male_casualsuit05": "suit",
+    "male_casualsuit06": "suit",
     "male_elegantsuit01": "suit",
-    "shoes01": "shoes", "shoes02": "shoes",
-    "afro01": "hair", "bob01": "hair", "braid01": "hair", "long01": "hair", "ponytail01": "hair",
-    "short01": "hair", "short02": "hair", "short03": "hair", "short04": "hair",
-}  # fmt: skip
+    "shoes01": "shoes",
+    "shoes02": "shoes",
+    "afro01": "hair",
+    "bob01": "hair",
+    "braid01": "hair",
+    "long01": "hair",
+    "ponytail01": "hair",
+    "short01": "hair",
+    "short02": "hair",
+    "short03": "hair",
+    "short04": "hair",
+}
 SHIPPED = tuple(GARMENT_KIND)
 
 
@@ -285,13 +299,12 @@ def load_garment(name_or_path: str | os.PathLike) -> Garment:
     if mesh.vertices.shape[0] != binding.ref_indices.shape[0]:
         raise DlaInputError(
             path,
-            f"{binding.ref_indices.shape[0]} vertex lines but {binding.obj_file} has "
-            f"{mesh.vertices.shape[0]} vertices",
+            f"{binding.ref_indices.shape[0]} vertex lines but {binding.obj_file} has {mesh.vertices.shape[0]} vertices",
         )
     return Garment(binding.name, binding, mesh)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def shipped_garment(name: str) -> Garment:
     """A shipped garment, parsed once per process."""
     return load_garment(name)
@@ -352,9 +365,7 @@ class BoundGarment:
     def pose(self, body_vertices: torch.Tensor) -> torch.Tensor:
         """body_vertices [T, 19158, 3] or [19158, 3] (anny-full, posed) -> [T, G, 3] or [G, 3]."""
         if body_vertices.shape[-2:] != (HM08_VERTICES, 3):
-            raise DlaInputError(
-                "body_vertices", f"expected [..., {HM08_VERTICES}, 3], got {list(body_vertices.shape)}"
-            )
+            raise DlaInputError("body_vertices", f"expected [..., {HM08_VERTICES}, 3], got {list(body_vertices.shape)}")
         b = self.garment.binding
         idx = torch.from_numpy(b.ref_indices).to(body_vertices.device)
         w = torch.from_numpy(b.weights).to(body_vertices)

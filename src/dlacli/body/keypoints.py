@@ -18,7 +18,7 @@
 from __future__ import annotations
 
 import functools
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -27,17 +27,47 @@ from dlacli.body.model import BodyModel, anny_data_dir, axis_angle_to_pose_param
 from dlacli.types import PHENOTYPE_KEYS
 
 COCO_NAMES = (
-    "nose", "left_eye", "right_eye", "left_ear", "right_ear",
-    "left_shoulder", "right_shoulder", "left_elbow", "right_elbow",
-    "left_wrist", "right_wrist", "left_hip", "right_hip",
-    "left_knee", "right_knee", "left_ankle", "right_ankle",
-)  # fmt: skip
+    "nose",
+    "left_eye",
+    "right_eye",
+    "left_ear",
+    "right_ear",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+)
 NUM_KEYPOINTS = len(COCO_NAMES)
 # Pairs drawn as a skeleton (COCO's own skeleton, 0-based).
 COCO_SKELETON = (
-    (15, 13), (13, 11), (16, 14), (14, 12), (11, 12), (5, 11), (6, 12), (5, 6), (5, 7), (6, 8),
-    (7, 9), (8, 10), (1, 2), (0, 1), (0, 2), (1, 3), (2, 4), (3, 5), (4, 6),
-)  # fmt: skip
+    (15, 13),
+    (13, 11),
+    (16, 14),
+    (14, 12),
+    (11, 12),
+    (5, 11),
+    (6, 12),
+    (5, 6),
+    (5, 7),
+    (6, 8),
+    (7, 9),
+    (8, 10),
+    (1, 2),
+    (0, 1),
+    (0, 2),
+    (1, 3),
+    (2, 4),
+    (3, 5),
+    (4, 6),
+)
 
 
 @functools.lru_cache(maxsize=1)
@@ -143,9 +173,7 @@ class PointRig:
             db.append((b1 - b0) / h)
         self._dq = torch.stack(dq) if dq else torch.zeros((0,) + q0.shape)  # [K, P, J, 4]
         self._db = torch.stack(db) if db else torch.zeros((0,) + b0.shape)  # [K, J, 4, 4]
-        self._p0 = torch.tensor(
-            [self.phenotype0.get(k, 0.5) for k in self.free_keys], dtype=torch.float32
-        )  # [K]
+        self._p0 = torch.tensor([self.phenotype0.get(k, 0.5) for k in self.free_keys], dtype=torch.float32)  # [K]
 
     def __call__(
         self,
@@ -163,9 +191,7 @@ class PointRig:
             d = phenotype - self._p0  # [K]
             q = q + (d @ self._dq[:, :n].reshape(d.shape[0], -1)).reshape(q.shape)
             b = b + (d @ self._db.reshape(d.shape[0], -1)).reshape(b.shape)
-        params = axis_angle_to_pose_params(
-            rotations[None], root_rotation.reshape(1, 3), root_translation.reshape(1, 3)
-        )
+        params = axis_angle_to_pose_params(rotations[None], root_rotation.reshape(1, 3), root_translation.reshape(1, 3))
         transforms, poses = self._anny.get_bone_transforms(params, b[None])  # [1, J, 4, 4] each
         t34 = transforms[0][:, :3, :].transpose(1, 2).reshape(-1, 3)  # [J * 4, 3]
         pts = q.reshape(q.shape[0], -1) @ t34  # [P, 3] = sum_j T_j[:3] q_pj

@@ -20,9 +20,9 @@ import copy
 import functools
 import os
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import torch
@@ -80,17 +80,14 @@ def axis_angle_to_pose_params(rotations, root_rotation, root_translation):
     t, j = rot.shape[:2]
     if rr.shape != (t, 3) or rt.shape != (t, 3):
         raise ValueError(
-            f"root_rotation and root_translation must be [{t}, 3], got "
-            f"{tuple(rr.shape)} and {tuple(rt.shape)}"
+            f"root_rotation and root_translation must be [{t}, 3], got {tuple(rr.shape)} and {tuple(rt.shape)}"
         )
     mats = axis_angle_to_matrix(rot)  # [T, J, 3, 3]
     root = axis_angle_to_matrix(rr) @ mats[:, 0]  # [T, 3, 3]
     mats = torch.cat([root[:, None], mats[:, 1:]], dim=1)
     trans = torch.cat([rt[:, None], torch.zeros_like(rot[:, 1:])], dim=1)  # [T, J, 3]
     bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=rot.dtype, device=rot.device)
-    params = torch.cat(
-        [torch.cat([mats, trans[..., None]], dim=-1), bottom.expand(t, j, 1, 4)], dim=-2
-    )  # [T, J, 4, 4]
+    params = torch.cat([torch.cat([mats, trans[..., None]], dim=-1), bottom.expand(t, j, 1, 4)], dim=-2)  # [T, J, 4, 4]
     return params.numpy() if was_np else params
 
 
@@ -229,9 +226,7 @@ class BodyModel:
         phenotype = dict(phenotype or {})
         unknown = sorted(set(phenotype) - set(PHENOTYPE_KEYS))
         if unknown:
-            raise DlaInputError(
-                "phenotype", f"unknown key(s) {unknown}; valid keys: {', '.join(PHENOTYPE_KEYS)}"
-            )
+            raise DlaInputError("phenotype", f"unknown key(s) {unknown}; valid keys: {', '.join(PHENOTYPE_KEYS)}")
         out = {}
         for key in PHENOTYPE_KEYS:
             value = float(phenotype.get(key, 0.5))
@@ -253,9 +248,7 @@ class BodyModel:
         if not rotations.is_floating_point():
             rotations = rotations.float()
         if rotations.ndim != 3 or rotations.shape[1:] != (self.num_bones, 3):
-            raise ValueError(
-                f"rotations must be [T, {self.num_bones}, 3], got {tuple(rotations.shape)}"
-            )
+            raise ValueError(f"rotations must be [T, {self.num_bones}, 3], got {tuple(rotations.shape)}")
         t = rotations.shape[0]
         root_rotation = torch.as_tensor(root_rotation).to(rotations).reshape(-1, 3)
         root_translation = torch.as_tensor(root_translation).to(rotations).reshape(-1, 3)
@@ -337,9 +330,7 @@ class BodyModel:
                     torch.from_numpy(np.asarray(motion.root_translation[sel], dtype=np.float32)),
                 )
             )
-        return BodyOutput(
-            *(torch.cat([getattr(p, f) for p in parts]) for f in BodyOutput.__dataclass_fields__)
-        )
+        return BodyOutput(*(torch.cat([getattr(p, f) for p in parts]) for f in BodyOutput.__dataclass_fields__))
 
     @torch.no_grad()
     def zero_pose(self, phenotype: dict[str, float] | None = None) -> BodyOutput:
@@ -371,9 +362,7 @@ def get_body_model() -> BodyModel:
 # body.json pose dictionaries
 
 
-def pose_to_rotations(
-    pose: dict[str, np.ndarray], where: str, model: BodyModel | None = None
-) -> np.ndarray:
+def pose_to_rotations(pose: dict[str, np.ndarray], where: str, model: BodyModel | None = None) -> np.ndarray:
     """{bone label: axis-angle (3)} -> [J, 3] float32 (omitted bones at rest).
 
     Raises DlaInputError(where, ...) for an unknown bone label or a value that is not 3 finite
@@ -402,8 +391,4 @@ def rotations_to_pose(rotations: np.ndarray, model: BodyModel | None = None) -> 
     )
     if rot.shape != (model.num_bones, 3):
         raise ValueError(f"rotations must be [{model.num_bones}, 3], got {rot.shape}")
-    return {
-        model.bone_labels[j]: rot[j].copy()
-        for j in range(model.num_bones)
-        if np.any(rot[j] != 0.0)
-    }
+    return {model.bone_labels[j]: rot[j].copy() for j in range(model.num_bones) if np.any(rot[j] != 0.0)}

@@ -54,10 +54,25 @@ _COMPOSITE = {
 }
 
 REGION_NAMES = (
-    "face", "head", "hair", "hands", "left_hand", "right_hand", "feet", "left_foot",
-    "right_foot", "arms", "left_arm", "right_arm", "legs", "left_leg", "right_leg", "torso",
-    "upper_body", "lower_body",
-)  # fmt: skip
+    "face",
+    "head",
+    "hair",
+    "hands",
+    "left_hand",
+    "right_hand",
+    "feet",
+    "left_foot",
+    "right_foot",
+    "arms",
+    "left_arm",
+    "right_arm",
+    "legs",
+    "left_leg",
+    "right_leg",
+    "torso",
+    "upper_body",
+    "lower_body",
+)
 
 # anny segmentation label -> part (None: split further by skinning weights / geometry)
 _SEGMENT_PART = {
@@ -158,9 +173,7 @@ def face_parts() -> np.ndarray:
     half_width = np.abs(hv[:, 0]).max()
     ear_y = hv[np.abs(hv[:, 0]) > 0.9 * half_width, 1].mean()
     centroid = rest[m.faces].mean(axis=1)  # [F, 3]
-    is_face = (centroid[:, 1] < ear_y + EAR_PLANE_BEHIND_EARS) & (
-        centroid[:, 2] < eyes[2] + HAIRLINE_ABOVE_EYES
-    )
+    is_face = (centroid[:, 1] < ear_y + EAR_PLANE_BEHIND_EARS) & (centroid[:, 2] < eyes[2] + HAIRLINE_ABOVE_EYES)
     # the neck (below a plane from under the chin, in front, up to the skull's base, behind)
     neck_cut = eyes[2] - NECK_BELOW_EYES_FRONT + (centroid[:, 1] - eyes[1]) * NECK_CUT_SLOPE
     is_neck = centroid[:, 2] < neck_cut

@@ -64,41 +64,103 @@ def _sided(table: dict[str, str], left: str, right: str) -> dict[str, str]:
 
 
 _LIMBS_MB = {
-    "{S}Shoulder": "clavicle.{side}", "{S}Arm": "upperarm01.{side}",
-    "{S}ForeArm": "lowerarm01.{side}", "{S}Hand": "wrist.{side}",
-    "{S}UpLeg": "upperleg01.{side}", "{S}Leg": "lowerleg01.{side}", "{S}Foot": "foot.{side}",
-}  # fmt: skip
+    "{S}Shoulder": "clavicle.{side}",
+    "{S}Arm": "upperarm01.{side}",
+    "{S}ForeArm": "lowerarm01.{side}",
+    "{S}Hand": "wrist.{side}",
+    "{S}UpLeg": "upperleg01.{side}",
+    "{S}Leg": "lowerleg01.{side}",
+    "{S}Foot": "foot.{side}",
+}
 _TABLES: dict[str, dict[str, str]] = {  # source joint name (as written) -> anny bone
-    "cmu-3dsmax": _sided({
-        "Hips": "root", "lowerback": "spine05", "Chest": "spine03", "Chest2": "spine01",
-        "lowerneck": "neck01", "Neck": "neck02", "Head": "head",
-        "{S}Collar": "clavicle.{side}", "{S}Shoulder": "upperarm01.{side}",
-        "{S}Elbow": "lowerarm01.{side}", "{S}Wrist": "wrist.{side}",
-        "{S}Hip": "upperleg01.{side}", "{S}Knee": "lowerleg01.{side}", "{S}Ankle": "foot.{side}",
-    }, "L", "R"),  # fmt: skip
-    "cmu-motionbuilder": _sided({
-        "Hips": "root", "LowerBack": "spine05", "Spine": "spine03", "Spine1": "spine01",
-        "Neck": "neck01", "Neck1": "neck02", "Head": "head", **_LIMBS_MB,
-    }, "L", "R"),  # fmt: skip
-    "cmu-asf": _sided({
-        "root": "root", "lowerback": "spine05", "upperback": "spine03", "thorax": "spine01",
-        "lowerneck": "neck01", "upperneck": "neck02", "head": "head",
-        "{s}clavicle": "clavicle.{side}", "{s}humerus": "upperarm01.{side}",
-        "{s}radius": "lowerarm01.{side}", "{s}wrist": "wrist.{side}",
-        "{s}femur": "upperleg01.{side}", "{s}tibia": "lowerleg01.{side}", "{s}foot": "foot.{side}",
-    }, "L", "R"),  # fmt: skip
-    "mixamo": _sided({
-        "Hips": "root", "Spine": "spine04", "Spine1": "spine02", "Spine2": "spine01",
-        "Neck": "neck01", "Head": "head", **_LIMBS_MB,
-    }, "L", "R"),  # fmt: skip
+    "cmu-3dsmax": _sided(
+        {
+            "Hips": "root",
+            "lowerback": "spine05",
+            "Chest": "spine03",
+            "Chest2": "spine01",
+            "lowerneck": "neck01",
+            "Neck": "neck02",
+            "Head": "head",
+            "{S}Collar": "clavicle.{side}",
+            "{S}Shoulder": "upperarm01.{side}",
+            "{S}Elbow": "lowerarm01.{side}",
+            "{S}Wrist": "wrist.{side}",
+            "{S}Hip": "upperleg01.{side}",
+            "{S}Knee": "lowerleg01.{side}",
+            "{S}Ankle": "foot.{side}",
+        },
+        "L",
+        "R",
+    ),
+    "cmu-motionbuilder": _sided(
+        {
+            "Hips": "root",
+            "LowerBack": "spine05",
+            "Spine": "spine03",
+            "Spine1": "spine01",
+            "Neck": "neck01",
+            "Neck1": "neck02",
+            "Head": "head",
+            **_LIMBS_MB,
+        },
+        "L",
+        "R",
+    ),
+    "cmu-asf": _sided(
+        {
+            "root": "root",
+            "lowerback": "spine05",
+            "upperback": "spine03",
+            "thorax": "spine01",
+            "lowerneck": "neck01",
+            "upperneck": "neck02",
+            "head": "head",
+            "{s}clavicle": "clavicle.{side}",
+            "{s}humerus": "upperarm01.{side}",
+            "{s}radius": "lowerarm01.{side}",
+            "{s}wrist": "wrist.{side}",
+            "{s}femur": "upperleg01.{side}",
+            "{s}tibia": "lowerleg01.{side}",
+            "{s}foot": "foot.{side}",
+        },
+        "L",
+        "R",
+    ),
+    "mixamo": _sided(
+        {
+            "Hips": "root",
+            "Spine": "spine04",
+            "Spine1": "spine02",
+            "Spine2": "spine01",
+            "Neck": "neck01",
+            "Head": "head",
+            **_LIMBS_MB,
+        },
+        "L",
+        "R",
+    ),
     "smpl": {
-        "pelvis": "root", "spine1": "spine04", "spine2": "spine02", "spine3": "spine01",
-        "neck": "neck01", "head": "head",
-        **{f"{side}_{src}": f"{dst}.{lr}" for side, lr in (("left", "L"), ("right", "R"))
-           for src, dst in (("collar", "clavicle"), ("shoulder", "upperarm01"),
-                            ("elbow", "lowerarm01"), ("wrist", "wrist"), ("hip", "upperleg01"),
-                            ("knee", "lowerleg01"), ("ankle", "foot"))},
-    },  # fmt: skip
+        "pelvis": "root",
+        "spine1": "spine04",
+        "spine2": "spine02",
+        "spine3": "spine01",
+        "neck": "neck01",
+        "head": "head",
+        **{
+            f"{side}_{src}": f"{dst}.{lr}"
+            for side, lr in (("left", "L"), ("right", "R"))
+            for src, dst in (
+                ("collar", "clavicle"),
+                ("shoulder", "upperarm01"),
+                ("elbow", "lowerarm01"),
+                ("wrist", "wrist"),
+                ("hip", "upperleg01"),
+                ("knee", "lowerleg01"),
+                ("ankle", "foot"),
+            )
+        },
+    },
 }
 
 # the name tables, keyed by lower-case name (matching is case-insensitive)
@@ -112,8 +174,25 @@ NEEDED: dict[str, dict[str, list[str]]] = {
 
 # joints known to have no anny counterpart (no warning when ignored)
 _KNOWN_EXTRA = (
-    "hipjoint", "toe", "finger", "thumb", "hand", "end", "site", "clavicle", "collar", "foot",
-    "eye", "jaw", "neck", "spine", "index", "middle", "ring", "pinky", "chest",
+    "hipjoint",
+    "toe",
+    "finger",
+    "thumb",
+    "hand",
+    "end",
+    "site",
+    "clavicle",
+    "collar",
+    "foot",
+    "eye",
+    "jaw",
+    "neck",
+    "spine",
+    "index",
+    "middle",
+    "ring",
+    "pinky",
+    "chest",
 )
 
 
@@ -210,10 +289,11 @@ def rest_corrections(skel: SkeletonMotion, rig: AnnyRig, mapped: dict[int, str])
     q_torso = np.eye(3)
     if src_top is not None and "upperleg01.L" in by_label and "upperleg01.R" in by_label:
         dst_top = next(b for b in ("head", "neck02", "neck01", "spine01") if b in by_label)
-        src = _frame(rest[src_top] - rest[by_label.get("root", 0)],
-                     rest[by_label["upperleg01.L"]] - rest[by_label["upperleg01.R"]])
-        dst = _frame(anny_head(dst_top) - anny_head("root"),
-                     anny_head("upperleg01.L") - anny_head("upperleg01.R"))
+        src = _frame(
+            rest[src_top] - rest[by_label.get("root", 0)],
+            rest[by_label["upperleg01.L"]] - rest[by_label["upperleg01.R"]],
+        )
+        dst = _frame(anny_head(dst_top) - anny_head("root"), anny_head("upperleg01.L") - anny_head("upperleg01.R"))
         q_torso = dst @ src.T
 
     q: dict[int, np.ndarray] = {}
@@ -280,11 +360,11 @@ def retarget(skel: SkeletonMotion, rig: AnnyRig, allow_missing: bool = False) ->
         )
     if "root" not in mapped.values() or len(mapped) < 2:
         raise DlaInputError(
-            skel.source, f"too few joints match anny's rig ({', '.join(skel.names[i] for i in mapped)}); a root "
+            skel.source,
+            f"too few joints match anny's rig ({', '.join(skel.names[i] for i in mapped)}); a root "
             "(Hips/root/pelvis) and limbs are needed",
         )
-    unknown = [n for i, n in enumerate(skel.names) if i not in mapped
-               and not any(k in n.lower() for k in _KNOWN_EXTRA)]  # fmt: skip
+    unknown = [n for i, n in enumerate(skel.names) if i not in mapped and not any(k in n.lower() for k in _KNOWN_EXTRA)]
     missing = missing_bones(dialect, mapped)
     if missing:
         tried = ", ".join(n for names in missing.values() for n in names)
@@ -371,12 +451,20 @@ def resample_motion(motion: Motion, fps: float) -> Motion:
         raise DlaInputError("--fps", f"{fps} must be > 0")
     src_t = motion.num_frames
     if abs(fps - motion.fps) < 1e-9 or src_t == 1:
-        return Motion(list(motion.bone_labels), motion.rotations, motion.root_rotation,
-                      motion.root_translation, float(fps), motion.model)  # fmt: skip
+        return Motion(
+            list(motion.bone_labels),
+            motion.rotations,
+            motion.root_rotation,
+            motion.root_translation,
+            float(fps),
+            motion.model,
+        )
     duration = (src_t - 1) / motion.fps
     frames = np.floor(duration * fps + 1e-6) + 1
     if not frames <= MAX_FRAMES:  # also NaN / inf
-        raise DlaInputError("--fps", f"{fps:g} fps over {duration:g} s would be {frames:g} frames (at most {MAX_FRAMES:,})")
+        raise DlaInputError(
+            "--fps", f"{fps:g} fps over {duration:g} s would be {frames:g} frames (at most {MAX_FRAMES:,})"
+        )
     count = int(frames)
     pos = np.arange(count) * (motion.fps / fps)  # fractional source frame of each new frame
     i0 = np.clip(np.floor(pos + 1e-9).astype(np.int64), 0, src_t - 1)

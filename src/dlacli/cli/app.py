@@ -136,8 +136,11 @@ def main(argv: list[str] | None = None) -> None:
             sys.exit(2)
         if os.environ.get("DLA_DEBUG"):
             raise
-        print(f"error: internal error ({type(err).__name__}: {' '.join(str(err).split())[:200]}); "
-              "please report it (DLA_DEBUG=1 shows the traceback)", file=sys.stderr)  # fmt: skip
+        print(
+            f"error: internal error ({type(err).__name__}: {' '.join(str(err).split())[:200]}); "
+            "please report it (DLA_DEBUG=1 shows the traceback)",
+            file=sys.stderr,
+        )
         sys.exit(1)
     sys.exit(code if isinstance(code, int) else 0)
 

@@ -56,7 +56,7 @@ def _names(text: str, name: str, known) -> list[str]:
 
 
 def _cases(text: str) -> tuple[tuple[int, int], ...]:
-    """"N:RES,N:RES" -> ((N, RES), ...)."""
+    """ "N:RES,N:RES" -> ((N, RES), ...)."""
     from dlacli.errors import DlaInputError
 
     out = []
@@ -112,7 +112,11 @@ def pipeline(
     steps: str = typer.Option("0,50,150", "--steps", help="Refinement steps to compare."),
     res: int = typer.Option(512, "--res", min=32, max=4096, help="Image size of the subjects."),
     as_json: bool = typer.Option(False, "--json", help="Print the full result as one JSON object."),
-    jsonl: Optional[Path] = typer.Option(None, "--jsonl", help="Also append the runs as dla.bench/1 JSON lines to this file (`dla bench report` reads it)."),
+    jsonl: Optional[Path] = typer.Option(
+        None,
+        "--jsonl",
+        help="Also append the runs as dla.bench/1 JSON lines to this file (`dla bench report` reads it).",
+    ),
 ) -> None:
     """synth -> lift -> render: PSNR (whole image and inside the mask), SSIM and alpha IoU on 12
     novel views and 8 novel poses per subject, lift time per steps setting, animate time."""
@@ -124,8 +128,12 @@ def pipeline(
     if jsonl is not None and (jsonl.suffix.lower() != ".jsonl" or jsonl.is_dir()):
         raise DlaInputError(jsonl, "the results file is a .jsonl file")
 
-    result = run(_ints(seeds, "--seeds", 2**32 - 1), _ints(steps, "--steps", 100_000), res=res,
-                 log=lambda line: print(line, file=sys.stderr))  # fmt: skip
+    result = run(
+        _ints(seeds, "--seeds", 2**32 - 1),
+        _ints(steps, "--steps", 100_000),
+        res=res,
+        log=lambda line: print(line, file=sys.stderr),
+    )
     if jsonl is not None:
         from dlacli.bench.rows import append_rows
 
@@ -139,13 +147,29 @@ def pipeline(
 
 @bench_app.command("accuracy")
 def accuracy(
-    seeds: str = typer.Option("9001,9002", "--seeds", help="Synthetic subjects reserved for benchmarking (no test or training uses 9000-9999)."),
-    methods: str = typer.Option("unproject,unproject:steps=50", "--methods", help="Methods to compare, comma-separated: " + _SPECS + "."),
-    res: int = typer.Option(512, "--res", min=32, max=4096, help="Image size (the paper's protocol: 512, black background)."),
-    appearance: str = typer.Option("lit", "--appearance", help="Subjects' appearance: lit (pose- and view-dependent shading) or albedo."),
-    wardrobe: str = typer.Option("heldout", "--wardrobe", help="Subjects' garments: heldout (none a training subject wore), full, default."),
+    seeds: str = typer.Option(
+        "9001,9002",
+        "--seeds",
+        help="Synthetic subjects reserved for benchmarking (no test or training uses 9000-9999).",
+    ),
+    methods: str = typer.Option(
+        "unproject,unproject:steps=50", "--methods", help="Methods to compare, comma-separated: " + _SPECS + "."
+    ),
+    res: int = typer.Option(
+        512, "--res", min=32, max=4096, help="Image size (the paper's protocol: 512, black background)."
+    ),
+    appearance: str = typer.Option(
+        "lit", "--appearance", help="Subjects' appearance: lit (pose- and view-dependent shading) or albedo."
+    ),
+    wardrobe: str = typer.Option(
+        "heldout", "--wardrobe", help="Subjects' garments: heldout (none a training subject wore), full, default."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of a table."),
-    jsonl: Optional[Path] = typer.Option(None, "--jsonl", help="Also append the rows as dla.bench/1 JSON lines to this file (`dla bench report` reads it)."),
+    jsonl: Optional[Path] = typer.Option(
+        None,
+        "--jsonl",
+        help="Also append the rows as dla.bench/1 JSON lines to this file (`dla bench report` reads it).",
+    ),
 ) -> None:
     """Accuracy against cost of every method: lift in a fresh process (wall time, peak memory),
     then PSNR (whole image and inside the mask), SSIM and alpha IoU on novel views, novel poses
@@ -165,7 +189,9 @@ def accuracy(
 
             raise DlaInputError("--methods", f"{spec.label}: no such checkpoint folder")
     jsonl = _jsonl(jsonl)
-    rows = run(_ints(seeds, "--seeds", 2**32 - 1), specs, res=res, appearance=appearance, wardrobe=wardrobe, log=_stderr)
+    rows = run(
+        _ints(seeds, "--seeds", 2**32 - 1), specs, res=res, appearance=appearance, wardrobe=wardrobe, log=_stderr
+    )
     _emit(rows, jsonl, as_json, lambda r: report_markdown(r, None))
 
 
@@ -174,7 +200,12 @@ def regions(
     seed: int = typer.Option(1001, "--seed", min=0, max=2**32 - 1, help="Synthetic subject (use a seed no test uses)."),
     steps: int = typer.Option(50, "--steps", min=0, max=100_000, help="Lift refinement steps."),
     res: int = typer.Option(512, "--res", min=32, max=4096, help="Image size of the subject."),
-    output: Optional[Path] = typer.Option(None, "--output", "-o", help="Error picture (.png): ground truth | render | error x4 | regions, an input view above a novel view."),
+    output: Optional[Path] = typer.Option(
+        None,
+        "--output",
+        "-o",
+        help="Error picture (.png): ground truth | render | error x4 | regions, an input view above a novel view.",
+    ),
 ) -> None:
     """Where the error lives: synth -> lift, then masked PSNR per body region (face, hair, hands,
     arms, torso, legs, feet, off body, silhouette band) on the input views and the novel views."""
@@ -190,7 +221,6 @@ def regions(
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_path, check_outputs
     from dlacli.io.views import read_views
-    from dlacli.data.synth import synth
     from dlacli.stages.methods import make_spec
 
     if output is not None and output.suffix.lower() != ".png":
@@ -202,7 +232,10 @@ def regions(
         views = read_views(folder)
         avatar = make_spec("unproject", steps=steps).lift(views).avatar
         verts = get_body_model().forward_body(views.body).vertices[0].numpy()
-        for split, vs in (("input views", views), ("novel views", read_views(folder / "novel_views", require_body=False))):
+        for split, vs in (
+            ("input views", views),
+            ("novel views", read_views(folder / "novel_views", require_body=False)),
+        ):
             rgba, gt = render_split(avatar, vs)
             pred = rgba[..., :3]
             labels = pixel_regions(verts, vs.cameras, vs.masks)
@@ -211,7 +244,10 @@ def regions(
     typer.echo("| region | " + " | ".join(f"{split}: masked PSNR / pixels / error share" for split, _ in rows) + " |")
     typer.echo("|---|" + "---|" * len(rows))
     for name in REGIONS:
-        cells = [f"{r[name]['psnr']:.2f} / {r[name]['pixels']:.0%} / {r[name]['error']:.0%}" if name in r else "-" for _, r in rows]
+        cells = [
+            f"{r[name]['psnr']:.2f} / {r[name]['pixels']:.0%} / {r[name]['error']:.0%}" if name in r else "-"
+            for _, r in rows
+        ]
         typer.echo(f"| {name} | " + " | ".join(cells) + " |")
     if output is not None:
         with atomic_path(output) as tmp:
@@ -220,20 +256,61 @@ def regions(
 
 @bench_app.command("speed")
 def speed(
-    suite: str = typer.Option("startup,splat,body,lift,animate,usd,render", "--suite", help="Suites to run, comma-separated: startup, splat, body, lift, animate, usd, render."),
+    suite: str = typer.Option(
+        "startup,splat,body,lift,animate,usd,render",
+        "--suite",
+        help="Suites to run, comma-separated: startup, splat, body, lift, animate, usd, render.",
+    ),
     quick: bool = typer.Option(False, "--quick", help="Tiny sizes of every suite (a smoke run, seconds)."),
-    repeats: Optional[int] = typer.Option(None, "--repeats", min=1, max=1000, help="Timed calls per case (default 5; --quick 2)."),
-    gaussians: Optional[int] = typer.Option(None, "--gaussians", min=2, max=MAX_GAUSSIANS, help=f"Gaussians of the body, animate and render suites (default {DEFAULT_GAUSSIANS:,})."),
-    res: Optional[int] = typer.Option(None, "--res", min=32, max=4096, help="Image size of the lift subject and the render suite (default 512)."),
-    frames: Optional[int] = typer.Option(None, "--frames", min=1, max=10_000, help="Frames of the animate, usd and render suites (default 30)."),
-    lift_steps: Optional[str] = typer.Option(None, "--lift-steps", help="lift: refinement steps to time, comma-separated (default 0,50)."),
-    splat_cases: Optional[str] = typer.Option(None, "--splat-cases", metavar="N:RES,...", help=f"splat: Gaussian counts and image sizes, e.g. 20000:256,{DEFAULT_GAUSSIANS}:512 (default: 2048:128 and 20k/65k/131k at 256 and 512)."),
+    repeats: Optional[int] = typer.Option(
+        None, "--repeats", min=1, max=1000, help="Timed calls per case (default 5; --quick 2)."
+    ),
+    gaussians: Optional[int] = typer.Option(
+        None,
+        "--gaussians",
+        min=2,
+        max=MAX_GAUSSIANS,
+        help=f"Gaussians of the body, animate and render suites (default {DEFAULT_GAUSSIANS:,}).",
+    ),
+    res: Optional[int] = typer.Option(
+        None, "--res", min=32, max=4096, help="Image size of the lift subject and the render suite (default 512)."
+    ),
+    frames: Optional[int] = typer.Option(
+        None, "--frames", min=1, max=10_000, help="Frames of the animate, usd and render suites (default 30)."
+    ),
+    lift_steps: Optional[str] = typer.Option(
+        None, "--lift-steps", help="lift: refinement steps to time, comma-separated (default 0,50)."
+    ),
+    splat_cases: Optional[str] = typer.Option(
+        None,
+        "--splat-cases",
+        metavar="N:RES,...",
+        help=(
+            f"splat: Gaussian counts and image sizes, e.g. 20000:256,{DEFAULT_GAUSSIANS}:512 (default: 2048:128 and "
+            "20k/65k/131k at 256 and 512)."
+        ),
+    ),
     no_torch: bool = typer.Option(False, "--no-torch", help="splat: skip the slow pure-torch and dense paths."),
-    baseline: Optional[Path] = typer.Option(None, "--baseline", help="splat: also time another copy of the package (a src folder holding dlacli), alternated with this one; the report shows baseline / current."),
-    cold: bool = typer.Option(False, "--cold", help="splat: also time a first call with an empty numba cache (the JIT compile)."),
-    rounds: int = typer.Option(1, "--rounds", min=1, max=100, help="With --baseline: alternate the two versions this many times per case."),
+    baseline: Optional[Path] = typer.Option(
+        None,
+        "--baseline",
+        help=(
+            "splat: also time another copy of the package (a src folder holding dlacli), alternated with this one; "
+            "the report shows baseline / current."
+        ),
+    ),
+    cold: bool = typer.Option(
+        False, "--cold", help="splat: also time a first call with an empty numba cache (the JIT compile)."
+    ),
+    rounds: int = typer.Option(
+        1, "--rounds", min=1, max=100, help="With --baseline: alternate the two versions this many times per case."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of tables."),
-    jsonl: Optional[Path] = typer.Option(None, "--jsonl", help="Also append the rows as dla.bench/1 JSON lines to this file (`dla bench report` reads it)."),
+    jsonl: Optional[Path] = typer.Option(
+        None,
+        "--jsonl",
+        help="Also append the rows as dla.bench/1 JSON lines to this file (`dla bench report` reads it).",
+    ),
 ) -> None:
     """Speed: splatting forward and forward+backward per Gaussian count and image size (numba vs
     the pure-torch renderer; gsplat on CUDA), pose + skin per frame, lift and animate stage times,
@@ -249,7 +326,11 @@ def speed(
     if baseline is not None and not (baseline / "dlacli" / "__init__.py").is_file():
         raise DlaInputError(baseline, "is not a src folder holding a dlacli package (no dlacli/__init__.py)")
     cfg = quick_config() if quick else SpeedConfig()
-    changes = {k: v for k, v in (("repeats", repeats), ("gaussians", gaussians), ("res", res), ("frames", frames)) if v is not None}
+    changes = {
+        k: v
+        for k, v in (("repeats", repeats), ("gaussians", gaussians), ("res", res), ("frames", frames))
+        if v is not None
+    }
     if lift_steps is not None:
         changes["lift_steps"] = tuple(_ints(lift_steps, "--lift-steps", 100_000))
     if splat_cases is not None:
@@ -267,14 +348,43 @@ def speed(
 @bench_app.command("stability")
 def stability(
     seeds: str = typer.Option("1001", "--seeds", help="Synthetic subjects (use seeds no test uses)."),
-    methods: str = typer.Option("unproject,unproject:steps=50", "--methods", help="Methods to compare, comma-separated: " + _SPECS + "."),
-    steps: Optional[int] = typer.Option(None, "--steps", min=1, max=100_000, help=f"Refinement steps of the older spelling 'refine' (default {LIFT_STEPS}); write unproject:steps=N instead."),
-    checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="A dla train checkpoint for the methods named 'learned' without checkpoint=."),
-    perturbations: Optional[str] = typer.Option(None, "--perturbations", help="Comma-separated subset (default all): pose_noise, shape_noise, colour_shift, misregister_px, misregister_deg, fewer_views, extreme_pose, self_contact, small_in_frame, large_in_frame."),
-    levels: Optional[int] = typer.Option(None, "--levels", min=2, max=100, help="At most this many levels per perturbation, the clean one and the worst included (default all)."),
+    methods: str = typer.Option(
+        "unproject,unproject:steps=50", "--methods", help="Methods to compare, comma-separated: " + _SPECS + "."
+    ),
+    steps: Optional[int] = typer.Option(
+        None,
+        "--steps",
+        min=1,
+        max=100_000,
+        help=(
+            f"Refinement steps of the older spelling 'refine' (default {LIFT_STEPS}); write unproject:steps=N instead."
+        ),
+    ),
+    checkpoint: Optional[Path] = typer.Option(
+        None, "--checkpoint", help="A dla train checkpoint for the methods named 'learned' without checkpoint=."
+    ),
+    perturbations: Optional[str] = typer.Option(
+        None,
+        "--perturbations",
+        help=(
+            "Comma-separated subset (default all): pose_noise, shape_noise, colour_shift, misregister_px, "
+            "misregister_deg, fewer_views, extreme_pose, self_contact, small_in_frame, large_in_frame."
+        ),
+    ),
+    levels: Optional[int] = typer.Option(
+        None,
+        "--levels",
+        min=2,
+        max=100,
+        help="At most this many levels per perturbation, the clean one and the worst included (default all).",
+    ),
     res: int = typer.Option(256, "--res", min=32, max=4096, help="Image size of the subjects."),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of tables."),
-    jsonl: Optional[Path] = typer.Option(None, "--jsonl", help="Also append the runs as dla.bench/1 JSON lines to this file (`dla bench report` reads it)."),
+    jsonl: Optional[Path] = typer.Option(
+        None,
+        "--jsonl",
+        help="Also append the runs as dla.bench/1 JSON lines to this file (`dla bench report` reads it).",
+    ),
 ) -> None:
     """Degradation curves: each method lifts perturbed inputs (noisy body pose and shape,
     colour-shifted and misregistered views, fewer views, extreme poses and self-contact, the
@@ -296,14 +406,40 @@ def stability(
 @bench_app.command("budget")
 def budget(
     seeds: str = typer.Option("1001", "--seeds", help="Synthetic subjects (use seeds no test uses)."),
-    counts: str = typer.Option(",".join(str(2**k) for k in range(12, 19)), "--counts", help="Gaussian counts to compare."),
-    uv: str = typer.Option("128,256,512", "--uv", help="UV resolutions of the Gaussian map (lift --resolution) to compare."),
-    size: int = typer.Option(512, "--size", min=32, max=4096, help="The target render size: the subjects' views are rendered and scored at it."),
-    method: str = typer.Option("unproject", "--method", help="The method making the avatars (one that takes resolution=): " + _SPECS + "."),
-    steps: Optional[int] = typer.Option(None, "--steps", min=1, max=100_000, help=f"Refinement steps of the older spelling 'refine' (default {LIFT_STEPS}); write unproject:steps=N instead."),
-    usd_frames: int = typer.Option(8, "--usd-frames", min=0, max=1000, help="Frames of the walk written as USD per count (0: no USD sizes)."),
+    counts: str = typer.Option(
+        ",".join(str(2**k) for k in range(12, 19)), "--counts", help="Gaussian counts to compare."
+    ),
+    uv: str = typer.Option(
+        "128,256,512", "--uv", help="UV resolutions of the Gaussian map (lift --resolution) to compare."
+    ),
+    size: int = typer.Option(
+        512,
+        "--size",
+        min=32,
+        max=4096,
+        help="The target render size: the subjects' views are rendered and scored at it.",
+    ),
+    method: str = typer.Option(
+        "unproject", "--method", help="The method making the avatars (one that takes resolution=): " + _SPECS + "."
+    ),
+    steps: Optional[int] = typer.Option(
+        None,
+        "--steps",
+        min=1,
+        max=100_000,
+        help=(
+            f"Refinement steps of the older spelling 'refine' (default {LIFT_STEPS}); write unproject:steps=N instead."
+        ),
+    ),
+    usd_frames: int = typer.Option(
+        8, "--usd-frames", min=0, max=1000, help="Frames of the walk written as USD per count (0: no USD sizes)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of tables."),
-    jsonl: Optional[Path] = typer.Option(None, "--jsonl", help="Also append the runs as dla.bench/1 JSON lines to this file (`dla bench report` reads it)."),
+    jsonl: Optional[Path] = typer.Option(
+        None,
+        "--jsonl",
+        help="Also append the runs as dla.bench/1 JSON lines to this file (`dla bench report` reads it).",
+    ),
 ) -> None:
     """The Gaussian budget: masked PSNR against the number of Gaussians and the UV resolution at a
     render size, with render time and USD size per count, and what `--gaussians auto` picks."""
@@ -320,15 +456,28 @@ def budget(
 
         raise DlaInputError("--counts", "every count must be at least 2")
     jsonl = _jsonl(jsonl)
-    rows = run(_ints(seeds, "--seeds", 2**32 - 1), ns, uvs, render_size=size, method=spec, usd_frames=usd_frames,
-               log=_stderr)  # fmt: skip
+    rows = run(
+        _ints(seeds, "--seeds", 2**32 - 1), ns, uvs, render_size=size, method=spec, usd_frames=usd_frames, log=_stderr
+    )
     _emit(rows, jsonl, as_json, lambda r: "\n".join(budget_markdown(r, intro=False)).rstrip())
 
 
 @bench_app.command("report")
 def report(
-    results: Path = typer.Argument(..., metavar="RESULTS", help="dla.bench/1 JSON lines (`dla bench pipeline / stability / budget / speed --jsonl`)."),
-    output: Path = typer.Option(Path("docs/benchmarks.md"), "--output", "-o", help="The markdown page; its charts are written beside it: <name>.png (time against accuracy), <name>_stability.png, <name>_budget.png."),
+    results: Path = typer.Argument(
+        ...,
+        metavar="RESULTS",
+        help="dla.bench/1 JSON lines (`dla bench pipeline / stability / budget / speed --jsonl`).",
+    ),
+    output: Path = typer.Option(
+        Path("docs/benchmarks.md"),
+        "--output",
+        "-o",
+        help=(
+            "The markdown page; its charts are written beside it: <name>.png (time against accuracy), "
+            "<name>_stability.png, <name>_budget.png."
+        ),
+    ),
 ) -> None:
     """Regenerate the benchmark page (tables per split, the Pareto frontier, the time-vs-accuracy
     chart; the stability curves, the Gaussian budget and the speed tables when the rows hold
@@ -356,9 +505,12 @@ def report(
             draw_stability_chart(rows, stab_chart)
         if "budget" in kinds:
             draw_budget_chart(rows, budget_chart)
-        page = report_markdown(rows, chart.name if "accuracy" in kinds else None,
-                               stability_chart=stab_chart.name if "stability" in kinds else None,
-                               budget_chart=budget_chart.name if "budget" in kinds else None)  # fmt: skip
+        page = report_markdown(
+            rows,
+            chart.name if "accuracy" in kinds else None,
+            stability_chart=stab_chart.name if "stability" in kinds else None,
+            budget_chart=budget_chart.name if "budget" in kinds else None,
+        )
         with atomic_path(output) as tmp:
             tmp.write_text(page + "\n", encoding="utf-8")
     typer.echo(str(output))

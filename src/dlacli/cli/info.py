@@ -22,7 +22,13 @@ def _format_value(value) -> str:
 
 
 def info(
-    path: Path = typer.Argument(..., help="A view folder, body.json, motion/avatar .npz, .ply/.spz/.splat, .usd/.usda/.usdc, or a BVH/ASF/AMC/AMASS motion."),
+    path: Path = typer.Argument(
+        ...,
+        help=(
+            "A view folder, body.json, motion/avatar .npz, .ply/.spz/.splat, .usd/.usda/.usdc, or a "
+            "BVH/ASF/AMC/AMASS motion."
+        ),
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object on stdout."),
 ) -> None:
     """Summarise an artifact: what it is, its format version, sizes and ranges."""

@@ -31,16 +31,59 @@ _METHOD_HELP = f"The lift method, NAME[:KEY=VALUE,...] (dlacli.stages.methods): 
 def lift(
     ctx: typer.Context,
     views: Path = typer.Argument(..., metavar="VIEWS", help="View folder: transforms.json, images, body.json."),
-    output: Path = typer.Option(..., "--output", "-o", help="avatar.npz to write; a contact sheet PNG is written beside it."),
-    ply: Optional[Path] = typer.Option(None, "--ply", help="Also write the unstructured pose-space Gaussians as a 3DGS .ply."),
-    steps: Optional[int] = typer.Option(None, "--steps", min=0, max=100_000, help=f"Refinement steps against the input views (unproject: default {_DEFAULTS.steps}, 0 = mesh unprojection only; learned: default 0, N refines Z through the frozen decoder); more is slower and closer."),
+    output: Path = typer.Option(
+        ..., "--output", "-o", help="avatar.npz to write; a contact sheet PNG is written beside it."
+    ),
+    ply: Optional[Path] = typer.Option(
+        None, "--ply", help="Also write the unstructured pose-space Gaussians as a 3DGS .ply."
+    ),
+    steps: Optional[int] = typer.Option(
+        None,
+        "--steps",
+        min=0,
+        max=100_000,
+        help=(
+            f"Refinement steps against the input views (unproject: default {_DEFAULTS.steps}, 0 = mesh unprojection "
+            "only; learned: default 0, N refines Z through the frozen decoder); more is slower and closer."
+        ),
+    ),
     method: str = typer.Option("unproject", "--method", help=_METHOD_HELP),
-    checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help="With --method learned: the network checkpoint folder (`dla train`'s RUN/ckpt-N/generator) or its hash in the checkpoints cache."),
-    resolution: int = typer.Option(_DEFAULTS.resolution, "--resolution", min=16, max=2048, help="UV resolution of the Gaussian map Z."),
-    gaussians: str = typer.Option(str(_DEFAULTS.gaussians), "--gaussians", callback=gaussian_count, metavar="N|auto", help="Gaussians sampled from Z while refining; 'auto': refine with 131,072, then record the fewest (4,096 ... 262,144) whose re-renders of the input views score within 0.2 dB masked PSNR of the best (docs/benchmarks.md, 'The Gaussian budget')."),
+    checkpoint: Optional[Path] = typer.Option(
+        None,
+        "--checkpoint",
+        help=(
+            "With --method learned: the network checkpoint folder (`dla train`'s RUN/ckpt-N/generator) or its hash "
+            "in the checkpoints cache."
+        ),
+    ),
+    resolution: int = typer.Option(
+        _DEFAULTS.resolution, "--resolution", min=16, max=2048, help="UV resolution of the Gaussian map Z."
+    ),
+    gaussians: str = typer.Option(
+        str(_DEFAULTS.gaussians),
+        "--gaussians",
+        callback=gaussian_count,
+        metavar="N|auto",
+        help=(
+            "Gaussians sampled from Z while refining; 'auto': refine with 131,072, then record the fewest (4,096 "
+            "... 262,144) whose re-renders of the input views score within 0.2 dB masked PSNR of the best "
+            "(docs/benchmarks.md, 'The Gaussian budget')."
+        ),
+    ),
     seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1, help="Seed of the Gaussian sample points."),
-    view_colour: bool = typer.Option(True, "--view-colour/--no-view-colour", help="Measure how the views' colours fall off with the viewing angle and, where they do (|k| >= 0.05), model it (decoder 'view-cosine', docs/lift.md); --no-view-colour: colour never depends on the view."),
-    allow_outside: bool = typer.Option(False, "--allow-outside", help="Read images that transforms.json names outside the view folder (absolute paths, '..', links out)."),
+    view_colour: bool = typer.Option(
+        True,
+        "--view-colour/--no-view-colour",
+        help=(
+            "Measure how the views' colours fall off with the viewing angle and, where they do (|k| >= 0.05), model "
+            "it (decoder 'view-cosine', docs/lift.md); --no-view-colour: colour never depends on the view."
+        ),
+    ),
+    allow_outside: bool = typer.Option(
+        False,
+        "--allow-outside",
+        help="Read images that transforms.json names outside the view folder (absolute paths, '..', links out).",
+    ),
 ) -> None:
     """Lift a view folder into an animatable avatar (avatar.npz).
 
@@ -60,8 +103,14 @@ def lift(
 
     auto = gaussians == "auto"
     ckpt = None if checkpoint is None else str(checkpoint)
-    flags = dict(steps=steps, checkpoint=ckpt, resolution=resolution, gaussians=None if auto else gaussians, seed=seed,
-                 view_colour=view_colour)
+    flags = dict(
+        steps=steps,
+        checkpoint=ckpt,
+        resolution=resolution,
+        gaussians=None if auto else gaussians,
+        seed=seed,
+        view_colour=view_colour,
+    )
     spec = _spec(method, {k: v for k, v in flags.items() if v is not None and _on_command_line(ctx, k)})
     steps = getattr(spec.config, "steps", 0)  # the progress bar's length: a method without refinement has none
     if output.suffix.lower() != ".npz":
@@ -75,7 +124,9 @@ def lift(
     novel_files = view_files(novel_dir, allow_outside) if novel_dir is not None else []
     ckpt = spec.options().get("checkpoint")  # the network's files are inputs: no output may land on them
     ckpt_files = [Path(ckpt)] if ckpt and Path(ckpt).exists() else []
-    check_outputs(files=[output, sheet, ply], inputs=[views, *view_files(views, allow_outside), *novel_files, *ckpt_files])
+    check_outputs(
+        files=[output, sheet, ply], inputs=[views, *view_files(views, allow_outside), *novel_files, *ckpt_files]
+    )
     n_views = len(read_transforms(views)["file_paths"])
     if n_views > MAX_VIEWS:
         raise DlaInputError(views, f"has {n_views} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
@@ -90,17 +141,25 @@ def lift(
 
         with naming(views=views, pose=body, phenotype=body):
             result.avatar, choice = choose_for_views(result.avatar, view_set)
-        typer.echo(f"note: --gaussians auto: {choice.count:,} Gaussians (input views, masked PSNR "
-                   f"{choice.scores[choice.count]:.2f} dB, best {max(choice.scores.values()):.2f})", err=True)  # fmt: skip
+        typer.echo(
+            f"note: --gaussians auto: {choice.count:,} Gaussians (input views, masked PSNR "
+            f"{choice.scores[choice.count]:.2f} dB, best {max(choice.scores.values()):.2f})",
+            err=True,
+        )
     falloff = result.avatar.extra.get("lift", {}).get("view_falloff")
     if falloff:
-        typer.echo(f"note: {views}: colour falls off with the viewing angle, k = {falloff:.2f} "
-                   "(colour x (1 - k + k cos)): decoder view-cosine", err=True)  # fmt: skip
+        typer.echo(
+            f"note: {views}: colour falls off with the viewing angle, k = {falloff:.2f} "
+            "(colour x (1 - k + k cos)): decoder view-cosine",
+            err=True,
+        )
     if result.novel_view is not None:
         from dlacli.bench.metrics import masked_psnr
 
         score = masked_psnr(*result.novel_view)
-        typer.echo(f"note: {novel_dir}: first novel view, masked PSNR {score:.2f} dB (fifth column of {sheet.name})", err=True)
+        typer.echo(
+            f"note: {novel_dir}: first novel view, masked PSNR {score:.2f} dB (fifth column of {sheet.name})", err=True
+        )
     with output_group():  # the avatar, its contact sheet and the .ply land together or not at all
         if ply is not None:
             write_ply(result.unstructured, ply)

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
+from typing import Optional
 
 import typer
 
@@ -70,7 +70,7 @@ def synth(
         "hair style, wider patterns and colours (default with --seeds); train / heldout: full without / with only "
         "the held-out suits and hair (docs/synth.md).",
     ),
-    motions: Optional[List[Path]] = typer.Option(
+    motions: Optional[list[Path]] = typer.Option(
         None,
         "--motions",
         help="Dataset mode: motion files or folders of them (CMU .bvh, .amc with its .asf beside it, motion.npz) "

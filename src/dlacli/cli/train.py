@@ -111,15 +111,31 @@ def train(
         raise DlaInputError(data, "no such dataset folder")
     if alexnet is not None and not alexnet.is_file():
         raise DlaInputError(alexnet, "no such file")
-    given = dict(steps_low=steps_low, steps_full=steps_full, low_size=low_size, full_size=full_size,
-                 lr_g=lr_g, lr_d=lr_d, batch=batch, targets=targets)  # fmt: skip
+    given = dict(
+        steps_low=steps_low,
+        steps_full=steps_full,
+        low_size=low_size,
+        full_size=full_size,
+        lr_g=lr_g,
+        lr_d=lr_d,
+        batch=batch,
+        targets=targets,
+    )
     settings = {**_SCHEDULE[preset], **{k: v for k, v in given.items() if v is not None}}
     if stage == "low":
         settings["steps_full"] = 0
     elif stage == "full":
         settings["steps_low"] = 0
-    cfg = TrainConfig(preset=preset, variant=variant, validation=validation, eval_every=eval_every,
-                      checkpoint_every=checkpoint_every, seed=seed, alexnet=str(alexnet or ""), **settings)  # fmt: skip
+    cfg = TrainConfig(
+        preset=preset,
+        variant=variant,
+        validation=validation,
+        eval_every=eval_every,
+        checkpoint_every=checkpoint_every,
+        seed=seed,
+        alexnet=str(alexnet or ""),
+        **settings,
+    )
     if cfg.total_steps == 0:
         raise DlaInputError("--stage", "no steps to train")
     import os

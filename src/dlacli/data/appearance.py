@@ -21,8 +21,13 @@ from dlacli.data.garments import MATERIALS, DressedBody
 
 APPEARANCES = ("albedo", "lit")
 # "lit": Blinn-Phong specular strength and exponent per material; ambient occlusion sampling
-SPECULAR = {"skin": (0.12, 24.0), "eyes": (0.6, 150.0), "hair": (0.22, 36.0), "suit": (0.04, 10.0),
-            "shoes": (0.35, 60.0)}  # fmt: skip
+SPECULAR = {
+    "skin": (0.12, 24.0),
+    "eyes": (0.6, 150.0),
+    "hair": (0.22, 36.0),
+    "suit": (0.04, 10.0),
+    "shoes": (0.35, 60.0),
+}
 AO_DIRECTIONS = 32  # directions on the sphere (about half of them in each normal's hemisphere)
 AO_RES = 192  # depth-map pixels per side (about 1.2 cm per pixel on an adult)
 
@@ -49,8 +54,11 @@ def value_noise(p: np.ndarray, seed: int) -> np.ndarray:
     for dx in (0, 1):
         for dy in (0, 1):
             for dz in (0, 1):
-                w = ((f[:, 0] if dx else 1 - f[:, 0]) * (f[:, 1] if dy else 1 - f[:, 1])
-                     * (f[:, 2] if dz else 1 - f[:, 2]))  # fmt: skip
+                w = (
+                    (f[:, 0] if dx else 1 - f[:, 0])
+                    * (f[:, 1] if dy else 1 - f[:, 1])
+                    * (f[:, 2] if dz else 1 - f[:, 2])
+                )
                 out += w * _hash01(b[:, 0] + dx, b[:, 1] + dy, b[:, 2] + dz, seed)
     return out
 
@@ -113,9 +121,13 @@ class Lighting:
     colours: np.ndarray  # [L, 3] rgb intensity of each light
 
     def as_dict(self) -> dict:
-        return {"ambient": round(float(self.ambient), 6),
-                "lights": [{"direction": [round(float(x), 6) for x in d], "colour": [round(float(x), 6) for x in c]}
-                           for d, c in zip(self.directions, self.colours)]}  # fmt: skip
+        return {
+            "ambient": round(float(self.ambient), 6),
+            "lights": [
+                {"direction": [round(float(x), 6) for x in d], "colour": [round(float(x), 6) for x in c]}
+                for d, c in zip(self.directions, self.colours)
+            ],
+        }
 
 
 def _direction(azimuth: float, elevation: float) -> np.ndarray:
@@ -129,9 +141,11 @@ def sample_lighting(seed: int) -> Lighting:
     random side, a dimmer fill light roughly opposite it and a rim light from the side or back."""
     rng = np.random.default_rng([int(seed), 4])
     key = float(rng.uniform(0.0, 360.0))
-    rigs = ((key, rng.uniform(25.0, 60.0), rng.uniform(0.55, 0.75)),
-            (key + 180.0 + rng.uniform(-45.0, 45.0), rng.uniform(5.0, 30.0), rng.uniform(0.2, 0.35)),
-            (key + rng.choice([-1.0, 1.0]) * rng.uniform(90.0, 150.0), rng.uniform(20.0, 60.0), rng.uniform(0.15, 0.3)))
+    rigs = (
+        (key, rng.uniform(25.0, 60.0), rng.uniform(0.55, 0.75)),
+        (key + 180.0 + rng.uniform(-45.0, 45.0), rng.uniform(5.0, 30.0), rng.uniform(0.2, 0.35)),
+        (key + rng.choice([-1.0, 1.0]) * rng.uniform(90.0, 150.0), rng.uniform(20.0, 60.0), rng.uniform(0.15, 0.3)),
+    )
     dirs, cols = [], []
     for az, el, power in rigs:
         tint = rng.uniform(0.9, 1.1, 3)
@@ -168,8 +182,9 @@ def sphere_directions(n: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
-def ambient_occlusion(verts: np.ndarray, faces: np.ndarray, directions: int = AO_DIRECTIONS,
-                      res: int = AO_RES) -> np.ndarray:  # fmt: skip
+def ambient_occlusion(
+    verts: np.ndarray, faces: np.ndarray, directions: int = AO_DIRECTIONS, res: int = AO_RES
+) -> np.ndarray:
     """Per-vertex ambient occlusion of a posed mesh: verts [V, 3] or [T, V, 3], faces [F, 3] ->
     [V] or [T, V] in [0, 1], the cosine-weighted fraction of `directions` (`sphere_directions`)
     in each vertex normal's hemisphere along which no part of the mesh lies in front of it.

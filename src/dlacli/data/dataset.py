@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -48,12 +48,23 @@ class DatasetSettings:
         import dlacli
         from dlacli.body.builtin_motions import BUILTINS
 
-        files = [{"name": Path(m).name, "sha256": hashlib.sha256(Path(m).read_bytes()).hexdigest()}
-                 for m in self.motions]  # fmt: skip
-        return {"res": self.res, "input_views": 4, "novel_views": self.novel_views, "novel_poses": self.novel_poses,
-                "pose_cameras": len(POSE_AZIMUTHS), "appearance": self.appearance, "wardrobe": self.wardrobe,
-                "builtin_motions": list(BUILTINS), "motion_files": files, "input_rig": "random_yaw",
-                "generator": "dla synth", "dla_version": dlacli.__version__}  # fmt: skip
+        files = [
+            {"name": Path(m).name, "sha256": hashlib.sha256(Path(m).read_bytes()).hexdigest()} for m in self.motions
+        ]
+        return {
+            "res": self.res,
+            "input_views": 4,
+            "novel_views": self.novel_views,
+            "novel_poses": self.novel_poses,
+            "pose_cameras": len(POSE_AZIMUTHS),
+            "appearance": self.appearance,
+            "wardrobe": self.wardrobe,
+            "builtin_motions": list(BUILTINS),
+            "motion_files": files,
+            "input_rig": "random_yaw",
+            "generator": "dla synth",
+            "dla_version": dlacli.__version__,
+        }
 
 
 def motion_files(paths: Sequence[str | os.PathLike]) -> tuple[str, ...]:
@@ -101,10 +112,17 @@ def _subject_entry(folder: Path, seconds: float | None) -> dict:
 
     info = load_json(folder / "transforms.json").get("dla", {}).get("synth", {})
     size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
-    return {"seed": int(info.get("seed", -1)), "path": folder.name, "outfit": info.get("outfit"),
-            "suit_pattern": info.get("suit_pattern"), "appearance": info.get("appearance", "albedo"),
-            "wardrobe": info.get("wardrobe", "default"), "start_yaw": info.get("start_yaw"),
-            "seconds": None if seconds is None else round(float(seconds), 3), "bytes": int(size)}  # fmt: skip
+    return {
+        "seed": int(info.get("seed", -1)),
+        "path": folder.name,
+        "outfit": info.get("outfit"),
+        "suit_pattern": info.get("suit_pattern"),
+        "appearance": info.get("appearance", "albedo"),
+        "wardrobe": info.get("wardrobe", "default"),
+        "start_yaw": info.get("start_yaw"),
+        "seconds": None if seconds is None else round(float(seconds), 3),
+        "bytes": int(size),
+    }
 
 
 def _write_manifest(path: Path, settings: dict, entries: dict[int, dict]) -> dict:
@@ -113,10 +131,13 @@ def _write_manifest(path: Path, settings: dict, entries: dict[int, dict]) -> dic
 
     subjects = [entries[s] for s in sorted(entries)]
     secs = [e["seconds"] for e in subjects if e["seconds"] is not None]
-    manifest = {"format": DATASET_FORMAT, "settings": settings,
-                "seconds_per_subject": round(float(np.mean(secs)), 3) if secs else None,
-                "bytes_per_subject": int(np.mean([e["bytes"] for e in subjects])) if subjects else None,
-                "subjects": subjects}  # fmt: skip
+    manifest = {
+        "format": DATASET_FORMAT,
+        "settings": settings,
+        "seconds_per_subject": round(float(np.mean(secs)), 3) if secs else None,
+        "bytes_per_subject": int(np.mean([e["bytes"] for e in subjects])) if subjects else None,
+        "subjects": subjects,
+    }
     with atomic_path(path) as tmp:
         tmp.write_text(dump_json(manifest) + "\n", encoding="utf-8")
     return manifest
@@ -134,8 +155,9 @@ def read_manifest(path: str | os.PathLike) -> dict:
     if not isinstance(data.get("settings"), dict):
         raise DlaInputError(path, "missing the 'settings' object")
     subjects = data.get("subjects")
-    if not isinstance(subjects, list) or not all(isinstance(e, dict) and isinstance(e.get("path"), str)
-                                                 and isinstance(e.get("seed"), int) for e in subjects):  # fmt: skip
+    if not isinstance(subjects, list) or not all(
+        isinstance(e, dict) and isinstance(e.get("path"), str) and isinstance(e.get("seed"), int) for e in subjects
+    ):
         raise DlaInputError(path, "'subjects' must be a list of objects with an integer 'seed' and a 'path'")
     return data
 
@@ -172,8 +194,14 @@ def _make_subject(task: tuple[int, str, dict]) -> tuple[int, float, tuple[str | 
     return seed, time.perf_counter() - start, None
 
 
-def synth_dataset(seeds: Sequence[int], out: str | os.PathLike, settings: DatasetSettings, *, jobs: int = 1,
-                  progress: Progress | None = None) -> dict:  # fmt: skip
+def synth_dataset(
+    seeds: Sequence[int],
+    out: str | os.PathLike,
+    settings: DatasetSettings,
+    *,
+    jobs: int = 1,
+    progress: Progress | None = None,
+) -> dict:
     """Write subjects `seeds` into the dataset folder `out` (out/subject_<seed>/, out/manifest.json)
     with `jobs` processes; subjects already complete are skipped, so a rerun resumes. A manifest
     with other settings is refused. Returns the manifest."""
@@ -195,8 +223,11 @@ def synth_dataset(seeds: Sequence[int], out: str | os.PathLike, settings: Datase
     if path.exists():
         old = read_manifest(path)
         if old["settings"] != record:
-            raise DlaInputError(path, f"was written with other settings ({_differences(old['settings'], record)}); "
-                                      "use the same options or another folder")  # fmt: skip
+            raise DlaInputError(
+                path,
+                f"was written with other settings ({_differences(old['settings'], record)}); "
+                "use the same options or another folder",
+            )
         entries = {e["seed"]: e for e in old["subjects"] if (out / e["path"]).is_dir()}
     elif out.exists() and any(out.iterdir()):
         raise DlaInputError(out, f"is not empty and holds no {MANIFEST}: not a dla dataset folder")
@@ -212,8 +243,14 @@ def synth_dataset(seeds: Sequence[int], out: str | os.PathLike, settings: Datase
             todo.append(seed)
     _write_manifest(path, record, entries)
     say(f"{len(todo)} subjects to write, {len(seeds) - len(todo)} already complete")
-    kw = dict(res=settings.res, novel_views=settings.novel_views, novel_poses=settings.novel_poses,
-              appearance=settings.appearance, wardrobe=settings.wardrobe, motions=settings.clips())  # fmt: skip
+    kw = dict(
+        res=settings.res,
+        novel_views=settings.novel_views,
+        novel_poses=settings.novel_poses,
+        appearance=settings.appearance,
+        wardrobe=settings.wardrobe,
+        motions=settings.clips(),
+    )
     tasks = [(seed, str(out / subject_name(seed)), kw) for seed in todo]
     manifest = None
 

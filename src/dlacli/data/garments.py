@@ -33,7 +33,8 @@ class DressedBody:
             hidden[b.garment.binding.delete_verts] = True
         ids = np.arange(gm.HM08_VERTICES)
         shown = ((ids >= gm.HM08_BODY[0]) & (ids < gm.HM08_BODY[1])) | (
-            (ids >= gm.HM08_EYES[0]) & (ids < gm.HM08_EYES[1]))  # fmt: skip
+            (ids >= gm.HM08_EYES[0]) & (ids < gm.HM08_EYES[1])
+        )
         hidden &= ids < gm.HM08_BODY[1]  # delete_verts only hide skin (the files also list eyes)
         body_faces = self.full.faces[np.all(shown[self.full.faces] & ~hidden[self.full.faces], axis=1)]
         eye = np.all((body_faces >= gm.HM08_EYES[0]) & (body_faces < gm.HM08_EYES[1]), axis=1)
@@ -53,12 +54,17 @@ class DressedBody:
         self.face_uv = np.concatenate(uvs).astype(np.float64)  # [F, 3, 2]
         rest_np = rest.double().numpy()
         self.rest = np.concatenate([rest_np] + [b.rest.double().numpy() for b in self.bound])  # [V, 3]
-        self.eye_centres = np.stack([rest_np[gm.HM08_EYES[0]:gm.HM08_EYES[0] + 72].mean(0),
-                                     rest_np[gm.HM08_EYES[0] + 72:gm.HM08_EYES[1]].mean(0)])  # fmt: skip
+        self.eye_centres = np.stack(
+            [
+                rest_np[gm.HM08_EYES[0] : gm.HM08_EYES[0] + 72].mean(0),
+                rest_np[gm.HM08_EYES[0] + 72 : gm.HM08_EYES[1]].mean(0),
+            ]
+        )
 
     def vertices(self, rotations, root_rotation, root_translation) -> np.ndarray:
         """rotations [T, J, 3], root_rotation [T, 3], root_translation [T, 3] -> [T, V, 3]."""
-        body, _ = self.full.forward(self.spec.phenotype, torch.as_tensor(rotations, dtype=torch.float32),
-                                    root_rotation, root_translation)  # fmt: skip
+        body, _ = self.full.forward(
+            self.spec.phenotype, torch.as_tensor(rotations, dtype=torch.float32), root_rotation, root_translation
+        )
         parts = [body] + [b.pose(body) for b in self.bound]
         return torch.cat(parts, dim=1).double().numpy()

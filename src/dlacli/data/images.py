@@ -19,8 +19,16 @@ SUPERSAMPLE = 2
 AMBIENT = 0.35
 
 
-def render(body: DressedBody, verts: np.ndarray, cameras: Cameras, seed: int, chunk: int = 4, *,
-           lighting: Lighting | None = None, ao: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+def render(
+    body: DressedBody,
+    verts: np.ndarray,
+    cameras: Cameras,
+    seed: int,
+    chunk: int = 4,
+    *,
+    lighting: Lighting | None = None,
+    ao: np.ndarray | None = None,
+) -> np.ndarray:
     """verts [V, 3] or [C, V, 3] -> RGBA [C, H, W, 4] float32 (straight alpha, see module doc),
     `chunk` cameras at a time (bounds the memory of the supersampled z-buffers). Appearance
     "albedo" when `lighting` is None, else "lit" with the per-vertex ao [V] or [C, V]."""
@@ -28,14 +36,20 @@ def render(body: DressedBody, verts: np.ndarray, cameras: Cameras, seed: int, ch
         raise ValueError("the lit appearance needs the ambient occlusion of the posed vertices")
     parts = []
     for s in range(0, len(cameras), chunk):
-        cams = Cameras(cameras.viewmats[s:s + chunk], cameras.Ks[s:s + chunk], cameras.width, cameras.height)
-        sub_ao = None if ao is None else (ao if ao.ndim == 1 else ao[s:s + chunk])
-        parts.append(_render(body, verts if verts.ndim == 2 else verts[s:s + chunk], cams, seed, lighting, sub_ao))
+        cams = Cameras(cameras.viewmats[s : s + chunk], cameras.Ks[s : s + chunk], cameras.width, cameras.height)
+        sub_ao = None if ao is None else (ao if ao.ndim == 1 else ao[s : s + chunk])
+        parts.append(_render(body, verts if verts.ndim == 2 else verts[s : s + chunk], cams, seed, lighting, sub_ao))
     return np.concatenate(parts)
 
 
-def _render(body: DressedBody, verts: np.ndarray, cameras: Cameras, seed: int,
-            lighting: Lighting | None = None, ao: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+def _render(
+    body: DressedBody,
+    verts: np.ndarray,
+    cameras: Cameras,
+    seed: int,
+    lighting: Lighting | None = None,
+    ao: np.ndarray | None = None,
+) -> np.ndarray:
     from dlacli.render.raster import rasterize_camera_space, vertex_normals, world_to_camera
 
     ss = SUPERSAMPLE
@@ -71,8 +85,9 @@ def _render(body: DressedBody, verts: np.ndarray, cameras: Cameras, seed: int,
             unit = lambda a: a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-12)  # noqa: E731
             occlusion = np.einsum("nk,nk->n", bary, (ao if ao.ndim == 1 else ao[k])[corners])
             turn = cameras.viewmats[k, :3, :3].double().numpy()
-            diffuse, spec = lit_terms(body.face_material[f], unit(n), unit(-pt), occlusion, lighting,
-                                      lighting.directions @ turn.T)  # fmt: skip
+            diffuse, spec = lit_terms(
+                body.face_material[f], unit(n), unit(-pt), occlusion, lighting, lighting.directions @ turn.T
+            )
             rgb[cov] = np.clip(albedo * diffuse + spec, 0.0, 1.0)
         cover = cov.astype(np.float64).reshape(h, w)
         rgb = rgb.reshape(h, w, 3)

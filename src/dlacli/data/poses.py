@@ -6,8 +6,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import torch
@@ -88,8 +88,16 @@ def target_motion(seed: int, spec: SubjectSpec, n: int, clips: Sequence[str] = (
         kinds[t] = f"{Path(clips[c]).name}@{i}"
     # keep every clip frame's body between the FRAME_Z heights (a raised hand, a crouch)
     sel = np.arange(0, n, 2)
-    z = model.forward(spec.phenotype, torch.from_numpy(rots[sel]), torch.from_numpy(root_rot[sel]),
-                      torch.from_numpy(root_pos[sel])).vertices[..., 2].numpy()  # fmt: skip
+    z = (
+        model.forward(
+            spec.phenotype,
+            torch.from_numpy(rots[sel]),
+            torch.from_numpy(root_rot[sel]),
+            torch.from_numpy(root_pos[sel]),
+        )
+        .vertices[..., 2]
+        .numpy()
+    )
     low, high = z.min(axis=1), z.max(axis=1)
     shift = np.minimum(FRAME_Z[1] - high, 0.0)
     shift = np.where(low + shift < FRAME_Z[0], np.minimum(FRAME_Z[0] - low, FRAME_Z[1] - high), shift)

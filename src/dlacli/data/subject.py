@@ -18,8 +18,15 @@ from dlacli.errors import DlaInputError
 WARDROBES = ("default", "full", "train", "heldout")
 # "full" wardrobe: every shipped garment of its kind (dlacli.body.garments.GARMENT_KIND)
 SUITS_FEMALE = ("female_casualsuit01", "female_casualsuit02", "female_elegantsuit01")
-SUITS_MALE = ("male_casualsuit01", "male_casualsuit02", "male_casualsuit03", "male_casualsuit04",
-              "male_casualsuit05", "male_casualsuit06", "male_elegantsuit01")  # fmt: skip
+SUITS_MALE = (
+    "male_casualsuit01",
+    "male_casualsuit02",
+    "male_casualsuit03",
+    "male_casualsuit04",
+    "male_casualsuit05",
+    "male_casualsuit06",
+    "male_elegantsuit01",
+)
 SHOES = ("shoes01", "shoes02")
 HAIRS = ("short02", "short01", "short03", "short04", "afro01", "bob01", "braid01", "long01", "ponytail01")
 PATTERNS_FULL = ("stripes", "checks", "noise", "dots", "plain")
@@ -73,10 +80,19 @@ def relaxed_pose(rng: np.random.Generator, labels: list[str], lower: float) -> n
 
 
 def _palette(rng: np.random.Generator) -> dict[str, dict]:
-    skins = np.array([[0.96, 0.80, 0.69], [0.87, 0.67, 0.53], [0.76, 0.57, 0.42],
-                      [0.60, 0.43, 0.31], [0.43, 0.29, 0.20]])  # fmt: skip
-    hairs = np.array([[0.08, 0.06, 0.05], [0.25, 0.15, 0.08], [0.45, 0.30, 0.16],
-                      [0.80, 0.65, 0.40], [0.55, 0.22, 0.10], [0.60, 0.60, 0.60]])  # fmt: skip
+    skins = np.array(
+        [[0.96, 0.80, 0.69], [0.87, 0.67, 0.53], [0.76, 0.57, 0.42], [0.60, 0.43, 0.31], [0.43, 0.29, 0.20]]
+    )
+    hairs = np.array(
+        [
+            [0.08, 0.06, 0.05],
+            [0.25, 0.15, 0.08],
+            [0.45, 0.30, 0.16],
+            [0.80, 0.65, 0.40],
+            [0.55, 0.22, 0.10],
+            [0.60, 0.60, 0.60],
+        ]
+    )
     irises = np.array([[0.30, 0.18, 0.08], [0.25, 0.45, 0.65], [0.30, 0.45, 0.25]])
     t = rng.uniform(0, len(skins) - 1)
     k = int(t)
@@ -88,10 +104,12 @@ def _palette(rng: np.random.Generator) -> dict[str, dict]:
             base = rng.uniform(0.1, 0.9, 3)
         second = np.clip(base * rng.uniform(0.3, 0.7) + rng.uniform(0.0, 0.5, 3), 0, 1)
         return {
-            "base": base, "second": second,
+            "base": base,
+            "second": second,
             "pattern": str(rng.choice(["stripes", "checks", "noise"])),
-            "freq": float(rng.uniform(12.0, 30.0)), "angle": float(rng.uniform(0, np.pi)),
-        }  # fmt: skip
+            "freq": float(rng.uniform(12.0, 30.0)),
+            "angle": float(rng.uniform(0, np.pi)),
+        }
 
     return {
         "skin": {"base": skin},
@@ -106,6 +124,7 @@ def _full_wardrobe(spec: SubjectSpec, wardrobe: str = "full") -> None:
     """Redraw the outfit from every shipped garment and widen the colours and patterns, from a
     stream of its own (`default_rng([seed, 2])`), so the phenotype and pose stay the default's.
     wardrobe "train" leaves out the HELD_OUT garments, "heldout" takes suit and hair from them."""
+
     def pool(names):
         if wardrobe == "train":
             return tuple(n for n in names if n not in HELD_OUT)
@@ -117,8 +136,11 @@ def _full_wardrobe(spec: SubjectSpec, wardrobe: str = "full") -> None:
     own, other = (SUITS_FEMALE, SUITS_MALE) if spec.phenotype["gender"] >= 0.5 else (SUITS_MALE, SUITS_FEMALE)
     suits = pool(own if rng.uniform() < 0.85 else other)
     hairs = pool(HAIRS)
-    spec.outfit = (str(suits[rng.integers(len(suits))]), str(SHOES[rng.integers(len(SHOES))]),
-                   str(hairs[rng.integers(len(hairs))]))  # fmt: skip
+    spec.outfit = (
+        str(suits[rng.integers(len(suits))]),
+        str(SHOES[rng.integers(len(SHOES))]),
+        str(hairs[rng.integers(len(hairs))]),
+    )
     pal = spec.palette
     pal["suit"]["pattern"] = str(PATTERNS_FULL[rng.integers(len(PATTERNS_FULL))])
     pal["suit"]["freq"] = float(rng.uniform(8.0, 40.0))
@@ -147,8 +169,13 @@ def sample_subject(seed: int, wardrobe: str = "default") -> SubjectSpec:
     lower = float(rng.uniform(20.0, 28.0))
     pose_seed = int(rng.integers(2**63))
     suit = "female_casualsuit01" if pheno["gender"] >= 0.5 else "male_casualsuit01"
-    spec = SubjectSpec(int(seed), pheno, relaxed_pose(np.random.default_rng(pose_seed), labels, lower),
-                       (suit, "shoes01", "short02"), _palette(rng))  # fmt: skip
+    spec = SubjectSpec(
+        int(seed),
+        pheno,
+        relaxed_pose(np.random.default_rng(pose_seed), labels, lower),
+        (suit, "shoes01", "short02"),
+        _palette(rng),
+    )
     while lower > 4.0 and hand_clearance(spec) < 0.06:  # keep the hands off the body
         lower -= 4.0
         spec.rotations = relaxed_pose(np.random.default_rng(pose_seed), labels, lower)
@@ -164,8 +191,9 @@ def hand_clearance(spec: SubjectSpec) -> float:
     from dlacli.body.garments import get_full_body
 
     full = get_full_body()
-    verts, _ = full.forward(spec.phenotype, torch.from_numpy(spec.rotations[None]),
-                            torch.zeros(1, 3), torch.zeros(1, 3))  # fmt: skip
+    verts, _ = full.forward(
+        spec.phenotype, torch.from_numpy(spec.rotations[None]), torch.zeros(1, 3), torch.zeros(1, 3)
+    )
     v = verts[0].numpy()
     names = full.bone_labels
     bone = full.dominant_bone

@@ -9,8 +9,8 @@ Dataset mode (many subjects, a manifest, parallel and resumable) is dlacli.data.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -43,15 +43,24 @@ def _body_params(spec: SubjectSpec, rotations: np.ndarray | None) -> BodyParams:
 
 
 def _view_set(rgba: np.ndarray, cams: Cameras, body: BodyParams, times, extra: dict) -> ViewSet:
-    return ViewSet(images=rgba[..., :3], masks=rgba[..., 3], cameras=cams, body=body,
-                   file_paths=[], times=list(times), extra=extra)  # fmt: skip
+    return ViewSet(
+        images=rgba[..., :3], masks=rgba[..., 3], cameras=cams, body=body, file_paths=[], times=list(times), extra=extra
+    )
 
 
 # what synth writes (paths relative to the subject folder; dla.io.atomic.check_outputs)
-SUBJECT_LAYOUT = ("transforms.json", "body.json", "images", "images/view_*.png",
-                  *(f"{sub}{rest}" for sub in ("novel_views", "novel_poses")
-                    for rest in ("", "/transforms.json", "/body.json", "/images", "/images/view_*.png")),
-                  "novel_poses/motion.npz")  # fmt: skip
+SUBJECT_LAYOUT = (
+    "transforms.json",
+    "body.json",
+    "images",
+    "images/view_*.png",
+    *(
+        f"{sub}{rest}"
+        for sub in ("novel_views", "novel_poses")
+        for rest in ("", "/transforms.json", "/body.json", "/images", "/images/view_*.png")
+    ),
+    "novel_poses/motion.npz",
+)
 
 
 def _check_options(res, novel_views, novel_poses, appearance: str, wardrobe: str) -> None:
@@ -67,9 +76,19 @@ def _check_options(res, novel_views, novel_poses, appearance: str, wardrobe: str
         raise DlaInputError("--wardrobe", f"must be one of {', '.join(WARDROBES)}, got {wardrobe!r}")
 
 
-def synth(seed: int, out: str | os.PathLike, *, res: int = 512, novel_views: int = 12, novel_poses: int = 8,
-          appearance: str = "albedo", wardrobe: str = "default", random_yaw: bool = False,
-          motions: Sequence[str] = (), progress: Progress | None = None) -> Path:  # fmt: skip
+def synth(
+    seed: int,
+    out: str | os.PathLike,
+    *,
+    res: int = 512,
+    novel_views: int = 12,
+    novel_poses: int = 8,
+    appearance: str = "albedo",
+    wardrobe: str = "default",
+    random_yaw: bool = False,
+    motions: Sequence[str] = (),
+    progress: Progress | None = None,
+) -> Path:
     """Write the synthetic subject `seed` as the view folder `out` (atomic as a whole):
     4 input views + body.json, novel_views/ (n ground-truth views of the same pose) and
     novel_poses/ (frames with `time` into novel_poses/motion.npz) when n > 0.
@@ -87,8 +106,12 @@ def synth(seed: int, out: str | os.PathLike, *, res: int = 512, novel_views: int
     spec = sample_subject(seed, wardrobe)
     say("dressing the body")
     body = DressedBody(spec)
-    info = {"seed": int(seed), "outfit": list(spec.outfit),
-            "suit_pattern": spec.palette["suit"]["pattern"], "generator": "dla synth"}  # fmt: skip
+    info = {
+        "seed": int(seed),
+        "outfit": list(spec.outfit),
+        "suit_pattern": spec.palette["suit"]["pattern"],
+        "generator": "dla synth",
+    }
     lighting = sample_lighting(seed) if appearance == "lit" else None
     if wardrobe != "default":
         info["wardrobe"] = wardrobe
@@ -118,18 +141,21 @@ def synth(seed: int, out: str | os.PathLike, *, res: int = 512, novel_views: int
         if novel_poses:
             motion, kinds = target_motion(seed, spec, novel_poses, motions)
             say(f"rendering {novel_poses} novel poses x {len(POSE_AZIMUTHS)} cameras")
-            posed = body.vertices(motion.rotations, torch.from_numpy(motion.root_rotation),
-                                  torch.from_numpy(motion.root_translation))  # [T, V, 3]
+            posed = body.vertices(
+                motion.rotations, torch.from_numpy(motion.root_rotation), torch.from_numpy(motion.root_translation)
+            )  # [T, V, 3]
             pose_az = (np.array(POSE_AZIMUTHS) + yaw) % 360.0 if random_yaw else list(POSE_AZIMUTHS)
             cams1 = synth_orbit_cameras(pose_az, INPUT_ELEVATION, res)
             k = len(POSE_AZIMUTHS)
-            cams = Cameras(cams1.viewmats.repeat(novel_poses, 1, 1),
-                           cams1.Ks.repeat(novel_poses, 1, 1), res, res)  # fmt: skip
+            cams = Cameras(cams1.viewmats.repeat(novel_poses, 1, 1), cams1.Ks.repeat(novel_poses, 1, 1), res, res)
             pose_ao = None if lighting is None else np.repeat(ambient_occlusion(posed, body.faces), k, axis=0)
             rgba = render(body, np.repeat(posed, k, axis=0), cams, seed, lighting=lighting, ao=pose_ao)
             times = [t for t in range(novel_poses) for _ in range(k)]
-            extra = {"synth": {**info, "azimuths": np.asarray(pose_az).tolist(), "elevation": INPUT_ELEVATION},
-                     "motion": "motion.npz", "pose_kinds": kinds}  # fmt: skip
+            extra = {
+                "synth": {**info, "azimuths": np.asarray(pose_az).tolist(), "elevation": INPUT_ELEVATION},
+                "motion": "motion.npz",
+                "pose_kinds": kinds,
+            }
             write_views(_view_set(rgba, cams, _body_params(spec, None), times, extra), tmp / "novel_poses")
             write_motion(motion, tmp / "novel_poses" / "motion.npz")
     return out

@@ -29,26 +29,66 @@ from dlacli.io.validate import MAX_ANGLE, MAX_DISTANCE
 from dlacli.types import MAX_FPS, MIN_FPS, SkeletonMotion
 
 SMPL_JOINTS = (
-    "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
-    "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar",
-    "right_collar", "head", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow",
-    "left_wrist", "right_wrist",
-)  # fmt: skip
+    "pelvis",
+    "left_hip",
+    "right_hip",
+    "spine1",
+    "left_knee",
+    "right_knee",
+    "spine2",
+    "left_ankle",
+    "right_ankle",
+    "spine3",
+    "left_foot",
+    "right_foot",
+    "neck",
+    "left_collar",
+    "right_collar",
+    "head",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+)
 SMPL_PARENTS = (-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19)
 
 # [22, 3] rounded rest joint locations of an average SMPL body (canonical frame, metres)
-SMPL_REST_JOINTS = np.array([
-    [0.00, -0.22, 0.03], [0.07, -0.31, 0.02], [-0.07, -0.31, 0.02], [0.00, -0.10, 0.01],
-    [0.10, -0.68, 0.02], [-0.10, -0.68, 0.02], [0.00, 0.03, 0.03], [0.09, -1.10, -0.02],
-    [-0.09, -1.10, -0.02], [0.00, 0.08, 0.03], [0.12, -1.16, 0.10], [-0.12, -1.16, 0.10],
-    [0.00, 0.29, -0.01], [0.08, 0.20, -0.01], [-0.08, 0.20, -0.01], [0.00, 0.39, 0.03],
-    [0.17, 0.22, -0.02], [-0.17, 0.22, -0.02], [0.43, 0.21, -0.04], [-0.43, 0.21, -0.04],
-    [0.69, 0.22, -0.04], [-0.69, 0.22, -0.04],
-])  # fmt: skip
+SMPL_REST_JOINTS = np.array(
+    [
+        [0.00, -0.22, 0.03],
+        [0.07, -0.31, 0.02],
+        [-0.07, -0.31, 0.02],
+        [0.00, -0.10, 0.01],
+        [0.10, -0.68, 0.02],
+        [-0.10, -0.68, 0.02],
+        [0.00, 0.03, 0.03],
+        [0.09, -1.10, -0.02],
+        [-0.09, -1.10, -0.02],
+        [0.00, 0.08, 0.03],
+        [0.12, -1.16, 0.10],
+        [-0.12, -1.16, 0.10],
+        [0.00, 0.29, -0.01],
+        [0.08, 0.20, -0.01],
+        [-0.08, 0.20, -0.01],
+        [0.00, 0.39, 0.03],
+        [0.17, 0.22, -0.02],
+        [-0.17, 0.22, -0.02],
+        [0.43, 0.21, -0.04],
+        [-0.43, 0.21, -0.04],
+        [0.69, 0.22, -0.04],
+        [-0.69, 0.22, -0.04],
+    ]
+)
 # end sites: toe tips, head top, hand middles (offsets from their joints)
-SMPL_END_SITES = {10: np.array([0.0, -0.02, 0.08]), 11: np.array([0.0, -0.02, 0.08]),
-                  15: np.array([0.0, 0.15, 0.0]), 20: np.array([0.09, 0.0, 0.0]),
-                  21: np.array([-0.09, 0.0, 0.0])}  # fmt: skip
+SMPL_END_SITES = {
+    10: np.array([0.0, -0.02, 0.08]),
+    11: np.array([0.0, -0.02, 0.08]),
+    15: np.array([0.0, 0.15, 0.0]),
+    20: np.array([0.09, 0.0, 0.0]),
+    21: np.array([-0.09, 0.0, 0.0]),
+}
 
 LAYOUTS = {156: "smplh", 165: "smplx", 72: "smpl"}
 FRAMERATE_KEYS = ("mocap_framerate", "mocap_frame_rate")
@@ -99,8 +139,9 @@ def read_amass(path: str | os.PathLike) -> SkeletonMotion:
         _, joints = _layout(poses.shape[1])
     except ValueError:
         raise DlaInputError(
-            path, f"poses has {poses.shape[1]} values per frame; supported: 156 (SMPL-H), 165 (SMPL-X), 72 (SMPL), "
-            "or 3 x J for the first J <= 22 SMPL body joints"
+            path,
+            f"poses has {poses.shape[1]} values per frame; supported: 156 (SMPL-H), 165 (SMPL-X), 72 (SMPL), "
+            "or 3 x J for the first J <= 22 SMPL body joints",
         ) from None
     t = poses.shape[0]
     if t == 0:
@@ -113,9 +154,13 @@ def read_amass(path: str | os.PathLike) -> SkeletonMotion:
         raise DlaInputError(path, f"trans has shape {trans.shape}, expected ({t}, 3)")
     for name, arr, most in (("poses", poses, MAX_ANGLE), ("trans", trans, MAX_DISTANCE)):  # radians, metres
         if not np.all(np.isfinite(arr)):
-            raise DlaInputError(path, f"{name} holds non-finite values (first at frame {np.argwhere(~np.isfinite(arr))[0][0]})")
+            raise DlaInputError(
+                path, f"{name} holds non-finite values (first at frame {np.argwhere(~np.isfinite(arr))[0][0]})"
+            )
         if arr.size and np.abs(arr).max() > most:
-            raise DlaInputError(path, f"{name} holds values beyond +-{most:g} (largest {np.abs(arr).max():g}): not a motion")
+            raise DlaInputError(
+                path, f"{name} holds values beyond +-{most:g} (largest {np.abs(arr).max():g}): not a motion"
+            )
     key = next((k for k in FRAMERATE_KEYS if k in data), None)
     if key is None:
         raise DlaInputError(path, f"no frame rate ({' or '.join(FRAMERATE_KEYS)})")

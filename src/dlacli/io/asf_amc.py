@@ -132,7 +132,9 @@ def read_asf(path: str | os.PathLike) -> Asf:
     root = {words[0].lower(): words[1:] for words in sec["root"] if words}
     root_order = [w.lower() for w in root.get("order", "TX TY TZ RX RY RZ".split())]
     if sorted(root_order) != sorted(["tx", "ty", "tz", "rx", "ry", "rz"]):
-        raise DlaInputError(path, f":root order {excerpt(' '.join(root_order))} is not supported (TX TY TZ RX RY RZ in any order)")
+        raise DlaInputError(
+            path, f":root order {excerpt(' '.join(root_order))} is not supported (TX TY TZ RX RY RZ in any order)"
+        )
     root_axis = _axis_order(root.get("axis", ["XYZ"])[0], path, ":root axis")
     position = _floats(root.get("position", ["0", "0", "0"]), 3, path, ":root position")
     orientation = _floats(root.get("orientation", ["0", "0", "0"]), 3, path, ":root orientation")
@@ -177,7 +179,9 @@ def read_asf(path: str | os.PathLike) -> Asf:
                 raise DlaInputError(path, f":hierarchy makes root a child of {excerpt(parent)}")
             if kid in parent_of:
                 raise DlaInputError(
-                    path, f":hierarchy gives bone {excerpt(kid)} two parents ({excerpt(parent_of[kid])} and {excerpt(parent)}): a cycle or a repeated line"
+                    path,
+                    f":hierarchy gives bone {excerpt(kid)} two parents ({excerpt(parent_of[kid])} and "
+                    f"{excerpt(parent)}): a cycle or a repeated line",
                 )
             parent_of[kid] = parent
         children.setdefault(parent, []).extend(kids)
@@ -282,7 +286,9 @@ def read_amc(amc_path: str | os.PathLike, asf: Asf | str | os.PathLike, fps: flo
         if name not in store:
             continue
         if len(words) - 1 != counts[name]:
-            raise DlaInputError(amc_path, f"line {n}: bone {excerpt(name)} has {len(words) - 1} values, its dofs need {counts[name]}")
+            raise DlaInputError(
+                amc_path, f"line {n}: bone {excerpt(name)} has {len(words) - 1} values, its dofs need {counts[name]}"
+            )
         try:
             row = [float(w) for w in words[1:]]
         except ValueError:

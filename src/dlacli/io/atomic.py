@@ -23,8 +23,8 @@ import re
 import shutil
 import stat
 import tempfile
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Iterable, Iterator
 
 from dlacli.errors import DlaInputError
 from dlacli.io.files import kind_of
@@ -299,8 +299,11 @@ def check_outputs(
                 raise DlaInputError(path, f"exists and is {what}, not a folder dla wrote; choose another output")
             strangers = _strangers(path, patterns)
             if strangers:
-                raise DlaInputError(path, f"exists and holds files dla did not write there ({', '.join(sorted(strangers)[:3])}"
-                                          f"{', ...' if len(strangers) > 3 else ''}); remove it or choose another output")  # fmt: skip
+                raise DlaInputError(
+                    path,
+                    f"exists and holds files dla did not write there ({', '.join(sorted(strangers)[:3])}"
+                    f"{', ...' if len(strangers) > 3 else ''}); remove it or choose another output",
+                )
             for inp in ins:
                 if os.path.lexists(inp) and _inside(inp, path):
                     raise DlaInputError(path, f"holds the input {inp}; replacing the folder would delete it")

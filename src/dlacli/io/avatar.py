@@ -71,7 +71,9 @@ def avatar_from_arrays(data: dict[str, Any], where: Any) -> Avatar:
         raise DlaInputError(where, f"missing array{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))}")
     unknown = sorted(set(data) - set(KEYS) - set(OPTIONAL_KEYS))
     if unknown:
-        raise DlaInputError(where, f"unknown array{'s' if len(unknown) > 1 else ''} {excerpts(unknown)} (put project data in 'extra')")
+        raise DlaInputError(
+            where, f"unknown array{'s' if len(unknown) > 1 else ''} {excerpts(unknown)} (put project data in 'extra')"
+        )
 
     z = _float_map(data["z"], where, "z")
     check_shape(z, (None, None, None), where, "z")

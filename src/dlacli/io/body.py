@@ -27,9 +27,9 @@ from dlacli.io.validate import (
     load_json,
     require_keys,
 )
+from dlacli.types import PHENOTYPE_KEYS, BodyParams
 
 MAX_BONES = 1024  # anny's rig has 104; a pose naming more bones than any rig is refused unread
-from dlacli.types import PHENOTYPE_KEYS, BodyParams
 
 FORMAT = "dla.body/1"
 MODELS = ("anny",)
@@ -47,7 +47,10 @@ def body_from_dict(d: Any, where: Any) -> BodyParams:
     require_keys(d, ("model", "phenotype"), where)
     unknown = sorted(set(d) - _KEYS)
     if unknown:
-        raise DlaInputError(where, f"unknown key{'s' if len(unknown) > 1 else ''} {excerpts(unknown)} (allowed: {', '.join(sorted(_KEYS))})")
+        raise DlaInputError(
+            where,
+            f"unknown key{'s' if len(unknown) > 1 else ''} {excerpts(unknown)} (allowed: {', '.join(sorted(_KEYS))})",
+        )
     model = as_str(d["model"], where, "model")
     if model not in MODELS:
         raise DlaInputError(where, f"model {excerpt(model)} is not supported (supported: {', '.join(MODELS)})")
@@ -57,10 +60,17 @@ def body_from_dict(d: Any, where: Any) -> BodyParams:
         raise DlaInputError(where, f"phenotype must be an object with keys {', '.join(PHENOTYPE_KEYS)}")
     missing = [k for k in PHENOTYPE_KEYS if k not in pheno]
     if missing:
-        raise DlaInputError(where, f"phenotype is missing {', '.join(map(repr, missing))} (all of {', '.join(PHENOTYPE_KEYS)} are required)")
+        raise DlaInputError(
+            where,
+            f"phenotype is missing {', '.join(map(repr, missing))} (all of {', '.join(PHENOTYPE_KEYS)} are required)",
+        )
     extra = sorted(set(pheno) - set(PHENOTYPE_KEYS))
     if extra:
-        raise DlaInputError(where, f"unknown phenotype key{'s' if len(extra) > 1 else ''} {excerpts(extra)} (allowed: {', '.join(PHENOTYPE_KEYS)})")
+        raise DlaInputError(
+            where,
+            f"unknown phenotype key{'s' if len(extra) > 1 else ''} {excerpts(extra)} (allowed: "
+            f"{', '.join(PHENOTYPE_KEYS)})",
+        )
     phenotype = {}
     for key in PHENOTYPE_KEYS:
         value = as_float(pheno[key], where, f"phenotype.{key}")
@@ -150,5 +160,7 @@ def summarize_body(path: str | os.PathLike) -> dict[str, Any]:
         "root_rotation": body.root_rotation.tolist(),
         "root_translation": body.root_translation.tolist(),
         "posed_bones": len(body.pose),
-        "largest_rotation": None if largest is None else {"bone": largest, "degrees": float(np.degrees(angles[largest]))},
+        "largest_rotation": None
+        if largest is None
+        else {"bone": largest, "degrees": float(np.degrees(angles[largest]))},
     }

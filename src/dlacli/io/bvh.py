@@ -176,7 +176,9 @@ class _Tokens:
         try:
             value = float(tok)
         except ValueError:
-            raise DlaInputError(self.where, f"line {self.line()}: expected a number for {what}, got {excerpt(tok)}") from None
+            raise DlaInputError(
+                self.where, f"line {self.line()}: expected a number for {what}, got {excerpt(tok)}"
+            ) from None
         if not np.isfinite(value):
             raise DlaInputError(self.where, f"line {self.line()}: {what} is {tok}")
         return value
@@ -273,7 +275,9 @@ def read_bvh(path: str | os.PathLike, metres_per_unit: float | None = None) -> S
     joints, end_sites = _parse_hierarchy(tok, tok.next("root name"))
     extra = tok.next_or_none()
     if extra is not None:
-        raise DlaInputError(path, f"line {tok.line()}: unexpected {excerpt(extra)} after the hierarchy (one ROOT supported)")
+        raise DlaInputError(
+            path, f"line {tok.line()}: unexpected {excerpt(extra)} after the hierarchy (one ROOT supported)"
+        )
     if tok.motion_end is None:
         raise DlaInputError(path, "no MOTION section (truncated file?)")
     names = [j["name"] for j in joints]
@@ -361,15 +365,21 @@ def _parse_motion(text: str, pos: int, path: Path, num_channels: int, num_joints
         raise DlaInputError(path, f"MOTION section lacks {err.args[0].title()!r} (truncated file?)") from None
     except ValueError:
         shown = one_line("; ".join(f"{k[:20]}: {v[:20]}" for k, v in header.items()))
-        raise DlaInputError(path, f"bad MOTION header ({shown}): Frames must be an integer, Frame Time a number") from None
+        raise DlaInputError(
+            path, f"bad MOTION header ({shown}): Frames must be an integer, Frame Time a number"
+        ) from None
     if frames <= 0:
         raise DlaInputError(path, f"motion has {frames} frames (at least one needed)")
     if not np.isfinite(frame_time) or frame_time <= 0:
         raise DlaInputError(path, f"Frame Time {frame_time} must be > 0")
     if 1.0 / frame_time < MIN_FPS:
-        raise DlaInputError(path, f"Frame Time {frame_time:g} s is {1.0 / frame_time:g} fps; at least {MIN_FPS:g} fps is supported")
+        raise DlaInputError(
+            path, f"Frame Time {frame_time:g} s is {1.0 / frame_time:g} fps; at least {MIN_FPS:g} fps is supported"
+        )
     if 1.0 / frame_time > MAX_FPS:
-        raise DlaInputError(path, f"Frame Time {frame_time:g} s is {1.0 / frame_time:g} fps; at most {MAX_FPS:g} fps is supported")
+        raise DlaInputError(
+            path, f"Frame Time {frame_time:g} s is {1.0 / frame_time:g} fps; at most {MAX_FPS:g} fps is supported"
+        )
     if num_channels == 0:
         raise DlaInputError(path, "the hierarchy has no CHANNELS: there is no motion to read")
     # the frame count against what the rest of the file can hold, before allocating for it:
@@ -395,16 +405,22 @@ def _parse_motion(text: str, pos: int, path: Path, num_channels: int, num_joints
                 raise DlaInputError(
                     path, f"truncated: the last frame (line {line_no(start)}) has {len(words)} of {num_channels} values"
                 )
-            raise DlaInputError(path, f"line {line_no(start)}: {len(words)} values, expected {num_channels} (one per channel)")
+            raise DlaInputError(
+                path, f"line {line_no(start)}: {len(words)} values, expected {num_channels} (one per channel)"
+            )
         try:
             data[f] = np.array(words, dtype=np.float64)
         except ValueError:
             bad = next(t for t in words if not _is_float(t))
-            raise DlaInputError(path, f"line {line_no(start)}: non-numeric value {excerpt(bad)} in the MOTION data") from None
+            raise DlaInputError(
+                path, f"line {line_no(start)}: non-numeric value {excerpt(bad)} in the MOTION data"
+            ) from None
     span = _next_line(text, pos)
     if span is not None:
         more = _count_lines(text, span[0])
-        raise DlaInputError(path, f"{more or 'more'} frame line(s) more than Frames: {frames} (from line {line_no(span[0])})")
+        raise DlaInputError(
+            path, f"{more or 'more'} frame line(s) more than Frames: {frames} (from line {line_no(span[0])})"
+        )
     bad = ~np.isfinite(data)
     if bad.any():
         f, c = np.argwhere(bad)[0]
@@ -438,7 +454,5 @@ def summarize_bvh(path: str | os.PathLike) -> dict[str, Any]:
         "joint_names": skel.names,
         "units": skel.units,
         "height_m": rest_height(skel) * skel.metres_per_unit,
-        "root_travel_m": float(
-            np.linalg.norm(skel.root_positions[-1] - skel.root_positions[0]) * skel.metres_per_unit
-        ),
+        "root_travel_m": float(np.linalg.norm(skel.root_positions[-1] - skel.root_positions[0]) * skel.metres_per_unit),
     }

@@ -24,7 +24,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
-from typing import Iterator
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -110,9 +110,7 @@ def detect_person(image: np.ndarray, alpha: np.ndarray | None = None) -> tuple[n
     h, w = img.shape[:2]
     with quiet_fd2():
         mp = _import_mediapipe()
-        with mp.solutions.pose.Pose(
-            static_image_mode=True, model_complexity=1, enable_segmentation=True
-        ) as pose:
+        with mp.solutions.pose.Pose(static_image_mode=True, model_complexity=1, enable_segmentation=True) as pose:
             result = pose.process(img)
     if result.pose_landmarks is None:
         raise DlaInputError("image", NO_PERSON)

@@ -55,7 +55,11 @@ def open_input(path: str | os.PathLike, max_bytes: int = MAX_BINARY_BYTES) -> io
         if not stat.S_ISREG(st.st_mode):
             raise DlaInputError(path, f"is {kind_of(st.st_mode)}, not a regular file")
         if st.st_size > max_bytes:
-            raise DlaInputError(path, f"is {st.st_size} bytes; dla reads at most {max_bytes} bytes ({max_bytes / MiB:.0f} MiB) for this kind of file")
+            raise DlaInputError(
+                path,
+                f"is {st.st_size} bytes; dla reads at most {max_bytes} bytes ({max_bytes / MiB:.0f} MiB) for this "
+                "kind of file",
+            )
         os.set_blocking(fd, True)
         return os.fdopen(fd, "rb")
     except BaseException:
@@ -97,11 +101,19 @@ def inside(folder: str | os.PathLike, rel: str, where: object, name: str, allow_
     if allow_outside:
         return path
     if os.path.isabs(rel):
-        raise DlaInputError(where, f"{name} {excerpt(rel)} is an absolute path; dla reads only files inside the folder (--allow-outside to permit)")
+        raise DlaInputError(
+            where,
+            f"{name} {excerpt(rel)} is an absolute path; dla reads only files inside the folder (--allow-outside to "
+            "permit)",
+        )
     try:
         path.resolve().relative_to(folder.resolve())
     except ValueError:
-        raise DlaInputError(where, f"{name} {excerpt(rel)} leads outside the folder; dla reads only files inside it (--allow-outside to permit)") from None
+        raise DlaInputError(
+            where,
+            f"{name} {excerpt(rel)} leads outside the folder; dla reads only files inside it (--allow-outside to "
+            "permit)",
+        ) from None
     except (OSError, RuntimeError) as err:  # link loops
         raise DlaInputError(where, f"{name} {excerpt(rel)} cannot be resolved ({one_line(err)})") from None
     return path
@@ -142,6 +154,10 @@ class decoding:
         return self
 
     def __exit__(self, kind, err, tb):
-        if err is not None and isinstance(err, (OSError, ValueError, SyntaxError, EOFError)) and not isinstance(err, DlaInputError):
+        if (
+            err is not None
+            and isinstance(err, (OSError, ValueError, SyntaxError, EOFError))
+            and not isinstance(err, DlaInputError)
+        ):
             raise DlaInputError(self.path, f"not a readable image ({one_line(err)})") from None
         return False

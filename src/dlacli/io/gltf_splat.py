@@ -53,7 +53,13 @@ def encode_glb(gaussians: Gaussians, generator: str = "dla") -> bytes:
     rgb = np.clip(0.5 + SH_C0 * sh[:, 0, :], 0.0, 1.0)
     columns: list[tuple[str, np.ndarray, str, int, bool]] = [
         ("POSITION", means.astype("<f4"), "VEC3", FLOAT, False),
-        ("COLOR_0", to_u8(np.concatenate([srgb_to_linear(rgb), opacities[:, None]], axis=1) * 255.0), "VEC4", UNSIGNED_BYTE, True),
+        (
+            "COLOR_0",
+            to_u8(np.concatenate([srgb_to_linear(rgb), opacities[:, None]], axis=1) * 255.0),
+            "VEC4",
+            UNSIGNED_BYTE,
+            True,
+        ),
         (f"{EXTENSION}:ROTATION", quats[:, [1, 2, 3, 0]].astype("<f4"), "VEC4", FLOAT, False),
         (f"{EXTENSION}:SCALE", scales.astype("<f4"), "VEC3", FLOAT, False),
         (f"{EXTENSION}:OPACITY", opacities.astype("<f4"), "SCALAR", FLOAT, False),
@@ -85,11 +91,25 @@ def encode_glb(gaussians: Gaussians, generator: str = "dla") -> bytes:
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "name": "avatar"}],
-        "meshes": [{"name": "avatar", "primitives": [{
-            "attributes": attributes, "mode": POINTS,
-            "extensions": {EXTENSION: {"kernel": "ellipse", "colorSpace": "srgb_rec709_display",
-                                       "projection": "perspective", "sortingMethod": "cameraDistance"}},
-        }]}],  # fmt: skip
+        "meshes": [
+            {
+                "name": "avatar",
+                "primitives": [
+                    {
+                        "attributes": attributes,
+                        "mode": POINTS,
+                        "extensions": {
+                            EXTENSION: {
+                                "kernel": "ellipse",
+                                "colorSpace": "srgb_rec709_display",
+                                "projection": "perspective",
+                                "sortingMethod": "cameraDistance",
+                            }
+                        },
+                    }
+                ],
+            }
+        ],
         "buffers": [{"byteLength": offset}],
         "bufferViews": views,
         "accessors": accessors,
@@ -98,10 +118,18 @@ def encode_glb(gaussians: Gaussians, generator: str = "dla") -> bytes:
     text += b" " * ((-len(text)) % 4)
     total = 12 + 8 + len(text) + 8 + offset
     if total > MAX_BYTES:
-        raise DlaInputError("gaussians", f"{n} Gaussians make a {total / 2**30:.1f} GiB .glb; the format holds at most 4 GiB")
-    return b"".join([struct.pack("<III", GLB_MAGIC, GLB_VERSION, total),
-                     struct.pack("<II", len(text), CHUNK_JSON), text,
-                     struct.pack("<II", offset, CHUNK_BIN), *blobs])  # fmt: skip
+        raise DlaInputError(
+            "gaussians", f"{n} Gaussians make a {total / 2**30:.1f} GiB .glb; the format holds at most 4 GiB"
+        )
+    return b"".join(
+        [
+            struct.pack("<III", GLB_MAGIC, GLB_VERSION, total),
+            struct.pack("<II", len(text), CHUNK_JSON),
+            text,
+            struct.pack("<II", offset, CHUNK_BIN),
+            *blobs,
+        ]
+    )
 
 
 def write_glb(gaussians: Gaussians, path: str | os.PathLike) -> None:

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
-
+from typing import Any
 
 from dlacli.errors import DlaInputError, excerpt
 from dlacli.io.validate import npz_format

@@ -68,7 +68,11 @@ def motion_from_arrays(data: dict[str, Any], where: Any) -> Motion:
     check_shape(root_rotation, (t, 3), where, "root_rotation")
     root_translation = _float_array(data["root_translation"], where, "root_translation")
     check_shape(root_translation, (t, 3), where, "root_translation")
-    for name, arr in (("rotations", rotations), ("root_rotation", root_rotation), ("root_translation", root_translation)):
+    for name, arr in (
+        ("rotations", rotations),
+        ("root_rotation", root_rotation),
+        ("root_translation", root_translation),
+    ):
         check_finite(arr, where, name)
     check_magnitude(rotations, MAX_ANGLE, where, "rotations", "rad")
     check_magnitude(root_rotation, MAX_ANGLE, where, "root_rotation", "rad")
@@ -119,7 +123,11 @@ def summarize_motion(path: str | os.PathLike) -> dict[str, Any]:
     """JSON-able summary of a motion.npz."""
     m = read_motion(path)
     angles = np.linalg.norm(m.rotations, axis=-1)  # [T, J]
-    moving = [m.bone_labels[i] for i in np.flatnonzero(np.ptp(m.rotations, axis=0).max(axis=-1) > 1e-6)] if m.rotations.shape[1] else []
+    moving = (
+        [m.bone_labels[i] for i in np.flatnonzero(np.ptp(m.rotations, axis=0).max(axis=-1) > 1e-6)]
+        if m.rotations.shape[1]
+        else []
+    )
     return {
         "kind": "motion",
         "format": FORMAT,

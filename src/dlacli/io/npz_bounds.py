@@ -55,13 +55,15 @@ def check_zip_bounds(f: IO[bytes], where: Any, max_bytes: int = MAX_NPZ_BYTES) -
         total = sum(info.file_size for info in infos)
         if total > max_bytes:
             raise DlaInputError(
-                where, f"its {len(infos)} arrays would unpack to {total:,} bytes; at most {max_bytes / 2**20:g} MiB is read"
+                where,
+                f"its {len(infos)} arrays would unpack to {total:,} bytes; at most {max_bytes / 2**20:g} MiB is read",
             )
         for info in infos:
             ratio = _MAX_RATIO.get(info.compress_type)
             if ratio is not None and info.file_size > info.compress_size * ratio + 1024:
                 raise DlaInputError(
-                    where, f"member {excerpt(info.filename)} claims {info.file_size:,} bytes unpacked from "
+                    where,
+                    f"member {excerpt(info.filename)} claims {info.file_size:,} bytes unpacked from "
                     f"{info.compress_size:,} packed, more than its method can give (corrupt or hostile file)",
                 )
             if info.filename.endswith(".npy"):
@@ -117,7 +119,9 @@ def _check_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, where: Any, max_by
     except NotImplementedError as err:  # a compression method or zip feature zipfile lacks
         raise npz_error(where, err) from None
     except Exception as err:  # bad magic or header, CRC errors, truncated members
-        raise DlaInputError(where, f"not a readable .npz file (member {excerpt(name)}: {type(err).__name__}: {one_line(err)})") from None
+        raise DlaInputError(
+            where, f"not a readable .npz file (member {excerpt(name)}: {type(err).__name__}: {one_line(err)})"
+        ) from None
     if dtype.hasobject:
         return  # np.load(allow_pickle=False) refuses it with its own message
     count = math.prod(int(n) for n in shape)

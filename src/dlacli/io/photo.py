@@ -105,9 +105,7 @@ def read_coco_keypoints(path: str | Path) -> np.ndarray:
         values = ann["keypoints"]
         if not isinstance(values, list) or len(values) != 3 * NUM_KEYPOINTS:
             n = len(values) if isinstance(values, list) else type(values).__name__
-            raise DlaInputError(
-                path, f"{where}'keypoints' must be a list of 51 numbers (17 x [x, y, v]), got {n}"
-            )
+            raise DlaInputError(path, f"{where}'keypoints' must be a list of 51 numbers (17 x [x, y, v]), got {n}")
         if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
             raise DlaInputError(path, f"{where}'keypoints' must contain numbers only")
         try:
@@ -174,9 +172,7 @@ def read_photo(
         mask_path = Path(mask_path)
         mask = _read_mask_file(mask_path)
         if mask.shape != (h, w):
-            raise DlaInputError(
-                mask_path, f"mask is {mask.shape[1]}x{mask.shape[0]} px, the photo {w}x{h} px"
-            )
+            raise DlaInputError(mask_path, f"mask is {mask.shape[1]}x{mask.shape[0]} px, the photo {w}x{h} px")
         where = mask_path
     else:
         if alpha is not None and float(alpha.min()) < 254.0 / 255.0:
@@ -190,9 +186,7 @@ def read_photo(
         big = keypoints[:, 2] > 0
         span = 2.0 * max(h, w)
         if np.any(np.abs(keypoints[big, :2]) > span):
-            raise DlaInputError(
-                keypoints_path, f"keypoints lie far outside the {w}x{h} px photo (wrong image?)"
-            )
+            raise DlaInputError(keypoints_path, f"keypoints lie far outside the {w}x{h} px photo (wrong image?)")
     if max(h, w) > MAX_SIDE:
         rgb, _, mask, keypoints = _downscale(rgb, None, mask, keypoints, path, notes)
     return rgb.astype(np.float32), mask, keypoints

@@ -136,7 +136,9 @@ def _check_counts(path: Path, f) -> None:
         need += el.count * max(row, 1)
     if need > body:
         counts = one_line(", ".join(f"{el.count} {el.name}" for el in header.elements))
-        raise DlaInputError(path, f"header declares {counts}, which needs at least {need} bytes, but the file holds {max(body, 0)}")
+        raise DlaInputError(
+            path, f"header declares {counts}, which needs at least {need} bytes, but the file holds {max(body, 0)}"
+        )
     f.seek(0)
 
 
@@ -155,9 +157,7 @@ def _open(path: Path):
     except plyfile.PlyParseError as err:
         raise DlaInputError(path, f"malformed or truncated PLY data ({one_line(err)})") from None
     except (ValueError, EOFError, OSError, UnicodeDecodeError, IndexError) as err:
-        raise DlaInputError(
-            path, f"unreadable PLY file ({type(err).__name__}: {one_line(err)})"
-        ) from None
+        raise DlaInputError(path, f"unreadable PLY file ({type(err).__name__}: {one_line(err)})") from None
 
 
 def _sh_degree_from_rest(path: Path, names: list[str]) -> int:
@@ -166,9 +166,7 @@ def _sh_degree_from_rest(path: Path, names: list[str]) -> int:
     if set(rest) != expected:
         raise DlaInputError(path, "f_rest_* properties are not numbered 0..n-1 without gaps")
     if len(rest) % 3 or len(rest) // 3 not in _REST_PER_CHANNEL:
-        raise DlaInputError(
-            path, f"{len(rest)} f_rest_* properties; expected 0, 9, 24 or 45 (SH degree 0..3)"
-        )
+        raise DlaInputError(path, f"{len(rest)} f_rest_* properties; expected 0, 9, 24 or 45 (SH degree 0..3)")
     return _REST_PER_CHANNEL[len(rest) // 3]
 
 
@@ -281,9 +279,7 @@ def _as_numpy(name: str, value, shape_tail: tuple[int, ...], n: int | None) -> n
     if torch is not None and isinstance(value, torch.Tensor):
         value = value.detach().cpu().double().numpy()
     arr = np.asarray(value, dtype=np.float64)
-    if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail or (
-        n is not None and arr.shape[0] != n
-    ):
+    if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail or (n is not None and arr.shape[0] != n):
         want = "[" + ", ".join(["N" if n is None else str(n), *map(str, shape_tail)]) + "]"
         raise DlaInputError(f"gaussians.{name}", f"expected shape {want}, got {list(arr.shape)}")
     if not np.all(np.isfinite(arr)):

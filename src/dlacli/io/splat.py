@@ -103,8 +103,13 @@ def decode_splat(data: bytes, where: str | os.PathLike = "splat") -> dict[str, n
     if np.any(norm == 0):
         raise DlaInputError(where, f"record {int(np.flatnonzero(norm[:, 0] == 0)[0])} has a zero rotation")
     rgba = rec["rgba"].astype(np.float32) / 255.0
-    out = {"means": rec["position"].astype(np.float32), "scales": rec["scale"].astype(np.float32),
-           "rgb": rgba[:, :3], "opacities": rgba[:, 3], "quats": (q / norm).astype(np.float32)}  # fmt: skip
+    out = {
+        "means": rec["position"].astype(np.float32),
+        "scales": rec["scale"].astype(np.float32),
+        "rgb": rgba[:, :3],
+        "opacities": rgba[:, 3],
+        "quats": (q / norm).astype(np.float32),
+    }
     for name in ("means", "scales"):
         if not np.all(np.isfinite(out[name])):
             raise DlaInputError(where, f"a record's {name[:-1]} is NaN or Inf")
@@ -131,5 +136,8 @@ def summarize_splat(path: str | os.PathLike) -> dict:
     from dlacli.io.ply import gaussian_stats
 
     a = decode_splat(read_bytes(path), path)
-    return {"kind": "gaussians.splat", "format": "splat (antimatter15, 32 bytes a splat)",
-            **gaussian_stats(a["means"], a["scales"], a["opacities"], 0)}  # fmt: skip
+    return {
+        "kind": "gaussians.splat",
+        "format": "splat (antimatter15, 32 bytes a splat)",
+        **gaussian_stats(a["means"], a["scales"], a["opacities"], 0),
+    }

@@ -37,7 +37,7 @@ MAX_POINTS = 1 << 25  # 33.5 M Gaussians (dla exports at most 4.2 M); bounds wha
 # function of the 3DGS order (degree l, m = -l..l) is a polynomial in x, y, z of one parity in
 # (y, z), so the rotation multiplies its coefficient by +-1 (checked in tests against the
 # splatter's `sh_basis`). Index k - 1 for k = 1..15.
-_SH_FLIP = np.array([-1, -1, 1,  -1, 1, 1, -1, 1,  -1, 1, -1, -1, 1, -1, 1], dtype=np.float64)  # fmt: skip
+_SH_FLIP = np.array([-1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1, -1, 1, -1, 1], dtype=np.float64)
 
 
 def _flip_frame(means, quats, sh):
@@ -92,7 +92,10 @@ def encode_spz(gaussians: Gaussians) -> bytes:
     means, quats, sh = _flip_frame(means, quats, sh)
     fixed = np.sign(means) * np.floor(np.abs(means) * (1 << FRACTIONAL_BITS) + 0.5)  # [N, 3]
     if np.any(np.abs(fixed) > (1 << 23) - 1):
-        raise DlaInputError("gaussians.means", f"a position beyond +-{(1 << 23) / (1 << FRACTIONAL_BITS):.0f} m does not fit SPZ's 24-bit fixed point")
+        raise DlaInputError(
+            "gaussians.means",
+            f"a position beyond +-{(1 << 23) / (1 << FRACTIONAL_BITS):.0f} m does not fit SPZ's 24-bit fixed point",
+        )
     pos = fixed.astype(np.int64).astype("<i4").view(np.uint8).reshape(n, 3, 4)[:, :, :3]  # 24-bit two's complement
     alphas = to_u8(opacities * 255.0)
     colors = to_u8(sh[:, 0, :] * (COLOR_SCALE * 255.0) + 127.5)
@@ -126,8 +129,11 @@ def decode_spz(data: bytes, where: str | os.PathLike = "spz") -> dict:
     """A gzip-compressed SPZ (v2 or v3) -> dict of float64 arrays in the PLY's frame: means [N, 3],
     quats [N, 4] (w, x, y, z), scales [N, 3], opacities [N], sh [N, K, 3]; and version, degree."""
     if data[:4] == b"NGSP":
-        raise DlaInputError(where, "is an SPZ version 4 file (zstd); dla reads versions 2 and 3 "
-                                   "(convert with: splat-transform --spz-version 3 IN OUT.spz)")  # fmt: skip
+        raise DlaInputError(
+            where,
+            "is an SPZ version 4 file (zstd); dla reads versions 2 and 3 "
+            "(convert with: splat-transform --spz-version 3 IN OUT.spz)",
+        )
     if data[:2] != b"\x1f\x8b":
         raise DlaInputError(where, "not an .spz file (no gzip magic)")
     head = _gunzip(data, HEADER.size, where)[: HEADER.size]  # gzip streams decode from the front
@@ -173,8 +179,15 @@ def decode_spz(data: bytes, where: str | os.PathLike = "spz") -> dict:
     rest = (take(3 * (k - 1) * n).reshape(n, k - 1, 3) - 128.0) / 128.0
     sh = np.concatenate([colors[:, None, :], rest], axis=1)
     means, quats, sh = _flip_frame(means, quats, sh)
-    return {"means": means, "quats": quats, "scales": scales, "opacities": opacities, "sh": sh,
-            "version": version, "degree": degree}  # fmt: skip
+    return {
+        "means": means,
+        "quats": quats,
+        "scales": scales,
+        "opacities": opacities,
+        "sh": sh,
+        "version": version,
+        "degree": degree,
+    }
 
 
 def read_spz(path: str | os.PathLike) -> Gaussians:
@@ -184,7 +197,10 @@ def read_spz(path: str | os.PathLike) -> Gaussians:
     from dlacli.io.files import read_bytes
 
     a = decode_spz(read_bytes(path), path)
-    t = [torch.from_numpy(np.ascontiguousarray(a[k], dtype=np.float32)) for k in ("means", "quats", "scales", "opacities", "sh")]
+    t = [
+        torch.from_numpy(np.ascontiguousarray(a[k], dtype=np.float32))
+        for k in ("means", "quats", "scales", "opacities", "sh")
+    ]
     return Gaussians(*t)
 
 
@@ -194,5 +210,8 @@ def summarize_spz(path: str | os.PathLike) -> dict:
     from dlacli.io.ply import gaussian_stats
 
     a = decode_spz(read_bytes(path), path)
-    return {"kind": "gaussians.spz", "format": f"spz v{a['version']} (Niantic)",
-            **gaussian_stats(a["means"], a["scales"], a["opacities"], int(a["degree"]))}  # fmt: skip
+    return {
+        "kind": "gaussians.spz",
+        "format": f"spz v{a['version']} (Niantic)",
+        **gaussian_stats(a["means"], a["scales"], a["opacities"], int(a["degree"])),
+    }

@@ -260,9 +260,7 @@ def write_usd(
 
         splat_cls = getattr(UsdVol, "ParticleField3DGaussianSplat", None)
         if splat_cls is None:
-            raise DlaInputError(
-                "--schema", f"{schema!r} needs UsdVol.ParticleField3DGaussianSplat: usd-core >= 26"
-            )
+            raise DlaInputError("--schema", f"{schema!r} needs UsdVol.ParticleField3DGaussianSplat: usd-core >= 26")
 
     stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
@@ -376,7 +374,13 @@ def _define_instancer(stage, path: str, part, times):
     inst.CreatePrototypesRel().SetTargets([sphere.GetPath()])
     inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.zeros(len(part.indices), dtype=np.int32)))
     _set_track(inst.CreatePositionsAttr(), part.positions, Vt.Vec3fArray, times)
-    _set_track(inst.CreateOrientationsAttr(), part.quats, Vt.QuathArray, times, lambda q: quat_wxyz_to_xyzw(q).astype(np.float16))
+    _set_track(
+        inst.CreateOrientationsAttr(),
+        part.quats,
+        Vt.QuathArray,
+        times,
+        lambda q: quat_wxyz_to_xyzw(q).astype(np.float16),
+    )
     _set_track(inst.CreateScalesAttr(), part.sizes, Vt.Vec3fArray, times)
     return inst
 
@@ -405,7 +409,12 @@ def _define_look(stage):
     surface.CreateIdAttr("UsdPreviewSurface")
     surface.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.8)
     for name, reader_id, value_type, target in (
-        ("displayColor", "UsdPrimvarReader_float3", Sdf.ValueTypeNames.Float3, ("diffuseColor", Sdf.ValueTypeNames.Color3f)),
+        (
+            "displayColor",
+            "UsdPrimvarReader_float3",
+            Sdf.ValueTypeNames.Float3,
+            ("diffuseColor", Sdf.ValueTypeNames.Color3f),
+        ),
         ("displayOpacity", "UsdPrimvarReader_float", Sdf.ValueTypeNames.Float, ("opacity", Sdf.ValueTypeNames.Float)),
     ):
         reader = UsdShade.Shader.Define(stage, f"{LOOK}/{name}")
@@ -452,7 +461,13 @@ def _write_splats(stage, splat_cls, part, opacities, rgb, sh, times):
 
     splats = splat_cls.Define(stage, SPLATS)
     _set_track(splats.CreatePositionsAttr(), part.positions, Vt.Vec3fArray, times)
-    _set_track(splats.CreateOrientationsAttr(), part.quats, Vt.QuatfArray, times, lambda q: quat_wxyz_to_xyzw(q).astype(np.float32))
+    _set_track(
+        splats.CreateOrientationsAttr(),
+        part.quats,
+        Vt.QuatfArray,
+        times,
+        lambda q: quat_wxyz_to_xyzw(q).astype(np.float32),
+    )
     _set_track(splats.CreateScalesAttr(), part.sizes, Vt.Vec3fArray, times)
     # extent at each frame of the geometry, from the values pxr returns there
     attrs = [splats.GetPrim().GetAttribute(a) for a in ("positions", "orientations", "scales")]

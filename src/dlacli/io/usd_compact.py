@@ -22,8 +22,8 @@ only re-express positions (an isometry), so errors measured in a part's frame ar
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -285,11 +285,16 @@ def compact(
             pos = np.einsum("tni,tij->tnj", pos - c[:, None], r)  # R^T (p - c), row vectors
             transforms = usd_matrix(r, c)
         pos32 = pos.astype(np.float32)
+        # the checks' closures run inside make_track, in this iteration: B023 does not apply
         pos_track = make_track(
-            pos32, lerp_check(pos32, pos32, tol), lambda: bool(np.all(np.linalg.norm(pos32 - pos32[:1], axis=-1) <= tol))
+            pos32,
+            lerp_check(pos32, pos32, tol),
+            lambda: bool(np.all(np.linalg.norm(pos32 - pos32[:1], axis=-1) <= tol)),  # noqa: B023
         )
         size_track = make_track(
-            size, relative_check(size, size, SIZE_REL), lambda: bool(np.all(np.abs(size - size[:1]) <= SIZE_REL * size))
+            size,
+            relative_check(size, size, SIZE_REL),
+            lambda: bool(np.all(np.abs(size - size[:1]) <= SIZE_REL * size)),  # noqa: B023
         )
         quat_track = None
         if quats is not None:
@@ -305,7 +310,7 @@ def compact(
             quat_track = make_track(
                 written,
                 slerp_check(unit, unit, tol_rad),
-                lambda: bool(np.all(np.abs(np.einsum("tnd,nd->tn", unit, unit[0])) >= min_dot)),
+                lambda: bool(np.all(np.abs(np.einsum("tnd,nd->tn", unit, unit[0])) >= min_dot)),  # noqa: B023
             )
         out.append(Part(idx, transforms, pos_track, quat_track, size_track))
     return out

@@ -280,7 +280,9 @@ def read_usd(path: str | os.PathLike) -> UsdAnimation:
         prims = found[colour_kind]
         indices = geom["indices"] if colour_kind == kind else _read_parts(path, prims, times[:1])["indices"]
         if sum(len(i) for i in indices) != n:
-            raise DlaInputError(path, f"{PATHS[colour_kind]} holds {sum(len(i) for i in indices)} points for {n} Gaussians")
+            raise DlaInputError(
+                path, f"{PATHS[colour_kind]} holds {sum(len(i) for i in indices)} points for {n} Gaussians"
+            )
         rgb = _primvar_frames(path, prims, indices, "primvars:displayColor", 3, times, n)
         if opacities is None:
             opacities = _primvar_frames(path, prims, indices, "primvars:displayOpacity", 1, times, n)
@@ -352,8 +354,4 @@ def validate_usd(path: str | os.PathLike) -> list[str]:
     registry = UsdValidation.ValidationRegistry()
     context = UsdValidation.ValidationContext(registry.GetOrLoadAllValidators())
     errors = context.Validate(stage)
-    return [
-        err.GetErrorAsString()
-        for err in errors
-        if err.GetType() == UsdValidation.ValidationErrorType.Error
-    ]
+    return [err.GetErrorAsString() for err in errors if err.GetType() == UsdValidation.ValidationErrorType.Error]

@@ -97,7 +97,10 @@ def texture_path(path: str | os.PathLike) -> Path:
 
 def _check(asset: RigAsset) -> None:
     j, v = len(asset.joint_names), asset.points.shape[0]
-    assert asset.parents.shape == (j,) and asset.bind_transforms.shape == (j, 4, 4), (asset.parents.shape, asset.bind_transforms.shape)
+    assert asset.parents.shape == (j,) and asset.bind_transforms.shape == (j, 4, 4), (
+        asset.parents.shape,
+        asset.bind_transforms.shape,
+    )
     assert asset.points.shape == (v, 3) and asset.normals.shape == (v, 3), (asset.points.shape, asset.normals.shape)
     assert asset.faces.ndim == 2 and asset.faces.shape[1] == 3 and asset.face_uv.shape == asset.faces.shape
     assert asset.vertex_rgb.shape == (v, 3)
@@ -161,8 +164,12 @@ def write_rig_usd(path: str | os.PathLike, asset: RigAsset) -> Path:
     color.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(srgb_to_linear(asset.vertex_rgb), np.float32)))
     binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
     k = asset.joint_indices.shape[1]
-    binding.CreateJointIndicesPrimvar(False, k).Set(Vt.IntArray.FromNumpy(np.ascontiguousarray(asset.joint_indices.reshape(-1), np.int32)))
-    binding.CreateJointWeightsPrimvar(False, k).Set(Vt.FloatArray.FromNumpy(np.ascontiguousarray(asset.joint_weights.reshape(-1), np.float32)))
+    binding.CreateJointIndicesPrimvar(False, k).Set(
+        Vt.IntArray.FromNumpy(np.ascontiguousarray(asset.joint_indices.reshape(-1), np.int32))
+    )
+    binding.CreateJointWeightsPrimvar(False, k).Set(
+        Vt.FloatArray.FromNumpy(np.ascontiguousarray(asset.joint_weights.reshape(-1), np.float32))
+    )
     binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
     binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
 

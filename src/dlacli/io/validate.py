@@ -87,7 +87,9 @@ def check_format(found: Any, supported: str, where: Any) -> None:
 def require_keys(mapping: Any, keys: tuple[str, ...] | list[str], where: Any, what: str = "") -> None:
     """`mapping` must be a dict holding every key in `keys`."""
     if not isinstance(mapping, dict):
-        raise DlaInputError(where, f"expected a JSON object{' for ' + what if what else ''}, found {type(mapping).__name__}")
+        raise DlaInputError(
+            where, f"expected a JSON object{' for ' + what if what else ''}, found {type(mapping).__name__}"
+        )
     missing = [k for k in keys if k not in mapping]
     if missing:
         raise DlaInputError(where, f"missing key{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))}")
@@ -108,9 +110,7 @@ def as_float(value: Any, where: Any, name: str) -> float:
     return value
 
 
-def as_array(
-    value: Any, shape: tuple[int | None, ...], where: Any, name: str, dtype=np.float32
-) -> np.ndarray:
+def as_array(value: Any, shape: tuple[int | None, ...], where: Any, name: str, dtype=np.float32) -> np.ndarray:
     """A finite numeric array of `shape` (None = any size) converted to `dtype`.
 
     Accepts nested JSON lists or numpy arrays; bool, string and object data are rejected.
@@ -189,7 +189,8 @@ def check_log_scales(log_scales: np.ndarray, where: Any, name: str) -> None:
     if log_scales.size and not (float(log_scales.min()) >= low and float(log_scales.max()) <= high):
         worst = float(log_scales.max()) if float(log_scales.max()) > high else float(log_scales.min())
         raise DlaInputError(
-            where, f"{name} holds a log-scale of {worst:.4g} (scale {math.exp(min(worst, 700)):.3g}); "
+            where,
+            f"{name} holds a log-scale of {worst:.4g} (scale {math.exp(min(worst, 700)):.3g}); "
             f"dla reads log-scales in [{low:.1f}, {high:.1f}] (scales from {MIN_SCALE:g} to {MAX_SCALE:g})",
         )
 
@@ -197,7 +198,9 @@ def check_log_scales(log_scales: np.ndarray, where: Any, name: str) -> None:
 def check_magnitude(arr: np.ndarray, limit: float, where: Any, name: str, unit: str) -> None:
     """Every |value| of `arr` at most `limit` (after the finiteness check)."""
     if arr.size and float(np.max(np.abs(arr))) > limit:
-        raise DlaInputError(where, f"{name} reaches {float(np.max(np.abs(arr))):.3g} {unit}; at most {limit:g} is supported")
+        raise DlaInputError(
+            where, f"{name} reaches {float(np.max(np.abs(arr))):.3g} {unit}; at most {limit:g} is supported"
+        )
 
 
 def as_str(value: Any, where: Any, name: str, allow_empty: bool = False) -> str:
@@ -294,8 +297,7 @@ def npz_format(path: str | os.PathLike) -> str:
 def check_npz_bounds(path: str | os.PathLike, max_unpacked: int | None = None) -> None:
     """Refuse an .npz whose members would decompress to more than dla reads (zip bombs, .npy
     headers claiming more data than the member holds), before numpy allocates anything."""
-    from dlacli.io.npz_bounds import check_npz_bounds as check
-
     from dlacli.io.files import MAX_NPZ_UNPACKED
+    from dlacli.io.npz_bounds import check_npz_bounds as check
 
     check(path, MAX_NPZ_UNPACKED if max_unpacked is None else max_unpacked)

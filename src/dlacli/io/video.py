@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 
@@ -33,8 +33,15 @@ def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: floa
     count = 0
     with atomic_path(path) as tmp:
         try:
-            writer = imageio.get_writer(tmp, format="FFMPEG", fps=float(fps), codec="libx264", quality=7,
-                                        macro_block_size=16, ffmpeg_log_level="quiet")  # failures: our one line
+            writer = imageio.get_writer(
+                tmp,
+                format="FFMPEG",
+                fps=float(fps),
+                codec="libx264",
+                quality=7,
+                macro_block_size=16,
+                ffmpeg_log_level="quiet",
+            )  # failures: our one line
             try:
                 for frame in frames:
                     writer.append_data(_rgb8(np.asarray(frame), background))

@@ -89,13 +89,23 @@ def read_transforms(folder: str | os.PathLike) -> dict[str, Any]:
 
     sizes = sorted({(int(w), int(h)) for w, h in zip(intr["w"], intr["h"])})
     if len(sizes) > 1:
-        raise DlaInputError(where, f"frames have different image sizes {one_line(', '.join(f'{w}x{h}' for w, h in sizes))}; all must be the same")
+        raise DlaInputError(
+            where,
+            f"frames have different image sizes {one_line(', '.join(f'{w}x{h}' for w, h in sizes))}; all must be "
+            "the same",
+        )
     width, height = sizes[0]
     if width * height > MAX_IMAGE_PIXELS:
-        raise DlaInputError(where, f"images of {width}x{height} pixels are larger than dla reads ({MAX_IMAGE_PIXELS / 1e6:.0f} megapixels)")
+        raise DlaInputError(
+            where,
+            f"images of {width}x{height} pixels are larger than dla reads ({MAX_IMAGE_PIXELS / 1e6:.0f} megapixels)",
+        )
     if len(frames) > MAX_FRAMES or len(frames) * width * height > MAX_TOTAL_PIXELS:
-        raise DlaInputError(where, f"{len(frames)} frames of {width}x{height} are more than dla reads at once "
-                                   f"(at most {MAX_FRAMES} frames and {MAX_TOTAL_PIXELS / 1e6:.0f} megapixels in all)")  # fmt: skip
+        raise DlaInputError(
+            where,
+            f"{len(frames)} frames of {width}x{height} are more than dla reads at once "
+            f"(at most {MAX_FRAMES} frames and {MAX_TOTAL_PIXELS / 1e6:.0f} megapixels in all)",
+        )
     return {
         "c2w": np.stack(c2w),
         "fx": np.array(intr["fl_x"]),
@@ -115,10 +125,16 @@ def read_transforms(folder: str | os.PathLike) -> dict[str, Any]:
 def _check_camera(obj: dict, where: Path, at: str) -> None:
     model = obj.get("camera_model")
     if model is not None and model not in CAMERA_MODELS:
-        raise DlaInputError(where, f"{at}: camera_model {excerpt(model)} is not supported (supported: {', '.join(CAMERA_MODELS)}, no distortion)")
+        raise DlaInputError(
+            where,
+            f"{at}: camera_model {excerpt(model)} is not supported (supported: {', '.join(CAMERA_MODELS)}, no "
+            "distortion)",
+        )
     for key in DISTORTION_KEYS:
         if key in obj and as_float(obj[key], where, f"{at}.{key}") != 0.0:
-            raise DlaInputError(where, f"{at}: lens distortion {key} = {obj[key]} is not supported (undistort the images first)")
+            raise DlaInputError(
+                where, f"{at}: lens distortion {key} = {obj[key]} is not supported (undistort the images first)"
+            )
 
 
 def _rel_path(value: Any, where: Path, name: str) -> str:
@@ -137,7 +153,10 @@ def _rigid(value: Any, where: Path, name: str) -> np.ndarray:
         raise DlaInputError(where, f"{name} is not invertible (its rotation part has determinant {det:.3g})")
     err = float(np.abs(r.T @ r - np.eye(3)).max())
     if err > RIGID_TOL or abs(det - 1.0) > RIGID_TOL:
-        raise DlaInputError(where, f"{name} is not a rigid camera pose (rotation part: determinant {det:.4g}, max |R^T R - I| = {err:.3g})")
+        raise DlaInputError(
+            where,
+            f"{name} is not a rigid camera pose (rotation part: determinant {det:.4g}, max |R^T R - I| = {err:.3g})",
+        )
     check_magnitude(m[:3, 3], MAX_DISTANCE, where, f"{name} translation", "m")
     return m
 
@@ -167,7 +186,9 @@ def _decode(path: Path, width: int, height: int) -> tuple[np.ndarray, np.ndarray
     try:
         with open_image(path) as im:
             if im.size != (width, height):
-                raise DlaInputError(path, f"image is {im.size[0]}x{im.size[1]} but transforms.json declares {width}x{height}")
+                raise DlaInputError(
+                    path, f"image is {im.size[0]}x{im.size[1]} but transforms.json declares {width}x{height}"
+                )
             im.load()
             mode = im.mode
             if (mode == "P" and "transparency" in im.info) or mode == "PA":
@@ -182,8 +203,11 @@ def _decode(path: Path, width: int, height: int) -> tuple[np.ndarray, np.ndarray
     elif mode in ("I;16", "I;16B", "I;16L", "I"):  # 16-bit grayscale PNG
         if mode == "I" and arr.size and (int(arr.min()) < 0 or int(arr.max()) > 65535):  # e.g. a 32-bit TIFF
             low, high = int(arr.min()), int(arr.max())
-            raise DlaInputError(path, f"32-bit integer image with values {low} to {high}, outside the 16-bit range "
-                                "0-65535 that dla scales to [0, 1]")
+            raise DlaInputError(
+                path,
+                f"32-bit integer image with values {low} to {high}, outside the 16-bit range "
+                "0-65535 that dla scales to [0, 1]",
+            )
         arr = arr.astype(np.float32) / 65535.0
     else:
         raise DlaInputError(path, f"unsupported image mode {mode!r} (use 8- or 16-bit RGB(A), gray or gray+alpha)")
@@ -211,7 +235,9 @@ def _load_view(folder: Path, t: dict, i: int, where: Path, allow_outside: bool) 
         else:
             raise DlaInputError(mask_file, "a mask must be grayscale or carry an alpha channel, found RGB")
     if alpha is None:
-        raise DlaInputError(image_path, "image has no alpha channel and its frame has no mask_path: the person mask is missing")
+        raise DlaInputError(
+            image_path, "image has no alpha channel and its frame has no mask_path: the person mask is missing"
+        )
     if not np.any(alpha > 0):
         raise DlaInputError(mask_file, "the person mask is empty (all zero)")
     return rgb, alpha
@@ -244,7 +270,9 @@ def view_files(folder: str | os.PathLike, allow_outside: bool = False) -> list[P
     return files
 
 
-def _load(folder: Path, require_body: bool, allow_outside: bool) -> tuple[dict[str, Any], BodyParams | None, np.ndarray, np.ndarray]:
+def _load(
+    folder: Path, require_body: bool, allow_outside: bool
+) -> tuple[dict[str, Any], BodyParams | None, np.ndarray, np.ndarray]:
     """(transforms, body or None, images [V, H, W, 3] float32, masks [V, H, W] float32): everything
     but the Cameras (whose tensors need torch; `summarize_views` does without them)."""
     where = folder / TRANSFORMS

@@ -71,8 +71,9 @@ class PatchDiscriminator(nn.Module):
         self.net = nn.Sequential(*layers)
 
     def forward(self, images: Tensor) -> Tensor:
-        assert images.ndim == 4 and images.shape[1] == self.config.in_channels, \
-            f"images must be [B, {self.config.in_channels}, H, W], got {tuple(images.shape)}"  # fmt: skip
+        assert images.ndim == 4 and images.shape[1] == self.config.in_channels, (
+            f"images must be [B, {self.config.in_channels}, H, W], got {tuple(images.shape)}"
+        )
         return self.net(images * 2.0 - 1.0)  # [0, 1] -> [-1, 1], pix2pix's input range
 
 

@@ -57,10 +57,26 @@ class EncoderConfig:
 
 
 PRESETS: dict[str, EncoderConfig] = {
-    "tiny": EncoderConfig(width=64, heads=4, points=256, uv_resolution=16, latent_channels=16, pe_frequencies=6,
-                          token_hidden=128, mlp_hidden=128),  # fmt: skip
-    "small": EncoderConfig(width=256, heads=8, points=1024, uv_resolution=32, latent_channels=64, pe_frequencies=8,
-                           token_hidden=512, mlp_hidden=1024),  # fmt: skip
+    "tiny": EncoderConfig(
+        width=64,
+        heads=4,
+        points=256,
+        uv_resolution=16,
+        latent_channels=16,
+        pe_frequencies=6,
+        token_hidden=128,
+        mlp_hidden=128,
+    ),
+    "small": EncoderConfig(
+        width=256,
+        heads=8,
+        points=1024,
+        uv_resolution=32,
+        latent_channels=64,
+        pe_frequencies=8,
+        token_hidden=512,
+        mlp_hidden=1024,
+    ),
     # 19,077,376 parameters (paper: 19 M); feature_channels 32 = the U-Net's default Cf
     "paper": EncoderConfig(),
 }
@@ -203,8 +219,12 @@ class UVEncoder(nn.Module):
         (mean [B, C, r, r], logvar [B, C, r, r])"""
         c = self.config
         b, n = positions.shape[:2]
-        shapes = {"positions": (positions, (b, n, 3)), "params": (params, (b, n, c.gaussian_channels)),
-                  "features": (features, (b, n, c.feature_channels)), "opacities": (opacities, (b, n))}  # fmt: skip
+        shapes = {
+            "positions": (positions, (b, n, 3)),
+            "params": (params, (b, n, c.gaussian_channels)),
+            "features": (features, (b, n, c.feature_channels)),
+            "opacities": (opacities, (b, n)),
+        }
         for name, (x, want) in shapes.items():
             assert x.shape == want, f"{name} must be {list(want)}, got {list(x.shape)}"
         r = c.uv_resolution

@@ -70,10 +70,22 @@ class GPDConfig:
 
 
 PRESETS: dict[str, GPDConfig] = {
-    "tiny": GPDConfig(latent_channels=16, latent_resolution=16, out_resolution=64, channels=(32, 24, 16),
-                      spade_hidden=16, delta_channels=16),  # fmt: skip
-    "small": GPDConfig(latent_channels=64, latent_resolution=32, out_resolution=128, channels=(128, 96, 64),
-                       spade_hidden=32, delta_channels=32),  # fmt: skip
+    "tiny": GPDConfig(
+        latent_channels=16,
+        latent_resolution=16,
+        out_resolution=64,
+        channels=(32, 24, 16),
+        spade_hidden=16,
+        delta_channels=16,
+    ),
+    "small": GPDConfig(
+        latent_channels=64,
+        latent_resolution=32,
+        out_resolution=128,
+        channels=(128, 96, 64),
+        spade_hidden=32,
+        delta_channels=32,
+    ),
     # 12,148,764 parameters (paper: 12 M)
     "paper": GPDConfig(),
 }
@@ -143,13 +155,15 @@ class GaussianParameterDecoder(nn.Module):
             self.canonical_head.weight.mul_(c.head_init_scale)
             self.canonical_head.bias.copy_(neutral_gaussian_map())
         used = ([*range(POSE_CHANNELS.start, POSE_CHANNELS.stop)] if c.pose_conditioned else []) + (
-            [*range(VIEW_START, c.condition_channels)] if c.view_conditioned else [])  # fmt: skip
+            [*range(VIEW_START, c.condition_channels)] if c.view_conditioned else []
+        )
         self.register_buffer("condition_index", torch.tensor(used, dtype=torch.long), persistent=False)
         self.delta_branch = None
         if used:
             d = c.delta_channels
-            self.delta_branch = nn.Sequential(_conv(c.channels[-1] + len(used), d), nn.LeakyReLU(0.2),
-                                              _conv(d, d), nn.LeakyReLU(0.2))  # fmt: skip
+            self.delta_branch = nn.Sequential(
+                _conv(c.channels[-1] + len(used), d), nn.LeakyReLU(0.2), _conv(d, d), nn.LeakyReLU(0.2)
+            )
             self.delta_out = _conv(d, CHANNELS)
             nn.init.zeros_(self.delta_out.weight)
             nn.init.zeros_(self.delta_out.bias)
@@ -158,7 +172,8 @@ class GaussianParameterDecoder(nn.Module):
         c = self.config
         r = c.latent_resolution
         assert z.ndim == 4 and z.shape[1:] == (c.latent_channels, r, r), (
-            f"z must be [B, {c.latent_channels}, {r}, {r}], got {tuple(z.shape)}")  # fmt: skip
+            f"z must be [B, {c.latent_channels}, {r}, {r}], got {tuple(z.shape)}"
+        )
 
     def trunk(self, z: Tensor) -> Tensor:
         """Shared features [B, channels[-1], R, R] of z [B, C, r, r]."""

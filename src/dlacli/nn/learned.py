@@ -62,8 +62,12 @@ def learned_config(preset: str = "tiny", variant: str = "full") -> LearnedConfig
     if variant not in VARIANTS:
         raise DlaInputError("--variant", f"unknown variant {variant!r} (available: {', '.join(VARIANTS)})")
     u, e, g = unet_preset(preset), encoder_preset(preset), gpd_preset(preset)
-    e = replace(e, feature_channels=u.feature_channels, gaussian_channels=14,
-                query="learned" if variant == "learned-query" else "body")  # fmt: skip
+    e = replace(
+        e,
+        feature_channels=u.feature_channels,
+        gaussian_channels=14,
+        query="learned" if variant == "learned-query" else "body",
+    )
     g = replace(g, latent_channels=e.latent_channels, latent_resolution=e.uv_resolution)
     if variant == "no-conditioning":
         g = replace(g, pose_conditioned=False, view_conditioned=False)
@@ -117,7 +121,9 @@ class LearnedAvatarNet(nn.Module, Decoder):
         if config.unet.feature_channels != config.encoder.feature_channels:
             raise ValueError("LearnedConfig: the U-Net's features and the encoder's input differ")
         if (config.encoder.latent_channels, config.encoder.uv_resolution) != (
-                config.gpd.latent_channels, config.gpd.latent_resolution):  # fmt: skip
+            config.gpd.latent_channels,
+            config.gpd.latent_resolution,
+        ):
             raise ValueError("LearnedConfig: the encoder's Z and the GPD's input differ")
         self.config = config
         self.unet = ReconstructionUNet(config.unet)
@@ -200,6 +206,10 @@ class LearnedAvatarNet(nn.Module, Decoder):
         return self.gpd.delta(z[None], cond, trunk=self.prepare(z) if prepared is None else prepared)[0]
 
     def _check_z(self, z: torch.Tensor) -> None:
-        want = (self.config.encoder.latent_channels, self.config.encoder.uv_resolution, self.config.encoder.uv_resolution)
+        want = (
+            self.config.encoder.latent_channels,
+            self.config.encoder.uv_resolution,
+            self.config.encoder.uv_resolution,
+        )
         if tuple(z.shape) != want:
             raise DlaInputError("avatar", f"z is {tuple(z.shape)}; this checkpoint's GPD decodes {want}")

@@ -90,8 +90,9 @@ def _window_crop(x: torch.Tensor, size: int) -> torch.Tensor:
     return x[..., lo : x.shape[-2] - hi, lo : x.shape[-1] - hi]
 
 
-def ms_ssim_loss(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None = None,
-                 scales: int = MS_SSIM_SCALES) -> torch.Tensor:  # fmt: skip
+def ms_ssim_loss(
+    pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None = None, scales: int = MS_SSIM_SCALES
+) -> torch.Tensor:
     """1 - mean over `scales` dyadic scales of the SSIM map (11x11 Gaussian window) of images
     [..., H, W, C], averaged inside mask [..., H, W] (weights in [0, 1]; None: everywhere).
     Scales whose image is smaller than the window, or where no window centre is inside the mask,
@@ -124,12 +125,19 @@ class AlexNetFeatures(torch.nn.Module):
         super().__init__()
         nn = torch.nn
         self.features = nn.Sequential(
-            nn.Conv2d(3, 64, 11, stride=4, padding=2), nn.ReLU(), nn.MaxPool2d(3, 2),
-            nn.Conv2d(64, 192, 5, padding=2), nn.ReLU(), nn.MaxPool2d(3, 2),
-            nn.Conv2d(192, 384, 3, padding=1), nn.ReLU(),
-            nn.Conv2d(384, 256, 3, padding=1), nn.ReLU(),
-            nn.Conv2d(256, 256, 3, padding=1), nn.ReLU(),
-        )  # fmt: skip
+            nn.Conv2d(3, 64, 11, stride=4, padding=2),
+            nn.ReLU(),
+            nn.MaxPool2d(3, 2),
+            nn.Conv2d(64, 192, 5, padding=2),
+            nn.ReLU(),
+            nn.MaxPool2d(3, 2),
+            nn.Conv2d(192, 384, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(384, 256, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(256, 256, 3, padding=1),
+            nn.ReLU(),
+        )
         # ImageNet normalisation of inputs in [0, 1]
         self.register_buffer("mean", torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1), persistent=False)
@@ -180,8 +188,9 @@ def load_alexnet(path) -> AlexNetFeatures:
     return net
 
 
-def alexnet_loss(net: AlexNetFeatures, pred: torch.Tensor, gt: torch.Tensor,
-                 mask: torch.Tensor | None = None) -> torch.Tensor:  # fmt: skip
+def alexnet_loss(
+    net: AlexNetFeatures, pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None = None
+) -> torch.Tensor:
     """LPIPS-style distance without learned layer weights: at each of AlexNet's five ReLU outputs,
     features are unit-normalised over channels, squared differences summed over channels and
     averaged over the feature map inside the (area-resized) mask; the five layers are summed.
@@ -200,8 +209,9 @@ def alexnet_loss(net: AlexNetFeatures, pred: torch.Tensor, gt: torch.Tensor,
     return total
 
 
-def perceptual_loss(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None = None,
-                    alexnet: AlexNetFeatures | None = None) -> torch.Tensor:  # fmt: skip
+def perceptual_loss(
+    pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None = None, alexnet: AlexNetFeatures | None = None
+) -> torch.Tensor:
     """The training's perceptual term: `alexnet_loss` when AlexNet weights were supplied,
     otherwise the weights-free `ms_ssim_loss` (see the section comment above)."""
     if alexnet is not None:

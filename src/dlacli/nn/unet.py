@@ -63,12 +63,21 @@ class UNetConfig:
         self.attention = tuple(self.attention)
         n = len(self.down_channels)
         if n < 2 or len(self.up_channels) != n - 1:
-            raise ValueError(f"need >= 2 down levels and exactly one up level fewer, got {n} down, "
-                             f"{len(self.up_channels)} up")  # fmt: skip
+            raise ValueError(
+                f"need >= 2 down levels and exactly one up level fewer, got {n} down, {len(self.up_channels)} up"
+            )
         if len(self.attention) != n:
             raise ValueError(f"attention has {len(self.attention)} entries for {n} down levels")
-        ints = (self.in_channels, self.image_size, self.feature_channels, self.layers_per_block, self.head_dim,
-                self.norm_groups, *self.down_channels, *self.up_channels)  # fmt: skip
+        ints = (
+            self.in_channels,
+            self.image_size,
+            self.feature_channels,
+            self.layers_per_block,
+            self.head_dim,
+            self.norm_groups,
+            *self.down_channels,
+            *self.up_channels,
+        )
         if any(isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in ints):
             raise ValueError("channel counts, sizes and layer counts must be positive ints")
         if self.image_size % 2 ** (n - 1):
@@ -94,15 +103,30 @@ class UNetConfig:
 
 PRESETS: dict[str, UNetConfig] = {
     # 64 px in, 32 px out; 861,446 parameters; trains on 2 CPU cores
-    "tiny": UNetConfig(image_size=64, feature_channels=8, down_channels=(16, 32, 64, 64), up_channels=(64, 32, 32),
-                       attention=(False, False, True, True), layers_per_block=1, head_dim=16, norm_groups=8),
+    "tiny": UNetConfig(
+        image_size=64,
+        feature_channels=8,
+        down_channels=(16, 32, 64, 64),
+        up_channels=(64, 32, 32),
+        attention=(False, False, True, True),
+        layers_per_block=1,
+        head_dim=16,
+        norm_groups=8,
+    ),
     # 128 px in, 64 px out; 25,506,878 parameters
-    "small": UNetConfig(image_size=128, feature_channels=16, down_channels=(32, 64, 128, 256, 256),
-                        up_channels=(256, 256, 128, 64), attention=(False, False, False, True, True),
-                        layers_per_block=2, head_dim=32, norm_groups=16),
+    "small": UNetConfig(
+        image_size=128,
+        feature_channels=16,
+        down_channels=(32, 64, 128, 256, 256),
+        up_channels=(256, 256, 128, 64),
+        attention=(False, False, False, True, True),
+        layers_per_block=2,
+        head_dim=32,
+        norm_groups=16,
+    ),
     # the paper's 256 px in, 128 px out (LGM big); 415,032,430 parameters (the paper states 419 M: -0.95 %)
     "paper": UNetConfig(),
-}  # fmt: skip
+}
 
 
 def preset(name: str) -> UNetConfig:
@@ -230,8 +254,9 @@ class ReconstructionUNet(nn.Module):
 
     def forward(self, views: Tensor) -> tuple[Tensor, Tensor]:
         cfg = self.config
-        assert views.ndim == 5 and views.shape[2] == cfg.in_channels, \
-            f"views must be [B, V, {cfg.in_channels}, S, S], got {tuple(views.shape)}"  # fmt: skip
+        assert views.ndim == 5 and views.shape[2] == cfg.in_channels, (
+            f"views must be [B, V, {cfg.in_channels}, S, S], got {tuple(views.shape)}"
+        )
         b, v, _, s, s2 = views.shape
         step = 2 ** (len(cfg.down_channels) - 1)
         assert s == s2 and s % step == 0, f"views must be square with side divisible by {step}, got {s}x{s2}"

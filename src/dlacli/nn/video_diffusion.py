@@ -31,9 +31,7 @@ PROMPT = (
     "a full-body photo of one person standing still while the camera circles around them, "
     "plain white background, the same person and clothes in every frame, sharp, detailed"
 )
-NEGATIVE_PROMPT = (
-    "blurry, low quality, deformed body, extra limbs, extra people, text, watermark, background clutter"
-)
+NEGATIVE_PROMPT = "blurry, low quality, deformed body, extra limbs, extra people, text, watermark, background clutter"
 
 
 # ------------------------------------------------------------------------------- skeleton video
@@ -115,7 +113,9 @@ def _not_found(model: str) -> DlaInputError:
     )
 
 
-def load_pipeline(model: str = DEFAULT_MODEL, device: str | torch.device | None = None, dtype: torch.dtype | None = None):
+def load_pipeline(
+    model: str = DEFAULT_MODEL, device: str | torch.device | None = None, dtype: torch.dtype | None = None
+):
     """Load a pose-controlled video pipeline from a local folder or the local Hugging Face cache.
 
     model: a folder written by `save_pretrained` (with model_index.json) or a hub id already in
@@ -140,7 +140,9 @@ def load_pipeline(model: str = DEFAULT_MODEL, device: str | torch.device | None 
         pipe = diffusers.DiffusionPipeline.from_pretrained(model, dtype=dtypes, local_files_only=True)
     except (OSError, ValueError) as err:
         if path.exists():
-            raise DlaInputError("--model", f"cannot load the pipeline in {path}: {' '.join(str(err).split())[:300]}") from None
+            raise DlaInputError(
+                "--model", f"cannot load the pipeline in {path}: {' '.join(str(err).split())[:300]}"
+            ) from None
         raise _not_found(model) from None
     name = type(pipe).__name__
     if name not in SUPPORTED:
@@ -183,7 +185,9 @@ def first_order_scheduler(scheduler):
         return scheduler
     if cfg.get("use_flow_sigmas") or cfg.get("prediction_type") == "flow_prediction":
         shift = float(cfg.get("flow_shift") or cfg.get("shift") or 1.0)
-        return diffusers.FlowMatchEulerDiscreteScheduler(num_train_timesteps=cfg.get("num_train_timesteps", 1000), shift=shift)
+        return diffusers.FlowMatchEulerDiscreteScheduler(
+            num_train_timesteps=cfg.get("num_train_timesteps", 1000), shift=shift
+        )
     return diffusers.DDIMScheduler.from_config(cfg)
 
 

@@ -90,9 +90,7 @@ def _check_cameras(cameras) -> tuple[np.ndarray, np.ndarray]:
 # ----------------------------------------------------------------------------------- core
 
 
-def rasterize_camera_space(
-    verts_cam, faces, Ks, width: int, height: int, *, near: float = NEAR
-) -> Raster:
+def rasterize_camera_space(verts_cam, faces, Ks, width: int, height: int, *, near: float = NEAR) -> Raster:
     """Rasterise camera-space vertices (OpenCV axes) with pinhole intrinsics.
 
     verts_cam [C, V, 3] (or [V, 3] for one camera), faces [F, 3], Ks [C, 3, 3] (or [3, 3]).
@@ -107,9 +105,7 @@ def rasterize_camera_space(
         raise DlaInputError("Ks", f"expected shape [C, 3, 3], got {list(ks.shape)}")
     if verts_cam.shape[0] != ks.shape[0]:
         if verts_cam.shape[0] != 1:
-            raise DlaInputError(
-                "verts_cam", f"{verts_cam.shape[0]} vertex sets for {ks.shape[0]} cameras"
-            )
+            raise DlaInputError("verts_cam", f"{verts_cam.shape[0]} vertex sets for {ks.shape[0]} cameras")
         verts_cam = np.broadcast_to(verts_cam, (ks.shape[0],) + verts_cam.shape[1:])
     intr = np.ascontiguousarray(np.stack([ks[:, 0, 0], ks[:, 1, 1], ks[:, 0, 2], ks[:, 1, 2]], 1))
     if np.any(intr[:, :2] <= 0):
@@ -119,9 +115,7 @@ def rasterize_camera_space(
     if not near > 0:
         raise DlaInputError("near", f"must be > 0, got {near}")
     faces = _check_faces(faces, verts_cam.shape[1])
-    face_id, bary, depth = _raster_core(
-        verts_cam, faces, intr, int(width), int(height), float(near), False
-    )
+    face_id, bary, depth = _raster_core(verts_cam, faces, intr, int(width), int(height), float(near), False)
     return Raster(face_id, bary, depth)
 
 
@@ -135,9 +129,7 @@ def _camera_vertices(vertices, cameras: Cameras) -> tuple[np.ndarray, np.ndarray
     vm, intr = _check_cameras(cameras)
     v = _check_points(vertices, "vertices", 3)
     if v.ndim == 3 and v.shape[0] != vm.shape[0]:
-        raise DlaInputError(
-            "vertices", f"{v.shape[0]} vertex sets [C, V, 3] for {vm.shape[0]} cameras"
-        )
+        raise DlaInputError("vertices", f"{v.shape[0]} vertex sets [C, V, 3] for {vm.shape[0]} cameras")
     return world_to_camera(v, vm), intr
 
 
@@ -215,8 +207,11 @@ def _interpolate_numpy(attr, faces, face_id, bary):
     out = np.zeros(face_id.shape + (a.shape[2],), dtype)
     if faces.shape[0]:
         rk.interpolate_np(
-            a, np.ascontiguousarray(faces), np.ascontiguousarray(face_id),
-            np.ascontiguousarray(bary), out,
+            a,
+            np.ascontiguousarray(faces),
+            np.ascontiguousarray(face_id),
+            np.ascontiguousarray(bary),
+            out,
         )
     return out
 
@@ -271,13 +266,9 @@ def render_mesh(
     col = col.astype(np.float32) / 255.0 if col.dtype == np.uint8 else col.astype(np.float32)
     verts = _check_points(vertices, "vertices", 3)
     if col.shape[-2:] != (verts.shape[-2], 3) or col.ndim not in (2, 3):
-        raise DlaInputError(
-            "vertex_colors", f"expected shape [{verts.shape[-2]}, 3], got {list(col.shape)}"
-        )
+        raise DlaInputError("vertex_colors", f"expected shape [{verts.shape[-2]}, 3], got {list(col.shape)}")
     if col.ndim == 3 and col.shape[0] != len(cameras):
-        raise DlaInputError(
-            "vertex_colors", f"{col.shape[0]} colour sets for {len(cameras)} cameras"
-        )
+        raise DlaInputError("vertex_colors", f"{col.shape[0]} colour sets for {len(cameras)} cameras")
     if not 0.0 <= ambient <= 1.0:
         raise DlaInputError("ambient", f"must be in [0, 1], got {ambient}")
     _check_cameras(cameras)
@@ -289,8 +280,17 @@ def render_mesh(
     colors = np.ascontiguousarray(col if col.ndim == 3 else col[None], dtype=np.float64)
     rgba = np.empty((len(cameras), cameras.height, cameras.width, 4), np.float32)
     rk.shade_downsample(
-        colors, normals, verts_cam, faces, fid, bary, bg.astype(np.float64), float(ambient),
-        bool(shading), aa, rgba,
+        colors,
+        normals,
+        verts_cam,
+        faces,
+        fid,
+        bary,
+        bg.astype(np.float64),
+        float(ambient),
+        bool(shading),
+        aa,
+        rgba,
     )
     if as_uint8:
         return np.round(rgba * 255.0).astype(np.uint8)
@@ -298,7 +298,12 @@ def render_mesh(
 
 
 def visible_vertices(
-    vertices, faces, cameras: Cameras, tol: float = 0.01, *, raster: Raster | None = None,
+    vertices,
+    faces,
+    cameras: Cameras,
+    tol: float = 0.01,
+    *,
+    raster: Raster | None = None,
     near: float = NEAR,
 ) -> np.ndarray:
     """Which vertices each camera sees: -> [C, V] bool.
@@ -314,9 +319,7 @@ def visible_vertices(
     verts_cam, intr = _camera_vertices(vertices, cameras)
     if raster is None:
         faces = _check_faces(faces, verts_cam.shape[1])
-        _, _, depth = _raster_core(
-            verts_cam, faces, intr, cameras.width, cameras.height, float(near), False
-        )
+        _, _, depth = _raster_core(verts_cam, faces, intr, cameras.width, cameras.height, float(near), False)
     else:
         depth = raster.depth
         if depth.shape != (len(cameras), cameras.height, cameras.width):

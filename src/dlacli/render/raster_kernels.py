@@ -36,9 +36,7 @@ def interpolate_np(attr, faces, face_id, bary, out):
 
 
 @nb.njit(cache=True, parallel=True)
-def shade_downsample(
-    colors, normals, verts, faces, face_id, bary, background, ambient, shading, aa, out
-):
+def shade_downsample(colors, normals, verts, faces, face_id, bary, background, ambient, shading, aa, out):
     """Fused colour interpolation, headlight Lambert shading, background and box downsampling.
 
     colors [C' , V, 3] (C' = 1 or C), normals / verts [C, V, 3] camera space, faces [F, 3],

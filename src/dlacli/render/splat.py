@@ -35,10 +35,16 @@ TILE = K.TILE
 # Real SH constants (the 3DGS / gsplat sign convention, Condon-Shortley phase included).
 _C0 = 0.28209479177387814
 _C1 = 0.4886025119029199
-_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
-       0.5462742152960396)
-_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
-       -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+_C3 = (
+    -0.5900435899266435,
+    2.890611442640554,
+    -0.4570457994644658,
+    0.3731763325901154,
+    -0.4570457994644658,
+    1.445305721320277,
+    -0.5900435899266435,
+)
 
 
 class RenderOutput(NamedTuple):
@@ -68,9 +74,15 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
     w, x, y, z = q.unbind(-1)
     return torch.stack(
         [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
         ],
         dim=-1,
     ).reshape(q.shape[:-1] + (3, 3))
@@ -195,13 +207,16 @@ def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
         out += [-_C1 * y, _C1 * z, -_C1 * x]
     if degree >= 2:
         xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
-        out += [_C2[0] * xy, _C2[1] * yz, _C2[2] * (2 * zz - xx - yy), _C2[3] * xz,
-                _C2[4] * (xx - yy)]
+        out += [_C2[0] * xy, _C2[1] * yz, _C2[2] * (2 * zz - xx - yy), _C2[3] * xz, _C2[4] * (xx - yy)]
     if degree >= 3:
         out += [
-            _C3[0] * y * (3 * xx - yy), _C3[1] * xy * z, _C3[2] * y * (4 * zz - xx - yy),
-            _C3[3] * z * (2 * zz - 3 * xx - 3 * yy), _C3[4] * x * (4 * zz - xx - yy),
-            _C3[5] * z * (xx - yy), _C3[6] * x * (xx - 3 * yy),
+            _C3[0] * y * (3 * xx - yy),
+            _C3[1] * xy * z,
+            _C3[2] * y * (4 * zz - xx - yy),
+            _C3[3] * z * (2 * zz - 3 * xx - 3 * yy),
+            _C3[4] * x * (4 * zz - xx - yy),
+            _C3[5] * z * (xx - yy),
+            _C3[6] * x * (xx - 3 * yy),
         ]
     return torch.stack(out, dim=-1)
 
@@ -239,8 +254,14 @@ class _RasterizeCPU(torch.autograd.Function):
         dk = np.ascontiguousarray(depths.detach().cpu().numpy().astype(np.float32))
         dk = np.where(rd > 0, dk, np.float32(1.0)).astype(np.float32).view(np.uint32)
         params, src, offsets, lists, trect = K.bin_gaussians(
-            np.ascontiguousarray(m2), np.ascontiguousarray(co), np.ascontiguousarray(op),
-            np.ascontiguousarray(cl), np.ascontiguousarray(rd), dk, width, height
+            np.ascontiguousarray(m2),
+            np.ascontiguousarray(co),
+            np.ascontiguousarray(op),
+            np.ascontiguousarray(cl),
+            np.ascontiguousarray(rd),
+            dk,
+            width,
+            height,
         )
         ncam = means2d.shape[0]
         nw = K.num_threads()
@@ -250,8 +271,7 @@ class _RasterizeCPU(torch.autograd.Function):
         tfin = np.empty((ncam, height, width), dtype=np.float64)
         last = np.empty((ncam, height, width), dtype=np.int64)
         work = np.zeros(cost.shape[0], dtype=np.float64)
-        K.raster_forward(params, offsets, lists, wptr, wtiles, ncam, width, height,
-                         acc, tfin, last, work)
+        K.raster_forward(params, offsets, lists, wptr, wtiles, ncam, width, height, acc, tfin, last, work)
         ctx.saved = (params, src, offsets, lists, trect, tfin, last, work)
         ctx.meta = (width, height, means2d.shape, dtype, means2d.device)
         alpha = torch.from_numpy(1.0 - tfin).to(dtype=dtype, device=means2d.device)
@@ -276,13 +296,28 @@ class _RasterizeCPU(torch.autograd.Function):
         sptr = K.isect_rows(trect)
         isect_grad = np.empty((lists.shape[0], K.NGRAD), dtype=params.dtype)
         isect_hit = np.zeros(lists.shape[0], dtype=np.uint8)
-        K.raster_backward(params, offsets, lists, trect, sptr, wptr, wtiles, ncam, width, height,
-                          tfin, last, ga, gl, isect_grad, isect_hit)
+        K.raster_backward(
+            params,
+            offsets,
+            lists,
+            trect,
+            sptr,
+            wptr,
+            wtiles,
+            ncam,
+            width,
+            height,
+            tfin,
+            last,
+            ga,
+            gl,
+            isect_grad,
+            isect_hit,
+        )
         full = np.zeros((ncam * n, K.NGRAD), dtype=np.float32 if dtype != torch.float64 else np.float64)
         K.reduce_grads(isect_grad, isect_hit, sptr, src, full)
         full_t = torch.from_numpy(full).to(dtype=dtype, device=device).reshape(ncam, n, K.NGRAD)
-        return (full_t[..., 0:2], full_t[..., 2:5], full_t[..., 6:10], full_t[..., 5],
-                None, None, None, None)
+        return (full_t[..., 0:2], full_t[..., 2:5], full_t[..., 6:10], full_t[..., 5], None, None, None, None)
 
 
 def rasterize_projected(
@@ -333,9 +368,7 @@ def _check_inputs(g: Gaussians, cameras: Cameras, background, sh_degree):
         raise DlaInputError("cameras", "no cameras")
     degree = g.sh_degree if sh_degree is None else int(sh_degree)
     if not 0 <= degree <= g.sh_degree:
-        raise DlaInputError(
-            "sh_degree", f"must be in 0..{g.sh_degree} for {g.sh.shape[1]} coefficients, got {degree}"
-        )
+        raise DlaInputError("sh_degree", f"must be in 0..{g.sh_degree} for {g.sh.shape[1]} coefficients, got {degree}")
     ncam = len(cameras)
     if background is None:
         bg = torch.zeros((ncam, 3), dtype=g.means.dtype, device=g.means.device)
@@ -366,9 +399,11 @@ def render_gaussians(
     """
     lead = gaussians.batch_shape
     if lead:
-        flat = Gaussians(*(t.reshape(-1, *t.shape[len(lead):]) for t in gaussians._tensors()))
-        outs = [render_gaussians(flat.item(b), cameras, background=background, sh_degree=sh_degree)
-                for b in range(flat.means.shape[0])]  # fmt: skip
+        flat = Gaussians(*(t.reshape(-1, *t.shape[len(lead) :]) for t in gaussians._tensors()))
+        outs = [
+            render_gaussians(flat.item(b), cameras, background=background, sh_degree=sh_degree)
+            for b in range(flat.means.shape[0])
+        ]
         return RenderOutput(*(torch.stack(parts).reshape(*lead, *parts[0].shape) for parts in zip(*outs)))
     degree, bg = _check_inputs(gaussians, cameras, background, sh_degree)
     device, dtype = gaussians.means.device, gaussians.means.dtype
@@ -387,9 +422,7 @@ def render_gaussians(
     colors = torch.cat([rgb, proj.depths[..., None]], dim=-1)  # [C, N, 4]
     ncam = viewmats.shape[0]
     opac = g.opacities[None].expand(ncam, -1)
-    acc, alpha = rasterize_projected(
-        proj.means2d, proj.conics, colors, opac, proj.radii, proj.depths.detach(), w, h
-    )
+    acc, alpha = rasterize_projected(proj.means2d, proj.conics, colors, opac, proj.radii, proj.depths.detach(), w, h)
     out_rgb = acc[..., :3] + (1.0 - alpha)[..., None] * bg[:, None, None, :]
     depth = acc[..., 3] / alpha.clamp(min=1e-10)
     out = RenderOutput(out_rgb, alpha, depth)

@@ -267,8 +267,7 @@ def _row_span(ca, cb, cc, thr, mx, dy, xlo, xhi):
 
 
 @njit(parallel=True, cache=True)
-def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, height,
-                   out_acc, out_t, out_last, out_work):
+def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, height, out_acc, out_t, out_last, out_work):
     """Composite front to back. out_acc [C, H, W, 4] (sum of w_i colour_i, no background),
     out_t [C, H, W] float64 final transmittance, out_last [C, H, W] int64 position (in `lists`)
     of the last contributing Gaussian or -1, out_work [C*TH*TW] float64 pixel evaluations."""
@@ -376,8 +375,24 @@ def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, heigh
 
 
 @njit(parallel=True, cache=True)
-def raster_backward(params, tile_offsets, lists, trect, sptr, wptr, wtiles, ncam, width, height,
-                    t_final, last_ids, g_acc, g_alpha, out_grad, out_hit):
+def raster_backward(
+    params,
+    tile_offsets,
+    lists,
+    trect,
+    sptr,
+    wptr,
+    wtiles,
+    ncam,
+    width,
+    height,
+    t_final,
+    last_ids,
+    g_acc,
+    g_alpha,
+    out_grad,
+    out_hit,
+):
     """Back to front pass (3DGS): recovers T_i = T_{i+1} / (1 - alpha_i) from the saved final
     transmittance and writes the gradient of each (Gaussian s, tile), summed in float64, into its
     own row of out_grad [n_isects, 10] (float32 or float64): row sptr[s] + the tile's row-major
@@ -498,11 +513,13 @@ def raster_backward(params, tile_offsets, lists, trect, sptr, wptr, wtiles, ncam
                             g1 += wgt * gp1
                             g2 += wgt * gp2
                             g3 += wgt * gp3
-                            dalpha = (gp0 * (c0 * t - behind[p, 0] * ra)
-                                      + gp1 * (c1 * t - behind[p, 1] * ra)
-                                      + gp2 * (c2 * t - behind[p, 2] * ra)
-                                      + gp3 * (c3 * t - behind[p, 3] * ra)
-                                      + ga[p] * tfin[p] * ra)
+                            dalpha = (
+                                gp0 * (c0 * t - behind[p, 0] * ra)
+                                + gp1 * (c1 * t - behind[p, 1] * ra)
+                                + gp2 * (c2 * t - behind[p, 2] * ra)
+                                + gp3 * (c3 * t - behind[p, 3] * ra)
+                                + ga[p] * tfin[p] * ra
+                            )
                             behind[p, 0] += c0 * wgt
                             behind[p, 1] += c1 * wgt
                             behind[p, 2] += c2 * wgt
@@ -530,8 +547,7 @@ def raster_backward(params, tile_offsets, lists, trect, sptr, wptr, wtiles, ncam
                 for j in range(nb):  # flush the batch's sums (again many stores in flight)
                     if hits[j]:
                         s = lists[kb + j]
-                        row = (sptr[s] + (ty - trect[s, 2]) * (trect[s, 1] - trect[s, 0])
-                               + (tx - trect[s, 0]))
+                        row = sptr[s] + (ty - trect[s, 2]) * (trect[s, 1] - trect[s, 0]) + (tx - trect[s, 0])
                         out_hit[row] = 1
                         for q in range(NGRAD):
                             out_grad[row, q] = gb[j, q]
@@ -568,8 +584,12 @@ def camera_points(rot, trans, means, out):
         m2 = np.float64(means[g, 2])
         for c in range(ncam):
             for i in range(3):
-                out[c, g, i] = (np.float64(rot[c, i, 0]) * m0 + np.float64(rot[c, i, 1]) * m1
-                                + np.float64(rot[c, i, 2]) * m2 + np.float64(trans[c, i]))
+                out[c, g, i] = (
+                    np.float64(rot[c, i, 0]) * m0
+                    + np.float64(rot[c, i, 1]) * m1
+                    + np.float64(rot[c, i, 2]) * m2
+                    + np.float64(trans[c, i])
+                )
 
 
 @njit(parallel=True, cache=True)

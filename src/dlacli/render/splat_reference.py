@@ -32,12 +32,11 @@ def _rotation(quats: torch.Tensor) -> torch.Tensor:
     w, v = q[:, 0], q[:, 1:]
     eye = torch.eye(3, dtype=q.dtype, device=q.device).expand(q.shape[0], 3, 3)
     zero = torch.zeros_like(w)
-    cross = torch.stack(
-        [zero, -v[:, 2], v[:, 1], v[:, 2], zero, -v[:, 0], -v[:, 1], v[:, 0], zero], dim=-1
-    ).reshape(-1, 3, 3)
+    cross = torch.stack([zero, -v[:, 2], v[:, 1], v[:, 2], zero, -v[:, 0], -v[:, 1], v[:, 0], zero], dim=-1).reshape(
+        -1, 3, 3
+    )
     vv = (v * v).sum(-1)
-    return ((w * w - vv)[:, None, None] * eye + 2.0 * v[:, :, None] * v[:, None, :]
-            + 2.0 * w[:, None, None] * cross)
+    return (w * w - vv)[:, None, None] * eye + 2.0 * v[:, :, None] * v[:, None, :] + 2.0 * w[:, None, None] * cross
 
 
 def reference_project(means, quats, scales, viewmat, K, width, height, eps2d=EPS2D):
@@ -99,8 +98,7 @@ def reference_render(
     dtype, device = g.means.dtype, g.means.device
     ncam, w, h, degree, viewmats, Ks, bg = _setup(g, cameras, background, sh_degree)
     colors = eval_sh_colors(g.sh, g.means, viewmats, degree)  # [C, N, 3]
-    ys, xs = torch.meshgrid(torch.arange(h, device=device), torch.arange(w, device=device),
-                            indexing="ij")
+    ys, xs = torch.meshgrid(torch.arange(h, device=device), torch.arange(w, device=device), indexing="ij")
     pix = torch.stack([xs, ys], -1).reshape(-1, 2).to(dtype) + 0.5  # [P, 2]
     ptile = torch.div(torch.stack([xs, ys], -1).reshape(-1, 2), TILE, rounding_mode="floor")
     rgbs, alphas, depths = [], [], []
@@ -115,7 +113,7 @@ def reference_render(
         op, lo, hi, rad = g.opacities[order], lo[order], hi[order], radius[order]
         rgb_c, a_c, d_c = [], [], []
         for start in range(0, pix.shape[0], chunk):
-            px, pt = pix[start:start + chunk], ptile[start:start + chunk]
+            px, pt = pix[start : start + chunk], ptile[start : start + chunk]
             member = ((pt[:, None, :] >= lo[None]) & (pt[:, None, :] < hi[None])).all(-1)
             member &= rad[None] > 0  # [P, N]
             d = m2[None] - px[:, None]  # [P, N, 2]
@@ -137,7 +135,6 @@ def reference_render(
         alphas.append(torch.cat(a_c).reshape(h, w))
         depths.append(torch.cat(d_c).reshape(h, w))
     return RenderOutput(torch.stack(rgbs), torch.stack(alphas), torch.stack(depths))
-
 
 
 def pairs_render(

@@ -9,8 +9,8 @@ recomputes the posed body's tangent frames and the skinning x = T + R dx, R_g = 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Callable, Iterator
 
 import numpy as np
 import torch
@@ -49,9 +49,12 @@ class Animation:
         opacities = self.opacities[t] if self.opacities.ndim == 2 else self.opacities
         rgb = self.rgb[t] if self.rgb.ndim == 3 else self.rgb
         return Gaussians.from_rgb(
-            torch.from_numpy(self.positions[t]), torch.from_numpy(self.quats[t]),
-            torch.from_numpy(self.scales[t]), torch.from_numpy(opacities), torch.from_numpy(rgb),
-        )  # fmt: skip
+            torch.from_numpy(self.positions[t]),
+            torch.from_numpy(self.quats[t]),
+            torch.from_numpy(self.scales[t]),
+            torch.from_numpy(opacities),
+            torch.from_numpy(rgb),
+        )
 
 
 @torch.no_grad()
@@ -157,6 +160,14 @@ def write_animation(
 
     sh = rgb_to_sh0(torch.from_numpy(anim.rgb)).numpy()[:, None, :] if anim.rgb.ndim == 2 else None
     write_usd(
-        path, anim.positions, anim.quats, anim.scales, anim.rgb, anim.opacities, anim.fps,
-        sh=sh, schema=schema, tolerance=tolerance,
-    )  # fmt: skip
+        path,
+        anim.positions,
+        anim.quats,
+        anim.scales,
+        anim.rgb,
+        anim.opacities,
+        anim.fps,
+        sh=sh,
+        schema=schema,
+        tolerance=tolerance,
+    )

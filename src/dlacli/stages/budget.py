@@ -71,8 +71,9 @@ def _db(mse: float) -> float:
     return math.inf if mse == 0 else -10.0 * math.log10(mse)
 
 
-def _renders(avatar: Avatar, cameras: Cameras, n: int, seed: int | None, times=None, motion=None,
-             checkpoint: str | None = None) -> np.ndarray:  # fmt: skip
+def _renders(
+    avatar: Avatar, cameras: Cameras, n: int, seed: int | None, times=None, motion=None, checkpoint: str | None = None
+) -> np.ndarray:
     """RGBA [C, H, W, 4] of the avatar drawn with n Gaussians, in camera order."""
     from dlacli.stages.render import render_avatar
 
@@ -86,7 +87,9 @@ def _check_counts(counts) -> list[int]:
 
     out = sorted({int(n) for n in counts})
     if not out or out[0] < 2 or out[-1] > MAX_GAUSSIANS:
-        raise DlaInputError("--gaussians", f"the counts to compare must lie in [2, {MAX_GAUSSIANS}], got {list(counts)!r}")
+        raise DlaInputError(
+            "--gaussians", f"the counts to compare must lie in [2, {MAX_GAUSSIANS}], got {list(counts)!r}"
+        )
     return out
 
 
@@ -100,18 +103,30 @@ def _scaled_views(views: ViewSet, render_size: int | None):
     return rgb.numpy(), mask.numpy(), cams
 
 
-def measure_budget(avatar: Avatar, views: ViewSet, counts=LADDER, render_size: int | None = None, motion=None,
-                   seed: int | None = None, checkpoint: str | None = None) -> dict[int, float]:  # fmt: skip
+def measure_budget(
+    avatar: Avatar,
+    views: ViewSet,
+    counts=LADDER,
+    render_size: int | None = None,
+    motion=None,
+    seed: int | None = None,
+    checkpoint: str | None = None,
+) -> dict[int, float]:
     """Masked PSNR of the avatar's renders with each count against the views' ground truth, the
     views scaled down so their long side is at most `render_size` (None: their own size).
     `motion`: what the views' `time`s index (None: the avatar's own pose). Seed: the avatar's own."""
     gt, mask, cams = _scaled_views(views, render_size)
-    return {n: _db(_masked_mse(_renders(avatar, cams, n, seed, views.times, motion, checkpoint)[..., :3], gt, mask, "views"))
-            for n in _check_counts(counts)}  # fmt: skip
+    return {
+        n: _db(
+            _masked_mse(_renders(avatar, cams, n, seed, views.times, motion, checkpoint)[..., :3], gt, mask, "views")
+        )
+        for n in _check_counts(counts)
+    }
 
 
-def sampling_noise(avatar: Avatar, cameras: Cameras, counts=LADDER, seed: int | None = None,
-                   checkpoint: str | None = None) -> dict[int, float]:  # fmt: skip
+def sampling_noise(
+    avatar: Avatar, cameras: Cameras, counts=LADDER, seed: int | None = None, checkpoint: str | None = None
+) -> dict[int, float]:
     """s(n): half the masked mean squared difference between the renders with n Gaussians at sample
     seeds `seed` (default: the avatar's) and seed + 1, own pose (mask: either alpha > 0.5)."""
     from dlacli.avatar.posed import sample_settings
@@ -164,8 +179,15 @@ def recorded_budget(avatar: Avatar) -> dict | None:
     if not isinstance(budget, dict):
         return None
     count, px = budget.get("count"), budget.get("subject_px")
-    ok = (isinstance(count, int) and not isinstance(count, bool) and count >= 2 and isinstance(px, (int, float))
-          and not isinstance(px, bool) and math.isfinite(px) and px > 0)  # fmt: skip
+    ok = (
+        isinstance(count, int)
+        and not isinstance(count, bool)
+        and count >= 2
+        and isinstance(px, (int, float))
+        and not isinstance(px, bool)
+        and math.isfinite(px)
+        and px > 0
+    )
     return budget if ok else None
 
 
@@ -184,21 +206,30 @@ def auto_cameras(cameras: Cameras, k: int = AUTO_VIEWS) -> Cameras:
     return cameras.select(idx)
 
 
-def auto_gaussians(avatar: Avatar, cameras: Cameras, counts=LADDER, tolerance_db: float = TOLERANCE_DB,
-                   seed: int | None = None, checkpoint: str | None = None) -> BudgetChoice:  # fmt: skip
+def auto_gaussians(
+    avatar: Avatar,
+    cameras: Cameras,
+    counts=LADDER,
+    tolerance_db: float = TOLERANCE_DB,
+    seed: int | None = None,
+    checkpoint: str | None = None,
+) -> BudgetChoice:
     """`--gaussians auto` for rendering at `cameras` (module doc): the recorded budget carried to
     the person's size in these cameras, else self-consistency by sampling noise."""
     px = subject_pixels(avatar, cameras)
     recorded = recorded_budget(avatar)
     if recorded is not None:
-        return BudgetChoice(scaled_count(recorded["count"], recorded["subject_px"], px, counts), "recorded", subject_px=px)
+        return BudgetChoice(
+            scaled_count(recorded["count"], recorded["subject_px"], px, counts), "recorded", subject_px=px
+        )
     noise = sampling_noise(avatar, cameras, counts, seed, checkpoint)
     scores = predicted_psnr(noise)
     return BudgetChoice(choose_gaussians(scores, tolerance_db), "self-consistency", scores, px, noise)
 
 
-def choose_for_views(avatar: Avatar, views: ViewSet, counts=LADDER, render_size: int | None = None,
-                     tolerance_db: float = TOLERANCE_DB) -> tuple[Avatar, BudgetChoice]:  # fmt: skip
+def choose_for_views(
+    avatar: Avatar, views: ViewSet, counts=LADDER, render_size: int | None = None, tolerance_db: float = TOLERANCE_DB
+) -> tuple[Avatar, BudgetChoice]:
     """`dla lift --gaussians auto`: measure on the (input) views at `render_size` (None: their own
     size), choose, and return the avatar recording the choice: `extra.samples.count` and
     `extra.budget` = {count, tolerance_db, render_size, subject_px, measured_on, psnr_masked:
@@ -213,7 +244,12 @@ def choose_for_views(avatar: Avatar, views: ViewSet, counts=LADDER, render_size:
     extra = dict(avatar.extra)
     samples = extra.get("samples") if isinstance(extra.get("samples"), dict) else {}
     extra["samples"] = {**samples, "count": count, "seed": seed}
-    extra["budget"] = {"count": count, "tolerance_db": tolerance_db, "render_size": max(cams.width, cams.height),
-                       "subject_px": px, "measured_on": "input views",
-                       "psnr_masked": {str(n): (s if math.isfinite(s) else None) for n, s in scores.items()}}  # fmt: skip
+    extra["budget"] = {
+        "count": count,
+        "tolerance_db": tolerance_db,
+        "render_size": max(cams.width, cams.height),
+        "subject_px": px,
+        "measured_on": "input views",
+        "psnr_masked": {str(n): (s if math.isfinite(s) else None) for n, s in scores.items()},
+    }
     return replace(avatar, extra=extra), BudgetChoice(count, "measured", scores, px)

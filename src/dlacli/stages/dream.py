@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import math
 import os
-from pathlib import Path
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -37,6 +37,8 @@ MIN_PERSON_PX = 32  # the person must be at least this many pixels tall in the p
 CUT_DEPTH = 0.04  # metres: a shell triangle over two body parts spanning a larger jump is left out
 CUT_FAR = 0.3  # metres: any shell triangle spanning a larger depth jump is left out
 INFLATE = 0.8  # thickness of the shell outside the body (hair, loose cloth), x a round profile
+
+
 @dataclass(frozen=True)
 class Backend:
     """A way to make the novel views: `load(model, device, res, frames, say)` returns (what
@@ -69,8 +71,15 @@ def _load_diffusion(model, device, res, frames, say):
 def _diffusion(rgb, alpha, cam, vertices, pipe, *, frames, steps, seed, say):
     if pipe is None:
         raise DlaInputError("--backend diffusion", "no pipeline loaded")
-    images, masks, cams, _ = diffusion_views(rgb, alpha, cam, vertices, pipe, frames=frames, steps=steps, seed=seed, progress=say)
-    return images, masks, cams, {"steps": steps, "frames": frames, "seed": seed, "video_frames": [0, *view_frames(frames)]}
+    images, masks, cams, _ = diffusion_views(
+        rgb, alpha, cam, vertices, pipe, frames=frames, steps=steps, seed=seed, progress=say
+    )
+    return (
+        images,
+        masks,
+        cams,
+        {"steps": steps, "frames": frames, "seed": seed, "video_frames": [0, *view_frames(frames)]},
+    )
 
 
 BACKENDS: dict[str, Backend] = {"template": Backend(_template), "diffusion": Backend(_diffusion, _load_diffusion)}
@@ -80,6 +89,7 @@ def _backend(name: str) -> Backend:
     if name not in BACKENDS:
         raise DlaInputError("--backend", f"unknown backend {name!r} (choose {' or '.join(BACKENDS)})")
     return BACKENDS[name]
+
 
 Progress = Callable[[str], None]
 
@@ -130,7 +140,9 @@ def resample(arr: np.ndarray, res: int) -> np.ndarray:
     return out[0].permute(1, 2, 0).numpy()
 
 
-def frame_crop(image: np.ndarray, mask: np.ndarray, camera: Cameras, res: int) -> tuple[np.ndarray, np.ndarray, Cameras]:
+def frame_crop(
+    image: np.ndarray, mask: np.ndarray, camera: Cameras, res: int
+) -> tuple[np.ndarray, np.ndarray, Cameras]:
     """Square crop around the person resampled to res x res.
 
     image [H, W, 3], mask [H, W] in [0, 1], camera: 1 camera of the photo ->
@@ -242,8 +254,14 @@ def _unproject(depth: np.ndarray, ys: np.ndarray, xs: np.ndarray, camera: Camera
     return (pc @ c2w.T)[:, :3]
 
 
-def shell_mesh(person: np.ndarray, front: np.ndarray, back: np.ndarray, camera: Cameras,
-               front_label: np.ndarray | None = None, back_label: np.ndarray | None = None):
+def shell_mesh(
+    person: np.ndarray,
+    front: np.ndarray,
+    back: np.ndarray,
+    camera: Cameras,
+    front_label: np.ndarray | None = None,
+    back_label: np.ndarray | None = None,
+):
     """A closed mesh of the shell: one vertex per person pixel on each layer, two triangles per
     2x2 block of person pixels on each layer, walls along the person's outline.
 
@@ -268,7 +286,9 @@ def shell_mesh(person: np.ndarray, front: np.ndarray, back: np.ndarray, camera: 
     uniq, counts = np.unique(key[:, 0] * n + key[:, 1], return_counts=True)
     outline = np.isin(key[:, 0] * n + key[:, 1], uniq[counts == 1])
     e = edges[outline]  # [E, 2] outline edges, oriented as in their triangle
-    walls = np.concatenate([np.stack([e[:, 1], e[:, 0], e[:, 0] + n], 1), np.stack([e[:, 1], e[:, 0] + n, e[:, 1] + n], 1)])
+    walls = np.concatenate(
+        [np.stack([e[:, 1], e[:, 0], e[:, 0] + n], 1), np.stack([e[:, 1], e[:, 0] + n, e[:, 1] + n], 1)]
+    )
     keep = []
     for depth, label in ((front, front_label), (back, back_label)):
         jump = np.ptp(depth[ys, xs][tris], axis=1)  # [T]
@@ -385,8 +405,18 @@ def key_masks(frames: np.ndarray, prior: np.ndarray, threshold: float = 0.1) -> 
     return out
 
 
-def diffusion_views(rgb, alpha, camera: Cameras, vertices: np.ndarray, pipe, *, frames: int = 80,
-                    steps: int = 50, seed: int = 0, progress: Progress | None = None):
+def diffusion_views(
+    rgb,
+    alpha,
+    camera: Cameras,
+    vertices: np.ndarray,
+    pipe,
+    *,
+    frames: int = 80,
+    steps: int = 50,
+    seed: int = 0,
+    progress: Progress | None = None,
+):
     """The paper's procedure on a framed photo (see dlacli.nn.video_diffusion).
 
     rgb [R, R, 3], alpha [R, R], camera (the crop's), vertices [V, 3] fitted body ->
@@ -437,16 +467,32 @@ def _read_inputs(photo, mask_path, keypoints_path, notes: list[str]):
     return image, np.asarray(mask, np.float32), np.asarray(keypoints, np.float32)
 
 
-def build_views(image: np.ndarray, mask: np.ndarray, fit, *, backend: str = "template", res: int = 512,
-                pipe=None, frames: int = 80, steps: int = 50, seed: int = 0, progress: Progress | None = None) -> ViewSet:
+def build_views(
+    image: np.ndarray,
+    mask: np.ndarray,
+    fit,
+    *,
+    backend: str = "template",
+    res: int = 512,
+    pipe=None,
+    frames: int = 80,
+    steps: int = 50,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> ViewSet:
     """Photo [H, W, 3] + person mask [H, W] + body fit (`dlacli.stages.fit.FitResult`) -> the
     4 views (azimuths 0, 90, 180, 270) as a ViewSet with the fitted body."""
     say = progress or (lambda msg: None)
     rgb, alpha, cam = frame_crop(image, mask, fit.camera, res)
-    info = {"backend": backend, "azimuths": list(AZIMUTHS), "fit_overlay": "fit_overlay.png",
-            "fit": {"reprojection_px": float(fit.reprojection_px), "mask_iou": float(fit.mask_iou)}}
-    images, masks, cams, settings = _backend(backend).views(rgb, alpha, cam, fit.vertices, pipe, frames=frames,
-                                                            steps=steps, seed=seed, say=say)  # fmt: skip
+    info = {
+        "backend": backend,
+        "azimuths": list(AZIMUTHS),
+        "fit_overlay": "fit_overlay.png",
+        "fit": {"reprojection_px": float(fit.reprojection_px), "mask_iou": float(fit.mask_iou)},
+    }
+    images, masks, cams, settings = _backend(backend).views(
+        rgb, alpha, cam, fit.vertices, pipe, frames=frames, steps=steps, seed=seed, say=say
+    )
     info.update(settings)
     info["silhouette_excess"] = [round(float(x), 4) for x in silhouette_excess(masks, cams, fit.vertices)]
     names = [f"images/view_{i:03d}.png" for i in range(len(images))]
@@ -471,8 +517,9 @@ def silhouette_excess(masks: np.ndarray, cameras: Cameras, vertices: np.ndarray)
     outside = [ndimage.distance_transform_edt(~b) if b.any() else np.full(b.shape, np.inf) for b in body]
     spill = outside[0][person[0] & ~body[0]]
     allowance = (float(np.percentile(spill, 99)) if spill.size else 0.0) + 2.0  # pixels
-    return np.array([float((person[a] & (outside[a] > allowance)).sum()) / max(int(body[a].sum()), 1)
-                     for a in range(len(masks))])
+    return np.array(
+        [float((person[a] & (outside[a] > allowance)).sum()) / max(int(body[a].sum()), 1) for a in range(len(masks))]
+    )
 
 
 def write_dream_folder(views: ViewSet, overlay: np.ndarray, output: str | os.PathLike) -> Path:
@@ -488,10 +535,22 @@ def write_dream_folder(views: ViewSet, overlay: np.ndarray, output: str | os.Pat
     return Path(output)
 
 
-def dream(photo: str | os.PathLike, output: str | os.PathLike, *, backend: str = "template",
-          keypoints: str | os.PathLike | None = None, mask: str | os.PathLike | None = None,
-          res: int = 512, model: str | None = None, steps: int = 50, frames: int = 80, seed: int = 0,
-          fit_steps: int = 300, device: str | None = None, progress: Progress | None = None) -> Path:
+def dream(
+    photo: str | os.PathLike,
+    output: str | os.PathLike,
+    *,
+    backend: str = "template",
+    keypoints: str | os.PathLike | None = None,
+    mask: str | os.PathLike | None = None,
+    res: int = 512,
+    model: str | None = None,
+    steps: int = 50,
+    frames: int = 80,
+    seed: int = 0,
+    fit_steps: int = 300,
+    device: str | None = None,
+    progress: Progress | None = None,
+) -> Path:
     """One photo -> a view folder at `output` (written atomically; see the module docstring)."""
     from dlacli.stages.fit import fit_body, overlay_png
 
@@ -510,8 +569,12 @@ def dream(photo: str | os.PathLike, output: str | os.PathLike, *, backend: str =
         say(note)
     crop_box(person)  # fail early on an empty mask or a tiny person
     say("fitting the body")
-    fit = fit_body(image, person, kps, steps=fit_steps, progress=lambda done, total: say(f"fitting the body {done}/{total}"))
-    views = build_views(image, person, fit, backend=backend, res=res, pipe=pipe, frames=frames, steps=steps, seed=seed, progress=say)
+    fit = fit_body(
+        image, person, kps, steps=fit_steps, progress=lambda done, total: say(f"fitting the body {done}/{total}")
+    )
+    views = build_views(
+        image, person, fit, backend=backend, res=res, pipe=pipe, frames=frames, steps=steps, seed=seed, progress=say
+    )
     views.extra["dream"]["photo"] = Path(photo).name
     if notes:
         views.extra["dream"]["notes"] = notes

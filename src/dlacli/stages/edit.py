@@ -81,9 +81,15 @@ def swap_region(
         canonical = _blend_maps(a.canonical, b.canonical, w)
     edits = list(a.extra.get("edits", [])) + [{"op": "swap", "region": region, "feather": feather}]
     return Avatar(
-        z=z, encoder=a.encoder, decoder=a.decoder, body=a.body, uv_layout=a.uv_layout,
-        checkpoint=a.checkpoint, canonical=canonical, extra={**a.extra, "edits": edits},
-    )  # fmt: skip
+        z=z,
+        encoder=a.encoder,
+        decoder=a.decoder,
+        body=a.body,
+        uv_layout=a.uv_layout,
+        checkpoint=a.checkpoint,
+        canonical=canonical,
+        extra={**a.extra, "edits": edits},
+    )
 
 
 def _lerp(a, b, t: float):
@@ -141,11 +147,22 @@ def interpolate(a: Avatar, b: Avatar, t: float, where_a: str = "A", where_b: str
         raise DlaInputError("--t", f"must be a finite number, got {t}")
     z = ((1.0 - t) * a.z + t * b.z).astype(np.float32)
     canonical = {0.0: a.canonical, 1.0: b.canonical}.get(t)
-    if canonical is None and is_linear(a) and a.canonical is not None and b.canonical is not None \
-            and a.canonical.shape == b.canonical.shape:
+    if (
+        canonical is None
+        and is_linear(a)
+        and a.canonical is not None
+        and b.canonical is not None
+        and a.canonical.shape == b.canonical.shape
+    ):
         canonical = ((1.0 - t) * a.canonical + t * b.canonical).astype(np.float32)
     base = a if t < 0.5 else b
     return Avatar(
-        z=z, encoder=a.encoder, decoder=a.decoder, body=interpolate_body(a.body, b.body, t),
-        uv_layout=a.uv_layout, checkpoint=a.checkpoint, canonical=canonical, extra=dict(base.extra),
-    )  # fmt: skip
+        z=z,
+        encoder=a.encoder,
+        decoder=a.decoder,
+        body=interpolate_body(a.body, b.body, t),
+        uv_layout=a.uv_layout,
+        checkpoint=a.checkpoint,
+        canonical=canonical,
+        extra=dict(base.extra),
+    )

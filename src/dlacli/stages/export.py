@@ -26,8 +26,8 @@ Positions, orientations and SH coefficients (degree > 0) are rotated alike.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Iterator
 from dataclasses import replace
-from typing import Callable, Iterator
 
 import numpy as np
 import torch

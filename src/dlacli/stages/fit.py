@@ -23,8 +23,8 @@ recomputed exactly with the body model.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import torch
@@ -38,10 +38,19 @@ from dlacli.types import BodyParams, Cameras
 
 FOV_Y_DEG = 50.0
 FIT_BONES = (
-    "spine03", "spine01", "neck01", "head",
-    "upperarm01.L", "upperarm01.R", "lowerarm01.L", "lowerarm01.R",
-    "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R",
-)  # fmt: skip
+    "spine03",
+    "spine01",
+    "neck01",
+    "head",
+    "upperarm01.L",
+    "upperarm01.R",
+    "lowerarm01.L",
+    "lowerarm01.R",
+    "upperleg01.L",
+    "upperleg01.R",
+    "lowerleg01.L",
+    "lowerleg01.R",
+)
 FREE_PHENOTYPE = ("height", "weight", "gender", "age")
 # per-bone weight of the "stay near the zero pose" prior (spine, neck and head are stiffer)
 _BONE_PRIOR = (4.0, 4.0, 2.0, 1.0, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.2, 0.2)
@@ -98,9 +107,7 @@ def photo_camera(width: int, height: int, center=(0.0, 0.0, 0.0)) -> Cameras:
     w2c[:3, :3] = _R_W2C
     w2c[:3, 3] = -_R_W2C @ np.asarray(center, dtype=np.float64)
     k = photo_intrinsics(width, height)
-    return Cameras(
-        torch.from_numpy(w2c[None]).float(), torch.from_numpy(k[None]).float(), int(width), int(height)
-    )
+    return Cameras(torch.from_numpy(w2c[None]).float(), torch.from_numpy(k[None]).float(), int(width), int(height))
 
 
 def _project_fit(points: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
@@ -214,8 +221,9 @@ class _SilhouetteTargets:
             self.dt, grid, mode="bilinear", padding_mode="border", align_corners=False
         )[0, 0, 0]  # [P]
         # outside the image the border value underestimates: add the distance to the image
-        d_out = d_out + (torch.relu(-uv[:, 0]) + torch.relu(uv[:, 0] - w)
-                         + torch.relu(-uv[:, 1]) + torch.relu(uv[:, 1] - h))
+        d_out = d_out + (
+            torch.relu(-uv[:, 0]) + torch.relu(uv[:, 0] - w) + torch.relu(-uv[:, 1]) + torch.relu(uv[:, 1] - h)
+        )
         d_cov = torch.cdist(self.pix, uv).min(dim=1).values  # [M]
         e = 0.5
         out = torch.sqrt(d_out**2 + e * e).mean() + COVER_WEIGHT * torch.sqrt(d_cov**2 + e * e).mean()
@@ -241,8 +249,7 @@ def fit_body(
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        return _fit(image, mask, keypoints, steps, progress, surface_samples, silhouette_samples,
-                    sil_weight)
+        return _fit(image, mask, keypoints, steps, progress, surface_samples, silhouette_samples, sil_weight)
     finally:
         torch.set_num_threads(threads)
 
@@ -426,15 +433,14 @@ def overlay_png(image: np.ndarray, result: FitResult) -> np.ndarray:
         img = img / 255.0
     h, w = img.shape[:2]
     if (w, h) != (result.camera.width, result.camera.height):
-        raise DlaInputError("image", f"size {w}x{h} differs from the fit's {result.camera.width}x"
-                            f"{result.camera.height}")
+        raise DlaInputError(
+            "image", f"size {w}x{h} differs from the fit's {result.camera.width}x{result.camera.height}"
+        )
     sil = silhouette(result.vertices, result.camera)  # [H, W]
     tint = np.array([0.2, 0.45, 1.0], np.float32)
     out = img * (1.0 - 0.45 * sil[..., None]) + 0.45 * sil[..., None] * tint
     inside = sil > 0.5
-    edge = inside & ~(
-        np.roll(inside, 1, 0) & np.roll(inside, -1, 0) & np.roll(inside, 1, 1) & np.roll(inside, -1, 1)
-    )
+    edge = inside & ~(np.roll(inside, 1, 0) & np.roll(inside, -1, 0) & np.roll(inside, 1, 1) & np.roll(inside, -1, 1))
     out[edge] = (0.1, 0.2, 1.0)
     pil = Image.fromarray(np.clip(out * 255.0 + 0.5, 0, 255).astype(np.uint8))
     draw = ImageDraw.Draw(pil)

@@ -17,7 +17,6 @@ from dlacli.nn.learned import DECODER, ENCODER, LearnedAvatarNet, subject_depth
 from dlacli.nn.learned import LearnedConfig as LearnedConfig
 from dlacli.types import Cameras, Gaussians, ViewSet
 
-
 # ------------------------------------------------------------------------------ the lift
 
 
@@ -60,8 +59,15 @@ def render_targets(net: LearnedAvatarNet, z: torch.Tensor, vertices: torch.Tenso
     return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
 
 
-def lift_learned(views: ViewSet, checkpoint: str, steps: int = 0, lr: float = 0.02, render_size: int = 256,
-                 progress=None, novel: ViewSet | None = None):  # fmt: skip
+def lift_learned(
+    views: ViewSet,
+    checkpoint: str,
+    steps: int = 0,
+    lr: float = 0.02,
+    render_size: int = 256,
+    progress=None,
+    novel: ViewSet | None = None,
+):
     """`dla lift --method learned`: U-Net -> encoder -> Z (the posterior mean), then `steps` of
     refining Z alone through the frozen decoder against the input views (L1 + mask at
     render_size) -> stages.lift.LiftResult (avatar, the U-Net's pixel Gaussians, contact sheet)."""
@@ -100,12 +106,28 @@ def lift_learned(views: ViewSet, checkpoint: str, steps: int = 0, lr: float = 0.
     seconds = time.perf_counter() - t0
     with torch.no_grad():
         f_c = net.canonical(z)
-        sheet, novel_view = sheet_and_novel_view(views, novel, lambda c: render_targets(net, z, verts, rest, c)[0].numpy())
+        sheet, novel_view = sheet_and_novel_view(
+            views, novel, lambda c: render_targets(net, z, verts, rest, c)[0].numpy()
+        )
     unstructured = Gaussians.from_rgb(g.means[0], g.quats[0], g.scales[0], g.opacities[0], g.rgb[0])
-    extra = {"lift": {"steps": steps, "final_loss": history[-1] if history else None, "seconds": seconds,
-                      "preset": net.config.preset, "variant": net.config.variant},
-             "samples": {"count": net.config.gaussians, "seed": net.config.sample_seed}}  # fmt: skip
-    avatar = Avatar(z=z.numpy().astype(np.float32), encoder=ENCODER, decoder=DECODER, body=views.body,
-                    uv_layout=UV_LAYOUT, checkpoint=digest, canonical=f_c.numpy().astype(np.float32),
-                    extra=extra)  # fmt: skip
+    extra = {
+        "lift": {
+            "steps": steps,
+            "final_loss": history[-1] if history else None,
+            "seconds": seconds,
+            "preset": net.config.preset,
+            "variant": net.config.variant,
+        },
+        "samples": {"count": net.config.gaussians, "seed": net.config.sample_seed},
+    }
+    avatar = Avatar(
+        z=z.numpy().astype(np.float32),
+        encoder=ENCODER,
+        decoder=DECODER,
+        body=views.body,
+        uv_layout=UV_LAYOUT,
+        checkpoint=digest,
+        canonical=f_c.numpy().astype(np.float32),
+        extra=extra,
+    )
     return LiftResult(avatar, unstructured, sheet, novel_view)

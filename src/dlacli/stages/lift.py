@@ -26,11 +26,11 @@ import torch
 from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
-from dlacli.errors import DlaInputError
-from dlacli.limits import LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS
-from dlacli.geometry import project_points as _project  # points [..., 3] -> (pixels [..., 2], z [...])
 from dlacli.avatar import gaussian_map as gm
 from dlacli.avatar.codec import shading
+from dlacli.errors import DlaInputError
+from dlacli.geometry import project_points as _project  # points [..., 3] -> (pixels [..., 2], z [...])
+from dlacli.limits import LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS
 from dlacli.types import Avatar, Cameras, Gaussians, ViewSet, rgb_to_sh0
 
 ENCODER = "unproject"
@@ -163,10 +163,12 @@ def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128
     quats = torch.zeros(n, 4)
     quats[:, 0] = 1.0
     gaussians = Gaussians.from_rgb(
-        means, quats, scales,
+        means,
+        quats,
+        scales,
         torch.from_numpy(np.concatenate(out_alpha)).float().clamp(0.0, 1.0),
         torch.from_numpy(np.concatenate(out_rgb)).float().clamp(0.0, 1.0),
-    )  # fmt: skip
+    )
     return gaussians, np.concatenate(out_view), np.concatenate(out_eye)
 
 
@@ -180,9 +182,7 @@ def _fill_outside_charts(fmap: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return fmap[:, ri, ci]
 
 
-def unproject_to_uv(
-    gaussians: Gaussians, eyes: np.ndarray, vertices: np.ndarray, resolution: int
-) -> np.ndarray:
+def unproject_to_uv(gaussians: Gaussians, eyes: np.ndarray, vertices: np.ndarray, resolution: int) -> np.ndarray:
     """The Gaussian map F [14, R, R] from unstructured Gaussians (means [N, 3] seen from camera
     centres eyes [N, 3]) and the body in the same pose (vertices [V, 3])."""
     from dlacli.body.uv import FRAME_RESOLUTION, texel_frames, uv_raster
@@ -246,8 +246,12 @@ def _bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     y0 = np.minimum(np.floor(y).astype(np.int64), max(h - 2, 0))
     x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    return (image[y0, x0] * (1 - fx) * (1 - fy) + image[y0, x1] * fx * (1 - fy)
-            + image[y1, x0] * (1 - fx) * fy + image[y1, x1] * fx * fy)  # fmt: skip
+    return (
+        image[y0, x0] * (1 - fx) * (1 - fy)
+        + image[y0, x1] * fx * (1 - fy)
+        + image[y1, x0] * (1 - fx) * fy
+        + image[y1, x1] * fx * fy
+    )
 
 
 def body_depth_maps(vertices: np.ndarray, views: ViewSet) -> np.ndarray:
@@ -304,7 +308,10 @@ def view_falloff(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_de
     if body_depth is None:
         body_depth = body_depth_maps(vertices, views)
     _, points, normals = _texel_points(fmap, vertices)
-    obs = [(rgb.mean(axis=1), cos, seen & (mask > 0.95)) for rgb, mask, cos, seen in _observations(points, normals, views, body_depth)]
+    obs = [
+        (rgb.mean(axis=1), cos, seen & (mask > 0.95))
+        for rgb, mask, cos, seen in _observations(points, normals, views, body_depth)
+    ]
     ratios, ci, cj = [], [], []
     for i in range(len(obs)):
         for j in range(i + 1, len(obs)):
@@ -321,8 +328,9 @@ def view_falloff(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_de
     return float(ks[int(np.argmin(cost))])
 
 
-def bake_colours(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_depth: np.ndarray | None = None,
-                 falloff: float = 0.0) -> np.ndarray:  # fmt: skip
+def bake_colours(
+    fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_depth: np.ndarray | None = None, falloff: float = 0.0
+) -> np.ndarray:
     """F [14, R, R] with its colour channels baked from the views: each texel's point on the body
     in the input pose (T + R dx, its own offset) is projected into every view that sees it
     (`_observations`); the texel takes the bilinear colour of those views weighted by
@@ -405,7 +413,9 @@ def lifted_posed(fmap: np.ndarray, falloff: float, vertices: np.ndarray, cameras
     return PosedAvatar(decoded, samples, verts[None], camera_centers(cameras.viewmats)[None])
 
 
-def view_colours(fmap: np.ndarray, falloff: float, vertices: np.ndarray, cameras: Cameras, samples: gm.Samples) -> torch.Tensor | None:
+def view_colours(
+    fmap: np.ndarray, falloff: float, vertices: np.ndarray, cameras: Cameras, samples: gm.Samples
+) -> torch.Tensor | None:
     """The samples' colours [C, N, 3] as each camera sees F [14, R, R] with a view falloff k on
     the body in one pose (vertices [V, 3]): what the view-cosine decoder (avatar/codec.py) makes
     of them, so lift refines what `dla render` draws. None for k = 0."""
@@ -430,8 +440,15 @@ def _render(g: Gaussians, cams: Cameras, colours: torch.Tensor | None):
     return torch.cat([p.rgb for p in parts]), torch.cat([p.alpha for p in parts])
 
 
-def refine(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, cfg: LiftConfig, progress=None,
-           samples: gm.Samples | None = None, falloff: float = 0.0) -> tuple[np.ndarray, list[float]]:  # fmt: skip
+def refine(
+    fmap: np.ndarray,
+    views: ViewSet,
+    vertices: np.ndarray,
+    cfg: LiftConfig,
+    progress=None,
+    samples: gm.Samples | None = None,
+    falloff: float = 0.0,
+) -> tuple[np.ndarray, list[float]]:
     """Optimise the geometry of the Gaussian map F [14, R, R] (the channels `_CHANNEL_STEP` moves)
     so that its Gaussians, placed on the body in the input pose (vertices [V, 3]) and coloured as
     each view sees them (view falloff `falloff`, `view_colours`), re-render the input views:
@@ -545,10 +562,18 @@ def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: Vi
         fmap, history = refine(fmap, views, vertices, cfg, progress, samples, falloff)
         fmap = bake_colours(fmap, views, vertices, depth, falloff)  # colours where the refined geometry puts them
     sheet, novel_view = sheet_and_novel_view(
-        views, novel, lambda cams: render_views(fmap, vertices, cams, samples, falloff)[0].numpy())
-    extra = {"lift": {"steps": cfg.steps, "grid": cfg.grid, "gaussians": cfg.gaussians,
-                      "final_loss": history[-1] if history else None, "view_falloff": falloff},
-             "samples": {"count": cfg.gaussians, "seed": cfg.seed}}  # what render/animate draw by default  # fmt: skip
+        views, novel, lambda cams: render_views(fmap, vertices, cams, samples, falloff)[0].numpy()
+    )
+    extra = {
+        "lift": {
+            "steps": cfg.steps,
+            "grid": cfg.grid,
+            "gaussians": cfg.gaussians,
+            "final_loss": history[-1] if history else None,
+            "view_falloff": falloff,
+        },
+        "samples": {"count": cfg.gaussians, "seed": cfg.seed},
+    }  # what render/animate draw by default
     z, decoder = fmap, DECODER
     if falloff:  # colour depends on the view: the view-cosine decoder, k in z's last channel
         z, decoder = np.concatenate([fmap, np.full((1, *fmap.shape[1:]), falloff, np.float32)]), VIEW_DECODER

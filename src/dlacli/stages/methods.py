@@ -28,8 +28,9 @@ from __future__ import annotations
 import dataclasses
 import re
 import typing
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any
 
 from dlacli.errors import DlaInputError
 from dlacli.limits import LIFT_STEPS, MAX_GAUSSIANS, MAX_LIFT_STEPS

@@ -3,7 +3,7 @@ over a ground plane, from a camera that follows the hips (for checking retargets
 
 from __future__ import annotations
 
-from typing import Iterator
+from collections.abc import Iterator
 
 import numpy as np
 

@@ -60,9 +60,7 @@ def load_motion(
         if spec in BUILTINS:
             motion = builtin_motion(spec)
             return motion if fps is None else _resample(motion, fps)
-        raise DlaInputError(
-            spec, f"no such file, and not a built-in motion ({', '.join(BUILTINS)})"
-        )
+        raise DlaInputError(spec, f"no such file, and not a built-in motion ({', '.join(BUILTINS)})")
     if path.is_dir():
         raise DlaInputError(path, "is a folder; expected a motion file (.npz, .bvh, .amc)")
     suffix = path.suffix.lower()
@@ -91,9 +89,13 @@ def load_motion(
             raise DlaInputError(asf_path, "no such ASF skeleton file")
         skel = read_amc(path, asf_path)
     elif suffix == ".asf":
-        raise DlaInputError(path, "an ASF file holds a skeleton only; give its AMC motion (CLIP.amc or CLIP.amc:SUBJECT.asf)")
+        raise DlaInputError(
+            path, "an ASF file holds a skeleton only; give its AMC motion (CLIP.amc or CLIP.amc:SUBJECT.asf)"
+        )
     else:
-        raise DlaInputError(path, f"unsupported motion file type {path.suffix!r} (expected {', '.join(SUFFIXES)} or a built-in name)")
+        raise DlaInputError(
+            path, f"unsupported motion file type {path.suffix!r} (expected {', '.join(SUFFIXES)} or a built-in name)"
+        )
 
     from dlacli.body.retarget import anny_rig, retarget
 
@@ -115,5 +117,8 @@ def _check_rig_labels(motion: Motion, path: Path) -> None:
     unknown = [label for label in motion.bone_labels if label not in rig]
     if unknown:
         more = f" and {len(unknown) - 3} more" if len(unknown) > 3 else ""
-        raise DlaInputError(path, f"bone_labels holds {', '.join(map(repr, unknown[:3]))}{more}, not bones of anny's rig "
-                                  "(convert third-party motions with dla motion convert)")
+        raise DlaInputError(
+            path,
+            f"bone_labels holds {', '.join(map(repr, unknown[:3]))}{more}, not bones of anny's rig "
+            "(convert third-party motions with dla motion convert)",
+        )

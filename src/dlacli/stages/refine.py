@@ -7,7 +7,7 @@ optimise and how they score a render is theirs, the steps are this one loop.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import torch
 

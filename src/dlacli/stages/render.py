@@ -8,8 +8,8 @@ entry's index in the frames list).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Callable, Iterator
 
 import numpy as np
 import torch
@@ -41,7 +41,9 @@ def _pose_vertices(avatar: Avatar, motion: Motion | None, frames: np.ndarray) ->
     if motion is None:
         return model.forward_body(avatar.body).vertices.expand(len(frames), -1, -1)
     if frames.size and frames.max() >= motion.num_frames:
-        raise DlaInputError("--cameras", f"a frame's time {int(frames.max())} is past the motion's last frame ({motion.num_frames - 1})")
+        raise DlaInputError(
+            "--cameras", f"a frame's time {int(frames.max())} is past the motion's last frame ({motion.num_frames - 1})"
+        )
     return model.forward_motion(avatar.body.phenotype, motion, frames=frames).vertices
 
 

@@ -262,9 +262,9 @@ def body_mesh(fmap: torch.Tensor, phenotype: dict[str, float]) -> dict[str, np.n
     not show as shading noise. Measured on the demo avatar (docs/rig.md): this gave the best
     silhouette agreement with the splats of the variants tried (full offsets, normal offsets,
     smoothed, none)."""
+    from dlacli.avatar import gaussian_map as gm
     from dlacli.body.model import get_body_model
     from dlacli.body.uv import tangent_frames, vertex_normals
-    from dlacli.avatar import gaussian_map as gm
 
     model = get_body_model()
     rest = model.zero_pose(phenotype).vertices[0]  # [V, 3]
@@ -289,15 +289,19 @@ def body_mesh(fmap: torch.Tensor, phenotype: dict[str, float]) -> dict[str, np.n
     points = bare + height[:, None] * normals
     rgb = mean(params[:, gm.RGB].double().clamp(0, 1).numpy())
     opacity = mean(torch.sigmoid(params[:, gm.OPACITY].double()).numpy())[:, 0]
-    return {"points": points.astype(np.float32), "normals": normals.astype(np.float32),
-            "rgb": rgb.astype(np.float32), "opacity": opacity.astype(np.float32)}  # fmt: skip
+    return {
+        "points": points.astype(np.float32),
+        "normals": normals.astype(np.float32),
+        "rgb": rgb.astype(np.float32),
+        "opacity": opacity.astype(np.float32),
+    }
 
 
 def albedo_texture(fmap: torch.Tensor) -> np.ndarray:
     """The map's colour channels as an 8-bit sRGB image [R, R, 3] (row 0 = v near 1, the UV
     image convention), dilated into the empty texels."""
-    from dlacli.body.uv import uv_raster
     from dlacli.avatar import gaussian_map as gm
+    from dlacli.body.uv import uv_raster
 
     r = int(fmap.shape[-1])
     rgb = fmap[gm.RGB].permute(1, 2, 0).double().clamp(0, 1).numpy()  # [R, R, 3]

@@ -10,7 +10,7 @@ element, described by a JSON header ("dla.view/1"):
 |-----------------|----------|--------------|---------------------------------------------|-----------------------|
 | positions       | u16      | [N, 3]       | (x - min) / step, step = (max - min) / 65535 | step / 2 per axis     |
 | quats           | i16      | [N, 4]       | round(32767 q), (w, x, y, z), renormalised   | 0.5 / 32767 per comp. |
-| scales          | f16      | [N, 3]       | IEEE half                                   | 2^-11 relative (normal range) |
+| scales          | f16      | [N, 3]       | IEEE half                                   | 2^-11 rel. (normal range) |
 | opacities       | u8       | [N]          | round(255 o)                                | 1 / 510               |
 | rgb             | u8       | [N, 3]       | round(255 c)                                | 1 / 510               |
 | joint_indices   | u8       | [N, K]       | into the used joints (meta.joint_names)     | exact                 |
@@ -53,11 +53,12 @@ def pose_motion(avatar: Avatar, fps: float = 30.0) -> Motion:
     model = get_body_model()
     rot = pose_to_rotations(avatar.body.pose, "pose", model)[None]
     return Motion(
-        bone_labels=list(model.bone_labels), rotations=rot,
+        bone_labels=list(model.bone_labels),
+        rotations=rot,
         root_rotation=np.asarray(avatar.body.root_rotation, np.float32).reshape(1, 3),
         root_translation=np.asarray(avatar.body.root_translation, np.float32).reshape(1, 3),
         fps=float(fps),
-    )  # fmt: skip
+    )
 
 
 def _largest_remainder(weights: np.ndarray, total: int) -> np.ndarray:
@@ -89,7 +90,9 @@ def pack_rig(rig, mats: np.ndarray) -> tuple[dict, bytes]:
     indices = np.where(weights_int > 0, rig.joint_indices[:, :k], -1)
     used = np.unique(indices[indices >= 0])
     if used.size > 255:
-        raise DlaInputError("rig", f"{used.size} joints carry weight; the page stores joint indices in 8 bits (at most 255)")
+        raise DlaInputError(
+            "rig", f"{used.size} joints carry weight; the page stores joint indices in 8 bits (at most 255)"
+        )
     remap = np.zeros(rig.num_joints, np.int64)
     remap[used] = np.arange(used.size)
     local = np.where(indices >= 0, remap[np.clip(indices, 0, None)], 0).astype(np.uint8)
@@ -119,11 +122,17 @@ def pack_rig(rig, mats: np.ndarray) -> tuple[dict, bytes]:
         parts.append(data + b"\0" * pad)
         offset += len(data) + pad
     header = {
-        "format": FORMAT, "gaussians": n, "k": k, "joints": int(used.size), "frames": int(mats.shape[0]),
+        "format": FORMAT,
+        "gaussians": n,
+        "k": k,
+        "joints": int(used.size),
+        "frames": int(mats.shape[0]),
         "joint_names": [rig.joint_names[j] for j in used],
-        "position_min": lo.tolist(), "position_step": step.tolist(), "weight_scale": WEIGHT_SCALE,
+        "position_min": lo.tolist(),
+        "position_step": step.tolist(),
+        "weight_scale": WEIGHT_SCALE,
         "arrays": specs,
-    }  # fmt: skip
+    }
     return header, b"".join(parts)
 
 
@@ -144,25 +153,36 @@ def _initial_camera(rig, mats: np.ndarray, fps: float) -> dict:
         if centre is None:
             centre = 0.5 * (lo + hi)
     root = int(np.argmax(rig.parents < 0))
-    pelvis = mats[:, root, :3, :3].astype(np.float64) @ rig.bind_transforms[root, :3, 3] + mats[:, root, :3, 3]  # [T, 3]
+    pelvis = (
+        mats[:, root, :3, :3].astype(np.float64) @ rig.bind_transforms[root, :3, 3] + mats[:, root, :3, 3]
+    )  # [T, 3]
     path = smooth_path(pelvis, fps, FOLLOW_SECONDS)
     follow = path - path[0]
     follow[:, 2] = 0.0
     return {
-        "target": centre.tolist(), "distance": float(framing_distance(extent, CAMERA_FOV, margin=1.3)),
-        "azimuth": CAMERA_AZIMUTH, "elevation": CAMERA_ELEVATION, "fov": CAMERA_FOV,
+        "target": centre.tolist(),
+        "distance": float(framing_distance(extent, CAMERA_FOV, margin=1.3)),
+        "azimuth": CAMERA_AZIMUTH,
+        "elevation": CAMERA_ELEVATION,
+        "fov": CAMERA_FOV,
         "follow": np.round(follow, 5).tolist(),
-    }  # fmt: skip
+    }
 
 
-def page_html(header: dict, payload: bytes, title: str, fps: float, camera: dict,
-              background=BACKGROUND) -> str:  # fmt: skip
+def page_html(header: dict, payload: bytes, title: str, fps: float, camera: dict, background=BACKGROUND) -> str:
     """The whole page: the template with the header, the gzip+base64 payload and the script."""
     assets = resources.files("dlacli") / "assets" / "viewer"
     template = (assets / "viewer.html").read_text(encoding="utf-8")
     script = (assets / "viewer.js").read_text(encoding="utf-8")
-    meta = {**header, "title": title, "fps": float(fps), "camera": camera, "background": list(map(float, background)),
-            "autoplay": header["frames"] > 1, "compression": "gzip"}  # fmt: skip
+    meta = {
+        **header,
+        "title": title,
+        "fps": float(fps),
+        "camera": camera,
+        "background": list(map(float, background)),
+        "autoplay": header["frames"] > 1,
+        "compression": "gzip",
+    }
     meta_text = json.dumps(meta, separators=(",", ":")).replace("<", "\\u003c")  # never "</script>" inside
     blob = base64.b64encode(gzip.compress(payload, compresslevel=9, mtime=0)).decode("ascii")
     safe_title = title.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
@@ -171,14 +191,23 @@ def page_html(header: dict, payload: bytes, title: str, fps: float, camera: dict
     return out.replace("@@DATA@@", blob)  # last: base64 holds no placeholder
 
 
-def view_page(avatar: Avatar, motion: Motion | None, n_gaussians: int | None = None, seed: int | None = None,
-              where: str = "avatar", checkpoint: str | None = None, title: str = "avatar") -> str:  # fmt: skip
+def view_page(
+    avatar: Avatar,
+    motion: Motion | None,
+    n_gaussians: int | None = None,
+    seed: int | None = None,
+    where: str = "avatar",
+    checkpoint: str | None = None,
+    title: str = "avatar",
+) -> str:
     """The page for an avatar and a motion (None: its own pose, one frame)."""
     from dlacli.stages.rig import build_rig, skinning_matrices
 
     mot = motion if motion is not None else pose_motion(avatar)
     if mot.num_frames > MAX_FRAMES:
-        raise DlaInputError("motion", f"{mot.num_frames} frames is more than a page holds ({MAX_FRAMES}): lower --fps or cut the motion")
+        raise DlaInputError(
+            "motion", f"{mot.num_frames} frames is more than a page holds ({MAX_FRAMES}): lower --fps or cut the motion"
+        )
     rig = build_rig(avatar, n_gaussians, seed, where=where, checkpoint=checkpoint)
     mats = skinning_matrices(avatar, mot, where="motion")
     header, payload = pack_rig(rig, mats)

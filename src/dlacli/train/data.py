@@ -81,8 +81,10 @@ def _discover(root: Path) -> list[tuple[int | None, str, Path]]:
 
         seed = load_json(root / "transforms.json").get("dla", {}).get("synth", {}).get("seed")
         return [(seed if isinstance(seed, int) else None, root.name, root)]
-    raise DlaInputError(root / MANIFEST, "missing: the root is neither a dataset folder (manifest.json) "
-                                         "nor a subject folder (transforms.json)")  # fmt: skip
+    raise DlaInputError(
+        root / MANIFEST,
+        "missing: the root is neither a dataset folder (manifest.json) nor a subject folder (transforms.json)",
+    )
 
 
 def split_subjects(root: str | Path, validation: int) -> tuple[list[str], list[str]]:
@@ -90,8 +92,9 @@ def split_subjects(root: str | Path, validation: int) -> tuple[list[str], list[s
     stays when a dataset grows by higher seeds), the rest train; both in seed order."""
     found = _discover(Path(root))
     if not isinstance(validation, int) or validation < 0 or validation >= len(found):
-        raise DlaInputError("validation", f"must be an integer in [0, {len(found) - 1}] for {len(found)} subjects, "
-                                          f"got {validation!r}")  # fmt: skip
+        raise DlaInputError(
+            "validation", f"must be an integer in [0, {len(found) - 1}] for {len(found)} subjects, got {validation!r}"
+        )
     ordered = [name for _, name, _ in sorted(found, key=lambda s: (s[0] is None, s[0] or 0, s[1]))]
     return ordered[validation:], ordered[:validation]
 
@@ -125,9 +128,17 @@ def _tensors(u8: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
 class TrainingData:
     """The subjects of a dataset folder (manifest.json) or one subject folder, as `Item`s."""
 
-    def __init__(self, root: str | Path, input_size: int, target_size: int, targets: int,
-                 subjects: list[str] | None = None, include_inputs: bool = True, cache: bool = True,
-                 max_cached: int | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        root: str | Path,
+        input_size: int,
+        target_size: int,
+        targets: int,
+        subjects: list[str] | None = None,
+        include_inputs: bool = True,
+        cache: bool = True,
+        max_cached: int | None = None,
+    ) -> None:
         for name, value in (("input_size", input_size), ("target_size", target_size), ("targets", targets)):
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise DlaInputError(name, f"must be an integer >= 1, got {value!r}")
@@ -176,8 +187,10 @@ class TrainingData:
             motion = read_motion(folder / "novel_poses" / "motion.npz")
             times = np.asarray([-1 if t is None else t for t in npv.times])
             if times.min() < 0 or times.max() >= motion.num_frames:
-                raise DlaInputError(folder / "novel_poses" / "transforms.json",
-                                    f"frame times must index the {motion.num_frames} poses of motion.npz")  # fmt: skip
+                raise DlaInputError(
+                    folder / "novel_poses" / "transforms.json",
+                    f"frame times must index the {motion.num_frames} poses of motion.npz",
+                )
             verts.extend(model.forward_motion(main.body.phenotype, motion).vertices)
             images.append(_to_size(npv.images, npv.masks, h, folder / "novel_poses"))
             cams.append(npv.cameras.resized(h, h))
@@ -192,8 +205,16 @@ class TrainingData:
         if not images:
             raise DlaInputError(folder, "has no target views (no novel_views/, no novel_poses/, inputs excluded)")
         rest = torch.from_numpy(np.asarray(model.rest_vertices(main.body.phenotype), np.float32))
-        return _Subject(inputs, main.cameras.resized(s, s), np.concatenate(images), _cat_cameras(cams, h),
-                        np.asarray(pose, np.int64), kind, torch.stack(verts).float().contiguous(), rest)  # fmt: skip
+        return _Subject(
+            inputs,
+            main.cameras.resized(s, s),
+            np.concatenate(images),
+            _cat_cameras(cams, h),
+            np.asarray(pose, np.int64),
+            kind,
+            torch.stack(verts).float().contiguous(),
+            rest,
+        )
 
     def _subject(self, index: int) -> _Subject:
         if not 0 <= index < len(self):

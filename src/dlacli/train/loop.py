@@ -154,14 +154,16 @@ class GeneratorLoss(nn.Module):
         cams = [it.input_cameras.to(device) for it in items]
         depth = torch.stack([subject_depth(c, it.input_vertices) for c, it in zip(cams, items)]).to(device)
         g, feats = net.reconstruct(rgb, cams, depth)
-        mean, logvar = net.encode(g, feats, net.uv_positions(torch.stack([it.input_vertices for it in items]).to(device)))
+        mean, logvar = net.encode(
+            g, feats, net.uv_positions(torch.stack([it.input_vertices for it in items]).to(device))
+        )
         parts = {k: [] for k in ("l1", "mask", "ug", "perceptual", "gan", "kl", "delta")}
         fakes, reals = [], []
         for b, it in enumerate(items):
             gen = torch.Generator(device=device).manual_seed(int(noise_seeds[b]))
             eps = torch.randn(mean[b].shape, generator=gen, device=device, dtype=mean.dtype)
             z = mean[b] + torch.exp(0.5 * logvar[b]) * eps
-            parts["kl"].append(kl_divergence(mean[b:b + 1], logvar[b:b + 1]))
+            parts["kl"].append(kl_divergence(mean[b : b + 1], logvar[b : b + 1]))
             # L_UG: the U-Net's own Gaussians at the input views and the same-pose targets
             from dlacli.types import Gaussians
 
@@ -178,7 +180,11 @@ class GeneratorLoss(nn.Module):
             if same:
                 sel = torch.tensor(same)
                 ug2 = render_gaussians(pg, t_cams.select(sel))
-                ug_l = ug_l + (ug2.rgb - t_rgb[sel].permute(0, 2, 3, 1)).abs().mean() + (ug2.alpha - t_mask[sel, 0]).abs().mean()
+                ug_l = (
+                    ug_l
+                    + (ug2.rgb - t_rgb[sel].permute(0, 2, 3, 1)).abs().mean()
+                    + (ug2.alpha - t_mask[sel, 0]).abs().mean()
+                )
             parts["ug"].append(ug_l)
             # the decoder's render of every target: F_c once, F_delta per target body and camera
             eyes = camera_centers(t_cams.viewmats.float())[:, None]  # [T, 1, 3]: one camera per target body
@@ -254,15 +260,22 @@ def _global_batch(cfg: TrainConfig, step: int, n_train: int, world: World) -> tu
     return [int(picks[j]) for j in mine], mine
 
 
-def train(data: str | os.PathLike, out: str | os.PathLike, cfg: TrainConfig, *, resume: bool = False,
-          until: int | None = None, log=None) -> dict:  # fmt: skip
+def train(
+    data: str | os.PathLike,
+    out: str | os.PathLike,
+    cfg: TrainConfig,
+    *,
+    resume: bool = False,
+    until: int | None = None,
+    log=None,
+) -> dict:
     """Train (or resume) a run; returns train.json's content. `until`: stop (with a checkpoint)
     after that many steps in all, to be resumed later."""
     from dlacli.avatar.checkpoint import load_checkpoint, save_checkpoint
     from dlacli.nn.discriminator import PatchDiscriminator
     from dlacli.nn.discriminator import preset as disc_preset
-    from dlacli.nn.losses import load_alexnet
     from dlacli.nn.learned import LearnedAvatarNet, learned_config
+    from dlacli.nn.losses import load_alexnet
     from dlacli.train.data import TrainingData, split_subjects
 
     world = init_world()
@@ -283,17 +296,31 @@ def train(data: str | os.PathLike, out: str | os.PathLike, cfg: TrainConfig, *, 
     opt_g = torch.optim.Adam(net.parameters(), lr=cfg.lr_g, betas=tuple(cfg.betas))
     opt_d = torch.optim.Adam(disc.parameters(), lr=cfg.lr_d, betas=tuple(cfg.betas))
     settings = _settings(cfg, str(data))
-    record = {"format": FORMAT, "settings": settings, "step": 0, "history": [], "validation": [],
-              "checkpoint": None, "seconds": 0.0, "world_size": world.size,
-              "train_subjects": train_ids, "validation_subjects": val_ids}  # fmt: skip
+    record = {
+        "format": FORMAT,
+        "settings": settings,
+        "step": 0,
+        "history": [],
+        "validation": [],
+        "checkpoint": None,
+        "seconds": 0.0,
+        "world_size": world.size,
+        "train_subjects": train_ids,
+        "validation_subjects": val_ids,
+    }
     if resume:
         record = _read_record(record_path)
         if record["settings"] != settings:
             diff = sorted(k for k in settings if record["settings"].get(k) != settings[k])
-            raise DlaInputError(record_path, f"was trained with other settings ({', '.join(diff)}); resume with the same ones")
+            raise DlaInputError(
+                record_path, f"was trained with other settings ({', '.join(diff)}); resume with the same ones"
+            )
         if record["checkpoint"]:
             ck = out / record["checkpoint"]
-            lg, ld = load_checkpoint(ck / "generator", map_location=world.device), load_checkpoint(ck / "discriminator", map_location=world.device)
+            lg, ld = (
+                load_checkpoint(ck / "generator", map_location=world.device),
+                load_checkpoint(ck / "discriminator", map_location=world.device),
+            )
             net.load_state_dict(lg.module.state_dict())
             disc.load_state_dict(ld.module.state_dict())
             opt_g.load_state_dict(lg.optimizer_state)
@@ -308,10 +335,14 @@ def train(data: str | os.PathLike, out: str | os.PathLike, cfg: TrainConfig, *, 
         g_run, d_run = DDP(g_loss, find_unused_parameters=True), DDP(d_loss, find_unused_parameters=True)
     else:
         g_run, d_run = g_loss, d_loss
-    full = TrainingData(data, lcfg.unet.image_size, cfg.full_size, cfg.targets, subjects=train_ids,
-                        include_inputs=cfg.include_inputs)  # fmt: skip
-    val = TrainingData(data, lcfg.unet.image_size, cfg.full_size, cfg.targets, subjects=val_ids,
-                       include_inputs=False) if val_ids else None  # fmt: skip
+    full = TrainingData(
+        data, lcfg.unet.image_size, cfg.full_size, cfg.targets, subjects=train_ids, include_inputs=cfg.include_inputs
+    )
+    val = (
+        TrainingData(data, lcfg.unet.image_size, cfg.full_size, cfg.targets, subjects=val_ids, include_inputs=False)
+        if val_ids
+        else None
+    )
     full.item(0, np.random.default_rng(0))  # bad data fails here, before anything is written
     if val is not None:
         val.item(0, np.random.default_rng(0))
@@ -348,16 +379,20 @@ def train(data: str | os.PathLike, out: str | os.PathLike, cfg: TrainConfig, *, 
         record["step"] = step + 1
         record["seconds"] = time.perf_counter() - t_start
         if world.main and ((step + 1) % 10 == 0 or step + 1 == cfg.total_steps or step == start):
-            say(f"step {step + 1}/{cfg.total_steps} [{stage}] loss {parts['total']:.4f} (l1 {parts['l1']:.4f}, "
-                f"ug {parts['ug']:.4f}) {record['seconds']:.0f} s")  # fmt: skip
+            say(
+                f"step {step + 1}/{cfg.total_steps} [{stage}] loss {parts['total']:.4f} (l1 {parts['l1']:.4f}, "
+                f"ug {parts['ug']:.4f}) {record['seconds']:.0f} s"
+            )
         last = step + 1 == cfg.total_steps
         if val is not None and ((step + 1) % cfg.eval_every == 0 or last):
             scores, picture = validate(net, val, size=cfg.full_size, seed=cfg.seed)
             if world.main:
                 record["validation"].append({"step": step + 1, **scores})
                 _save_png(out / "val" / f"step_{step + 1:06d}.png", picture)
-                say(f"validation at step {step + 1}: masked PSNR {scores['psnr_masked']:.2f} dB, "
-                    f"whole {scores['psnr']:.2f} dB, IoU {scores['iou']:.3f}")  # fmt: skip
+                say(
+                    f"validation at step {step + 1}: masked PSNR {scores['psnr_masked']:.2f} dB, "
+                    f"whole {scores['psnr']:.2f} dB, IoU {scores['iou']:.3f}"
+                )
             net.train()
         if world.main and ((step + 1) % cfg.checkpoint_every == 0 or last or step + 1 == stop):
             name = f"ckpt-{step + 1:06d}"
@@ -401,8 +436,8 @@ def validate(net, data, size: int, seed: int = 0, subjects: int = 2):
         t_cams = it.target_cameras.resized(size, size)
         for t in range(len(it.target_kind)):
             pred, alpha = render_targets(net, mean[0], it.target_vertices[t], it.rest_vertices, t_cams.select(t))
-            gt = _resize(it.target_rgb[t:t + 1], size)[0].permute(1, 2, 0)
-            m = _resize(it.target_mask[t:t + 1], size)[0, 0]
+            gt = _resize(it.target_rgb[t : t + 1], size)[0].permute(1, 2, 0)
+            m = _resize(it.target_mask[t : t + 1], size)[0, 0]
             psnr.append(_psnr(pred[0], gt, None))
             psnr_m.append(_psnr(pred[0], gt, m))
             inter = torch.minimum(alpha[0], m).sum()
