@@ -36,67 +36,12 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
-from dlacli.limits import DEFAULT_GAUSSIANS
-
-SUITES = ("startup", "splat", "body", "lift", "animate", "usd", "render")
-_N = DEFAULT_GAUSSIANS
-SPLAT_CASES = ((2_048, 128), (20_000, 256), (20_000, 512), (65_536, 256), (65_536, 512), (_N, 256), (_N, 512))
-DENSE_MAX_PAIRS = 2_048 * 128 * 128  # Gaussians x pixels up to which the dense path runs
-USD_LIMBS = 16
-
-
-@dataclass
-class SpeedConfig:
-    splat_cases: tuple[tuple[int, int], ...] = SPLAT_CASES
-    splat_paths: tuple[str, ...] = ("numba", "torch", "dense")  # gsplat joins on CUDA
-    repeats: int = 5
-    torch_budget_s: float = 150.0  # a torch / dense case whose runs would take longer is skipped
-    sh_degree: int = 0
-    baseline: str | None = None  # another src folder holding a dlacli package, for splat ratios
-    cold: bool = False  # splat: also time one first call with an empty numba cache (the JIT compile)
-    rounds: int = 1
-    gaussians: int = DEFAULT_GAUSSIANS  # body, animate, render
-    frames: int = 30  # animate, render, usd
-    res: int = 512  # lift subject, render size
-    lift_steps: tuple[int, ...] = (0, 50)
-    seed: int = 1001  # the lift subject (a seed no test uses)
-    startup_runs: int = 10
-    usd_gaussians: int = DEFAULT_GAUSSIANS
-    usd_schemas: tuple[str, ...] = ("points", "instancer")
-    usd_tolerances_mm: tuple[float, ...] = (0.0, 1.0)
-    _cache: dict = field(default_factory=dict, repr=False)
-
-
-def quick_config() -> SpeedConfig:
-    """A smoke-test size of every suite (seconds on two cores)."""
-    return SpeedConfig(
-        splat_cases=((2_048, 64), (8_192, 128)),
-        repeats=2,
-        gaussians=8_192,
-        frames=4,
-        res=96,
-        lift_steps=(0, 2),
-        startup_runs=2,
-        usd_gaussians=4_096,
-        usd_tolerances_mm=(0.0,),
-    )
-
-
-def _median_min(fn: Callable[[], object], repeats: int, sync: Callable[[], None] = lambda: None) -> tuple[float, float]:
-    """(median, min) seconds of `repeats` calls after one warm-up call."""
-    fn()
-    sync()
-    times = []
-    for _ in range(max(1, repeats)):
-        t0 = time.perf_counter()
-        fn()
-        sync()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), min(times)
-
+from dlacli.bench.speed_config import DENSE_MAX_PAIRS, SUITES, SpeedConfig, median_min
+from dlacli.bench.speed_config import quick_config as quick_config  # re-exported: cli/bench.py reads it here
+from dlacli.bench.speed_stages import animate_suite, lift_suite, render_suite, usd_suite
 
 # ------------------------------------------------------------------------------------ startup
 
@@ -151,7 +96,7 @@ def _startup(cfg: SpeedConfig, row) -> list[dict]:
 
 
 # ------------------------------------------------------------------------------------ splat
-# _median_min, _splat_scene and _splat_case run in a fresh interpreter (their source is sent with `python -c`),
+# median_min, _splat_scene and _splat_case run in a fresh interpreter (their source is sent with `python -c`),
 # so that a baseline copy of the package can be measured the same way: they import only
 # dlacli.types and dlacli.render, whose APIs the baseline shares.
 
@@ -227,8 +172,8 @@ def _splat_case(path: str, n: int, res: int, repeats: int, sh_degree: int, budge
             f"first forward took {rec['first_seconds']:.1f} s; its runs would pass the {budget_s:.0f} s budget"
         )
         return rec
-    rec["fwd"] = _median_min(fwd, repeats, sync)  # (one more warm-up call, then the timed ones)
-    rec["fwd_bwd"] = _median_min(fwd_bwd, repeats, sync)
+    rec["fwd"] = median_min(fwd, repeats, sync)  # (one more warm-up call, then the timed ones)
+    rec["fwd_bwd"] = median_min(fwd_bwd, repeats, sync)
     if cuda:
         torch.cuda.reset_peak_memory_stats()
         base = torch.cuda.memory_allocated()
@@ -262,7 +207,7 @@ def _run_splat_case(
     path: str, n: int, res: int, cfg: SpeedConfig, pythonpath: str | None = None, numba_cache: str | None = None
 ) -> dict:
     src = "from __future__ import annotations\nimport statistics\nimport time\n\n" + "\n\n".join(
-        inspect.getsource(f) for f in (_median_min, _splat_scene, _splat_case)
+        inspect.getsource(f) for f in (median_min, _splat_scene, _splat_case)
     )
     src += "\n\nimport json, sys\nprint(json.dumps(_splat_case(*json.loads(sys.argv[1]))))\n"
     env = dict(
@@ -394,7 +339,7 @@ def _body(cfg: SpeedConfig, row, log) -> list[dict]:
     with torch.no_grad():
         for t in (1, 30):
             p = pose(t)
-            med, lo = _median_min(lambda p=p: body.forward({}, *p), cfg.repeats)
+            med, lo = median_min(lambda p=p: body.forward({}, *p), cfg.repeats)
             out.append(row("body", "forward", "cpu", {"frames": t}, med, cfg.repeats, min_seconds=lo, items=t))
         p1 = pose(1)
         verts = body.forward({}, *p1).vertices
@@ -409,180 +354,10 @@ def _body(cfg: SpeedConfig, row, log) -> list[dict]:
             ),
         }
         for case, fn in cases.items():
-            med, lo = _median_min(fn, cfg.repeats)
+            med, lo = median_min(fn, cfg.repeats)
             out.append(row("body", case, "cpu", {"gaussians": n}, med, cfg.repeats, min_seconds=lo, items=1))
             log(f"body {case} ({n} Gaussians): {med * 1e3:.1f} ms per frame")
     return out
-
-
-# ------------------------------------------------------------------------------------ stages
-
-
-def _subject_and_avatar(cfg: SpeedConfig, log):
-    """(view folder, its ViewSet, an unprojected avatar at cfg.gaussians), made once per run."""
-    if "avatar" not in cfg._cache:
-        from dlacli.data.synth import synth
-        from dlacli.io.views import read_views
-        from dlacli.stages.methods import make_spec
-
-        tmp = tempfile.mkdtemp(prefix="dla-speed-")
-        cfg._cache["tmp"] = tmp
-        t0 = time.perf_counter()
-        folder = synth(cfg.seed, Path(tmp) / "subject", res=cfg.res, novel_views=0, novel_poses=0)
-        cfg._cache["synth_s"] = time.perf_counter() - t0
-        views = read_views(folder)
-        cfg._cache["views"] = views
-        cfg._cache["avatar"] = make_spec("unproject", steps=0, gaussians=cfg.gaussians).lift(views).avatar
-    return cfg._cache["views"], cfg._cache["avatar"]
-
-
-def _walk(frames: int):
-    import numpy as np
-
-    from dlacli.body.builtin_motions import builtin_motion
-    from dlacli.types import Motion
-
-    walk = builtin_motion("walk")
-    idx = np.arange(frames) % walk.num_frames
-    return Motion(walk.bone_labels, walk.rotations[idx], walk.root_rotation[idx], walk.root_translation[idx], walk.fps)
-
-
-def _lift(cfg: SpeedConfig, row, log) -> list[dict]:
-    from dlacli.stages.methods import make_spec
-
-    views, _ = _subject_and_avatar(cfg, log)
-    out = [row("lift", "synth", "cpu", {"res": cfg.res, "seed": cfg.seed}, cfg._cache["synth_s"], 1)]
-    for steps in cfg.lift_steps:
-        t0 = time.perf_counter()
-        make_spec("unproject", steps=steps, gaussians=cfg.gaussians).lift(views)
-        sec = time.perf_counter() - t0
-        out.append(row("lift", "lift", "cpu", {"res": cfg.res, "steps": steps, "gaussians": cfg.gaussians}, sec, 1))
-        log(f"lift {steps} steps at {cfg.res} px: {sec:.1f} s")
-    return out
-
-
-def _animate(cfg: SpeedConfig, row, log) -> list[dict]:
-    from dlacli.stages.animate import pose_avatar, write_animation
-
-    _, avatar = _subject_and_avatar(cfg, log)
-    clip = _walk(cfg.frames)
-    c = {"gaussians": cfg.gaussians, "frames": cfg.frames}
-    t0 = time.perf_counter()
-    anim = pose_avatar(avatar, clip, cfg.gaussians)
-    pose_s = time.perf_counter() - t0
-    path = Path(cfg._cache["tmp"]) / "anim.usdc"
-    t0 = time.perf_counter()
-    write_animation(anim, path, "points", 0.001)
-    usd_s = time.perf_counter() - t0
-    cfg._cache["anim"] = anim
-    log(
-        f"animate {cfg.frames} frames x {cfg.gaussians} Gaussians: pose {pose_s / cfg.frames * 1e3:.1f} ms/frame, "
-        f"USD {usd_s:.2f} s"
-    )
-    return [
-        row("animate", "pose", "cpu", c, pose_s / cfg.frames, 1, items=cfg.frames),
-        row(
-            "animate",
-            "usd_write",
-            "cpu",
-            {**c, "schema": "points", "tolerance_mm": 1.0},
-            usd_s,
-            1,
-            size_mib=path.stat().st_size / 2**20,
-            items=cfg.frames,
-        ),
-    ]
-
-
-def walk_like(t: int, n: int, fps: float = 30.0, seed: int = 0):
-    """A synthetic walk-like motion of n Gaussians over t frames: 16 "limbs" swing +-30 degrees at
-    1 Hz about their own pivots while the body moves forward at 1.3 m/s and bobs 2 cm at 2 Hz (random
-    per-frame positions would be a worst case no compaction helps) -> positions [T, N, 3], quats
-    [T, N, 4] (w, x, y, z), scales [N, 3], rgb [N, 3], opacities [N], float32."""
-    import numpy as np
-
-    rng = np.random.default_rng(seed)
-    limb = rng.integers(0, USD_LIMBS, n)
-    pivot = rng.uniform([-0.3, -0.1, -0.9], [0.3, 0.1, 0.6], (USD_LIMBS, 3))
-    base = pivot[limb] + rng.normal(0, 0.08, (n, 3))
-    phase = rng.uniform(0, 2 * np.pi, USD_LIMBS)
-    secs = np.arange(t) / fps
-    angle = np.radians(30) * np.sin(2 * np.pi * secs[:, None] + phase)  # [T, LIMBS] about +X
-    c, s = np.cos(angle)[:, limb], np.sin(angle)[:, limb]
-    rel = base - pivot[limb]
-    positions = np.stack(
-        [np.broadcast_to(rel[:, 0], c.shape), c * rel[:, 1] - s * rel[:, 2], s * rel[:, 1] + c * rel[:, 2]], -1
-    )
-    positions += pivot[limb]
-    positions[..., 1] -= 1.3 * secs[:, None]
-    positions[..., 2] += 0.02 * np.sin(4 * np.pi * secs)[:, None]
-    quats = np.stack([np.cos(angle / 2)[:, limb], np.sin(angle / 2)[:, limb], np.zeros_like(c), np.zeros_like(c)], -1)
-    scales = rng.uniform(0.001, 0.005, size=(n, 3))
-    rgb, opacities = rng.uniform(size=(n, 3)), rng.uniform(0.5, 1, size=n)
-    return [a.astype(np.float32) for a in (positions, quats, scales, rgb, opacities)]
-
-
-def _usd(cfg: SpeedConfig, row, log) -> list[dict]:
-    from dlacli.io.usd import write_usd
-
-    n, t = cfg.usd_gaussians, cfg.frames
-    positions, quats, scales, rgb, opacities = walk_like(t, n)
-    out = []
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "anim.usdc"
-        write_usd(path, positions[:1, :8], quats[:1, :8], scales[:8], rgb[:8], opacities[:8], 30.0)  # import pxr first
-        for schema in cfg.usd_schemas:
-            for tol in cfg.usd_tolerances_mm:
-
-                def write(schema=schema, tol=tol):
-                    write_usd(path, positions, quats, scales, rgb, opacities, 30.0, schema=schema, tolerance=tol / 1000)
-
-                repeats = max(1, min(cfg.repeats, 3))
-                med, lo = _median_min(write, repeats)
-                size = path.stat().st_size / 2**20
-                out.append(
-                    row(
-                        "usd",
-                        "write",
-                        "cpu",
-                        {"gaussians": n, "frames": t, "schema": schema, "tolerance_mm": tol},
-                        med,
-                        repeats,
-                        min_seconds=lo,
-                        size_mib=size,
-                        items=n * t,
-                    )
-                )
-                log(
-                    f"usd {schema} tolerance {tol} mm: {med:.2f} s, {size:.1f} MiB ({n * t / med / 1e6:.1f} M "
-                    "Gaussian-frames/s)"
-                )
-    return out
-
-
-def _render(cfg: SpeedConfig, row, log) -> list[dict]:
-    from dlacli.stages.animate import animation_preview_frames, pose_avatar
-    from dlacli.stages.render import render_avatar, turntable_cameras
-
-    _, avatar = _subject_and_avatar(cfg, log)
-    anim = cfg._cache.get("anim") or pose_avatar(avatar, _walk(cfg.frames), cfg.gaussians)
-    c = {"gaussians": cfg.gaussians, "size": cfg.res}
-    next(iter(animation_preview_frames(anim, cfg.res)))  # warm-up
-    t0 = time.perf_counter()
-    k = sum(1 for _ in animation_preview_frames(anim, cfg.res))
-    per_frame = (time.perf_counter() - t0) / k
-    cams = turntable_cameras(avatar, 8, cfg.res)
-    t0 = time.perf_counter()
-    list(render_avatar(avatar, cams, [None] * 8, n_gaussians=cfg.gaussians))
-    per_image = (time.perf_counter() - t0) / 8
-    log(
-        f"render {cfg.gaussians} Gaussians at {cfg.res} px: animation {1 / per_frame:.1f} fps, turntable "
-        f"{per_image * 1e3:.0f} ms/image"
-    )
-    return [
-        row("render", "animation_frame", "cpu", {**c, "frames": k}, per_frame, k, items=1),
-        row("render", "turntable_image", "cpu", {**c, "cameras": 8}, per_image, 8, items=1),
-    ]
 
 
 # ------------------------------------------------------------------------------------ driver
@@ -610,10 +385,10 @@ def run(
         "startup": lambda: _startup(cfg, row),
         "splat": lambda: _splat(cfg, row, log),
         "body": lambda: _body(cfg, row, log),
-        "lift": lambda: _lift(cfg, row, log),
-        "animate": lambda: _animate(cfg, row, log),
-        "usd": lambda: _usd(cfg, row, log),
-        "render": lambda: _render(cfg, row, log),
+        "lift": lambda: lift_suite(cfg, row, log),
+        "animate": lambda: animate_suite(cfg, row, log),
+        "usd": lambda: usd_suite(cfg, row, log),
+        "render": lambda: render_suite(cfg, row, log),
     }
     rows: list[dict] = []
     try:

@@ -1,0 +1,68 @@
+"""The speed suites' settings and timer (`dla bench speed`, bench/speed.py): one SpeedConfig per
+run, its smoke-test size, and the one median-of-repeats timer every suite uses (also sent, as
+source, to the fresh interpreter of each splat case)."""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from dlacli.limits import DEFAULT_GAUSSIANS
+
+SUITES = ("startup", "splat", "body", "lift", "animate", "usd", "render")
+_N = DEFAULT_GAUSSIANS
+SPLAT_CASES = ((2_048, 128), (20_000, 256), (20_000, 512), (65_536, 256), (65_536, 512), (_N, 256), (_N, 512))
+DENSE_MAX_PAIRS = 2_048 * 128 * 128  # Gaussians x pixels up to which the dense path runs
+USD_LIMBS = 16
+
+
+@dataclass
+class SpeedConfig:
+    splat_cases: tuple[tuple[int, int], ...] = SPLAT_CASES
+    splat_paths: tuple[str, ...] = ("numba", "torch", "dense")  # gsplat joins on CUDA
+    repeats: int = 5
+    torch_budget_s: float = 150.0  # a torch / dense case whose runs would take longer is skipped
+    sh_degree: int = 0
+    baseline: str | None = None  # another src folder holding a dlacli package, for splat ratios
+    cold: bool = False  # splat: also time one first call with an empty numba cache (the JIT compile)
+    rounds: int = 1
+    gaussians: int = DEFAULT_GAUSSIANS  # body, animate, render
+    frames: int = 30  # animate, render, usd
+    res: int = 512  # lift subject, render size
+    lift_steps: tuple[int, ...] = (0, 50)
+    seed: int = 1001  # the lift subject (a seed no test uses)
+    startup_runs: int = 10
+    usd_gaussians: int = DEFAULT_GAUSSIANS
+    usd_schemas: tuple[str, ...] = ("points", "instancer")
+    usd_tolerances_mm: tuple[float, ...] = (0.0, 1.0)
+    _cache: dict = field(default_factory=dict, repr=False)
+
+
+def quick_config() -> SpeedConfig:
+    """A smoke-test size of every suite (seconds on two cores)."""
+    return SpeedConfig(
+        splat_cases=((2_048, 64), (8_192, 128)),
+        repeats=2,
+        gaussians=8_192,
+        frames=4,
+        res=96,
+        lift_steps=(0, 2),
+        startup_runs=2,
+        usd_gaussians=4_096,
+        usd_tolerances_mm=(0.0,),
+    )
+
+
+def median_min(fn: Callable[[], object], repeats: int, sync: Callable[[], None] = lambda: None) -> tuple[float, float]:
+    """(median, min) seconds of `repeats` calls after one warm-up call."""
+    fn()
+    sync()
+    times = []
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        fn()
+        sync()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), min(times)

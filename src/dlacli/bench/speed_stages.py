@@ -1,0 +1,177 @@
+"""Speed suites of whole stages (`dla bench speed`, bench/speed.py): lift, animate, the USD
+writer and the animation renderer, on one synthetic subject made once per run."""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+from dlacli.bench.speed_config import USD_LIMBS, SpeedConfig, median_min
+
+
+def _subject_and_avatar(cfg: SpeedConfig, log):
+    """(view folder, its ViewSet, an unprojected avatar at cfg.gaussians), made once per run."""
+    if "avatar" not in cfg._cache:
+        from dlacli.data.synth import synth
+        from dlacli.io.views import read_views
+        from dlacli.stages.methods import make_spec
+
+        tmp = tempfile.mkdtemp(prefix="dla-speed-")
+        cfg._cache["tmp"] = tmp
+        t0 = time.perf_counter()
+        folder = synth(cfg.seed, Path(tmp) / "subject", res=cfg.res, novel_views=0, novel_poses=0)
+        cfg._cache["synth_s"] = time.perf_counter() - t0
+        views = read_views(folder)
+        cfg._cache["views"] = views
+        cfg._cache["avatar"] = make_spec("unproject", steps=0, gaussians=cfg.gaussians).lift(views).avatar
+    return cfg._cache["views"], cfg._cache["avatar"]
+
+
+def _walk(frames: int):
+    import numpy as np
+
+    from dlacli.body.builtin_motions import builtin_motion
+    from dlacli.types import Motion
+
+    walk = builtin_motion("walk")
+    idx = np.arange(frames) % walk.num_frames
+    return Motion(walk.bone_labels, walk.rotations[idx], walk.root_rotation[idx], walk.root_translation[idx], walk.fps)
+
+
+def lift_suite(cfg: SpeedConfig, row, log) -> list[dict]:
+    from dlacli.stages.methods import make_spec
+
+    views, _ = _subject_and_avatar(cfg, log)
+    out = [row("lift", "synth", "cpu", {"res": cfg.res, "seed": cfg.seed}, cfg._cache["synth_s"], 1)]
+    for steps in cfg.lift_steps:
+        t0 = time.perf_counter()
+        make_spec("unproject", steps=steps, gaussians=cfg.gaussians).lift(views)
+        sec = time.perf_counter() - t0
+        out.append(row("lift", "lift", "cpu", {"res": cfg.res, "steps": steps, "gaussians": cfg.gaussians}, sec, 1))
+        log(f"lift {steps} steps at {cfg.res} px: {sec:.1f} s")
+    return out
+
+
+def animate_suite(cfg: SpeedConfig, row, log) -> list[dict]:
+    from dlacli.stages.animate import pose_avatar, write_animation
+
+    _, avatar = _subject_and_avatar(cfg, log)
+    clip = _walk(cfg.frames)
+    c = {"gaussians": cfg.gaussians, "frames": cfg.frames}
+    t0 = time.perf_counter()
+    anim = pose_avatar(avatar, clip, cfg.gaussians)
+    pose_s = time.perf_counter() - t0
+    path = Path(cfg._cache["tmp"]) / "anim.usdc"
+    t0 = time.perf_counter()
+    write_animation(anim, path, "points", 0.001)
+    usd_s = time.perf_counter() - t0
+    cfg._cache["anim"] = anim
+    log(
+        f"animate {cfg.frames} frames x {cfg.gaussians} Gaussians: pose {pose_s / cfg.frames * 1e3:.1f} ms/frame, "
+        f"USD {usd_s:.2f} s"
+    )
+    return [
+        row("animate", "pose", "cpu", c, pose_s / cfg.frames, 1, items=cfg.frames),
+        row(
+            "animate",
+            "usd_write",
+            "cpu",
+            {**c, "schema": "points", "tolerance_mm": 1.0},
+            usd_s,
+            1,
+            size_mib=path.stat().st_size / 2**20,
+            items=cfg.frames,
+        ),
+    ]
+
+
+def walk_like(t: int, n: int, fps: float = 30.0, seed: int = 0):
+    """A synthetic walk-like motion of n Gaussians over t frames: 16 "limbs" swing +-30 degrees at
+    1 Hz about their own pivots while the body moves forward at 1.3 m/s and bobs 2 cm at 2 Hz (random
+    per-frame positions would be a worst case no compaction helps) -> positions [T, N, 3], quats
+    [T, N, 4] (w, x, y, z), scales [N, 3], rgb [N, 3], opacities [N], float32."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    limb = rng.integers(0, USD_LIMBS, n)
+    pivot = rng.uniform([-0.3, -0.1, -0.9], [0.3, 0.1, 0.6], (USD_LIMBS, 3))
+    base = pivot[limb] + rng.normal(0, 0.08, (n, 3))
+    phase = rng.uniform(0, 2 * np.pi, USD_LIMBS)
+    secs = np.arange(t) / fps
+    angle = np.radians(30) * np.sin(2 * np.pi * secs[:, None] + phase)  # [T, LIMBS] about +X
+    c, s = np.cos(angle)[:, limb], np.sin(angle)[:, limb]
+    rel = base - pivot[limb]
+    positions = np.stack(
+        [np.broadcast_to(rel[:, 0], c.shape), c * rel[:, 1] - s * rel[:, 2], s * rel[:, 1] + c * rel[:, 2]], -1
+    )
+    positions += pivot[limb]
+    positions[..., 1] -= 1.3 * secs[:, None]
+    positions[..., 2] += 0.02 * np.sin(4 * np.pi * secs)[:, None]
+    quats = np.stack([np.cos(angle / 2)[:, limb], np.sin(angle / 2)[:, limb], np.zeros_like(c), np.zeros_like(c)], -1)
+    scales = rng.uniform(0.001, 0.005, size=(n, 3))
+    rgb, opacities = rng.uniform(size=(n, 3)), rng.uniform(0.5, 1, size=n)
+    return [a.astype(np.float32) for a in (positions, quats, scales, rgb, opacities)]
+
+
+def usd_suite(cfg: SpeedConfig, row, log) -> list[dict]:
+    from dlacli.io.usd import write_usd
+
+    n, t = cfg.usd_gaussians, cfg.frames
+    positions, quats, scales, rgb, opacities = walk_like(t, n)
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "anim.usdc"
+        write_usd(path, positions[:1, :8], quats[:1, :8], scales[:8], rgb[:8], opacities[:8], 30.0)  # import pxr first
+        for schema in cfg.usd_schemas:
+            for tol in cfg.usd_tolerances_mm:
+
+                def write(schema=schema, tol=tol):
+                    write_usd(path, positions, quats, scales, rgb, opacities, 30.0, schema=schema, tolerance=tol / 1000)
+
+                repeats = max(1, min(cfg.repeats, 3))
+                med, lo = median_min(write, repeats)
+                size = path.stat().st_size / 2**20
+                out.append(
+                    row(
+                        "usd",
+                        "write",
+                        "cpu",
+                        {"gaussians": n, "frames": t, "schema": schema, "tolerance_mm": tol},
+                        med,
+                        repeats,
+                        min_seconds=lo,
+                        size_mib=size,
+                        items=n * t,
+                    )
+                )
+                log(
+                    f"usd {schema} tolerance {tol} mm: {med:.2f} s, {size:.1f} MiB ({n * t / med / 1e6:.1f} M "
+                    "Gaussian-frames/s)"
+                )
+    return out
+
+
+def render_suite(cfg: SpeedConfig, row, log) -> list[dict]:
+    from dlacli.stages.animate import animation_preview_frames, pose_avatar
+    from dlacli.stages.render import render_avatar, turntable_cameras
+
+    _, avatar = _subject_and_avatar(cfg, log)
+    anim = cfg._cache.get("anim") or pose_avatar(avatar, _walk(cfg.frames), cfg.gaussians)
+    c = {"gaussians": cfg.gaussians, "size": cfg.res}
+    next(iter(animation_preview_frames(anim, cfg.res)))  # warm-up
+    t0 = time.perf_counter()
+    k = sum(1 for _ in animation_preview_frames(anim, cfg.res))
+    per_frame = (time.perf_counter() - t0) / k
+    cams = turntable_cameras(avatar, 8, cfg.res)
+    t0 = time.perf_counter()
+    list(render_avatar(avatar, cams, [None] * 8, n_gaussians=cfg.gaussians))
+    per_image = (time.perf_counter() - t0) / 8
+    log(
+        f"render {cfg.gaussians} Gaussians at {cfg.res} px: animation {1 / per_frame:.1f} fps, turntable "
+        f"{per_image * 1e3:.0f} ms/image"
+    )
+    return [
+        row("render", "animation_frame", "cpu", {**c, "frames": k}, per_frame, k, items=1),
+        row("render", "turntable_image", "cpu", {**c, "cameras": 8}, per_image, 8, items=1),
+    ]
