@@ -66,7 +66,7 @@ class Target:
     mutable: dict[str, str]  # relative path -> "bytes" | "json" | "text" | "npz"
     readers: list[Callable[[Path], object]]
     info: str | None = None  # the path `dla info` takes, for the CLI runs
-    max_message: int | None = MAX_MESSAGE  # None: messages not bounded yet (below)
+    max_message: int = MAX_MESSAGE
     agree: tuple[tuple[int, int], ...] = ((0, -1),)  # readers that must refuse the same files: a
     # command's reader (first) and `dla info`'s (last) share their checks
 
@@ -354,7 +354,7 @@ def targets(tmp: Path) -> list[Target]:
     from dlacli.io.ply import read_ply
     from dlacli.io.splat import read_splat
     from dlacli.io.spz import read_spz
-    from dlacli.io.usd import read_usd
+    from dlacli.io.usd_read import read_usd
     from dlacli.io.validate import load_npz
     from dlacli.io.views import read_views, view_files
     from dlacli.train.loop import _read_record
@@ -416,9 +416,7 @@ def targets(tmp: Path) -> list[Target]:
         ),
         Target("checkpoint_rehashed", w["ck"], {"ck/config.json": "json+hash"}, checkpoint_readers[1:]),
         one("train", "train.json", w["train.json"], "json", _read_record, info=False),
-        # pxr's parse errors quote whole attribute values (~20 KB): cutting them is io/usd.py's part of
-        # issue 20 (another branch); until it lands, only their length goes unchecked here
-        one("usda", "a.usda", ex["animation.usda"], "bytes", read_usd, max_message=None),
+        one("usda", "a.usda", ex["animation.usda"], "bytes", read_usd),
     ]
 
 
@@ -485,7 +483,7 @@ def _run(target: Target, index: int, folder: Path) -> tuple[list[str], int, int]
                 problems.append(f"{where}: a message of several lines: {msg[:300]!r}")
             elif err.where is None or not str(err.where).startswith(str(folder)):
                 problems.append(f"{where}: the message names no file of the run: {msg[:300]!r}")
-            elif target.max_message is not None and len(msg) - len(str(err.where)) > target.max_message:
+            elif len(msg) - len(str(err.where)) > target.max_message:
                 problems.append(f"{where}: a message of {len(msg)} characters: {msg[:300]!r}")
         except (Exception, Hang) as err:  # noqa: BLE001 - the point of the fuzzer
             frame = traceback.extract_tb(err.__traceback__)[-1]

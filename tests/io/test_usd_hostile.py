@@ -203,6 +203,22 @@ def test_long_prim_names_in_pxr_errors_are_cut(tmp_path):
     assert len(message) < 600 and "N" * 61 not in message and "9" * 61 not in message, message[:1000]
 
 
+def test_pxr_parse_errors_name_the_file_once_without_pxr_internals(tmp_path):
+    """pxr's parse error names the file again (its full path) and its grammar rule (~1 KB of C++
+    templates in pxr's internal namespace): the line keeps the file's name, the place and what
+    was found there, within the bound every reader keeps (tests/io/test_fuzz.py)."""
+    folder = tmp_path / ("d" * 100) / ("e" * 100)
+    folder.mkdir(parents=True)
+    path = _layer(folder, "p.usda", 'def Xform "Avatar"\n{\n    float3[] extent.timeSam\n}\n')
+    with pytest.raises(DlaInputError) as err:
+        read_usd(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}: not a readable USD file (p.usda:10:21: parse error matching "), message
+    assert "at 'timeSam' in </Avatar.extent>" in message, message
+    assert str(path) not in message[len(str(path)) :] and "pxrInternal" not in message, message
+    assert len(message) - len(str(path)) <= 300, message
+
+
 def test_usd_messages_quote_through_the_one_excerpt_helper():
     """io/usd*.py quote through dlacli.errors (no copy of their own): a value from a file as an
     `excerpt`, a prim path as a `one_line`."""

@@ -91,17 +91,23 @@ def _stderr_silenced():
         os.close(saved)
 
 
-def tf_message(err: BaseException) -> str:
+def tf_message(err: BaseException, path: str | os.PathLike | None = None) -> str:
     """The human part of a pxr error ("Error in 'Func' at line N in file F : 'message'") as one
-    line (`one_line`); what it quotes from a file (a 20 KB literal, a long prim name) cut to
-    `excerpt`s."""
+    line (`one_line`) of at most 4 * EXCERPT_CHARS characters: `path` (the file the error line names
+    already) by its name, pxr's internal namespace left out, and what the message quotes from a file
+    (a 20 KB literal, a long prim name, the parser's grammar rule) cut to excerpts."""
     text = " ".join(str(err).split())
     found = [m.strip() for m in re.findall(r" : '(.*?)'(?= Error in |$)", text)] or [text]
     found = [m for m in dict.fromkeys(found) if not any(m != other and m in other for other in found)]
     message = "; ".join(found)  # each message once, the longest form (pxr repeats some with a line number)
-    message = re.sub(rf"'([^']{{{EXCERPT_CHARS + 1},}})'", lambda m: excerpt(m.group(1)), message)
-    message = re.sub(rf"[^\s']{{{2 * EXCERPT_CHARS + 1},}}", lambda m: one_line(m.group(0), EXCERPT_CHARS), message)
-    return one_line(message, 5 * EXCERPT_CHARS)
+    if path is not None:
+        message = message.replace(str(path), Path(path).name)
+    message = re.sub(r"pxrInternal_v[0-9_]+?__pxrReserved__(?:::)?", "", message)
+    rule = rf"(parse error matching )(.{{{EXCERPT_CHARS + 1},}}?)( at ')"  # a PEGTL grammar rule, often ~1 KB
+    message = re.sub(rule, lambda m: m[1] + one_line(m[2], EXCERPT_CHARS) + m[3], message)
+    message = re.sub(rf"(?<= at )'([^']{{{EXCERPT_CHARS + 1},}})'", lambda m: excerpt(m[1]), message)  # a value
+    message = re.sub(rf"[^\s']{{{2 * EXCERPT_CHARS + 1},}}", lambda m: one_line(m[0], EXCERPT_CHARS), message)
+    return one_line(message, 4 * EXCERPT_CHARS)
 
 
 def export_layer(layer, tmp: Path, path: Path, fmt: str) -> None:
@@ -112,7 +118,7 @@ def export_layer(layer, tmp: Path, path: Path, fmt: str) -> None:
             written = layer.Export(str(tmp), "", {"format": fmt})
     except Exception as err:  # pxr.Tf.ErrorException
         reason = re.search(r"writing file: (.*?)'", str(err))  # pxr quotes the OS error
-        problem = one_line(reason.group(1), EXCERPT_CHARS) if reason else tf_message(err)
+        problem = one_line(reason.group(1), EXCERPT_CHARS) if reason else tf_message(err, tmp)
         raise DlaInputError(path, f"cannot write ({problem})") from None
     if not written:
         raise DlaInputError(path, "cannot write (pxr's export failed)")

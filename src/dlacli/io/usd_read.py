@@ -65,7 +65,7 @@ def _open_stage(path: Path):
     try:
         stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Exception as err:  # pxr.Tf.ErrorException and friends
-        raise DlaInputError(path, f"not a readable USD file ({tf_message(err)})") from None
+        raise DlaInputError(path, f"not a readable USD file ({tf_message(err, path)})") from None
     if stage is None:
         raise DlaInputError(path, "not a readable USD file")
     return stage
