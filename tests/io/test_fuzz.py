@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "formats" / "examples"
 DATA = ROOT / "tests" / "data"
 SEED = 20
-RUNS = 300  # mutations per target (20 targets, 2-4 readers each: ~12,000 reader calls)
+RUNS = 300  # mutations per target (21 targets, 2-4 readers each: ~12,000 reader calls)
 SECONDS_PER_RUN = 20.0  # a reader still busy after this is a hang
 MAX_MESSAGE = 300  # characters of a message beyond the file name it starts with
 
