@@ -288,6 +288,17 @@ class ViewSet:
         return self.images.shape[0]
 
 
+# The channels of F, the [14, R, R] UV Gaussian map an avatar decodes to (formats/avatar.md, "The
+# Gaussian map F"), written once: dlacli.avatar.gaussian_map samples and places F with them, and
+# dlacli.io.avatar checks an avatar file's z and canonical maps with them.
+F_CHANNELS = 14
+F_OPACITY = slice(0, 1)  # opacity, as a logit
+F_RGB = slice(1, 4)  # colour, rgb
+F_OFFSET = slice(4, 7)  # position offset dxyz in the texel's tangent frame, metres
+F_ROTATION = slice(7, 11)  # rotation dR in the tangent frame, quaternion (w, x, y, z)
+F_LOG_SCALE = slice(11, 14)  # log of the scale multiplier ds
+
+
 @dataclass
 class Avatar:
     """An avatar code Z aligned with the body's UV space (formats/avatar.md)."""

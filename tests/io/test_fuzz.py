@@ -2,10 +2,11 @@
 
 Seeds are the golden files of formats/examples and the third-party files of tests/data (cut short
 where they are long), plus files the writers make here (.spz, .splat, AMASS, a checkpoint, a
-train.json). Each run copies one seed target into a fresh folder, mutates one of its files (bit
-flips, cut, inserted or repeated bytes; in JSON, a value swapped for a huge number, deep nesting,
-NaN, a long string or a wrong type; in .npz, an array swapped for another dtype, shape or extreme
-values; in text, numbers swapped for extreme ones and lines dropped or repeated) and calls every
+train.json) and a hand-written dataset folder (formats/dataset.md: a manifest and one subject).
+Each run copies one seed target into a fresh folder, mutates one of its files (bit flips, cut,
+inserted or repeated bytes; in JSON, a value swapped for a huge number, deep nesting, NaN, a long
+string or a wrong type; in .npz, an array swapped for another dtype, shape or extreme values; in
+text, numbers swapped for extreme ones and lines dropped or repeated) and calls every
 reader of that format in-process. Each reader must return or raise DlaInputError with one short
 line that names a file of the run, within a few seconds, leaving the files as they were and adding
 none. A handful of mutated files also go through `dla info` to check exit code 2 and one stderr
@@ -36,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "formats" / "examples"
 DATA = ROOT / "tests" / "data"
 SEED = 20
-RUNS = 300  # mutations per target (19 targets, 2-4 readers each: ~12,000 reader calls)
+RUNS = 300  # mutations per target (21 targets, 2-4 readers each: ~12,000 reader calls)
 SECONDS_PER_RUN = 20.0  # a reader still busy after this is a hang
 MAX_MESSAGE = 300  # characters of a message beyond the file name it starts with
 
@@ -66,7 +67,7 @@ class Target:
     mutable: dict[str, str]  # relative path -> "bytes" | "json" | "text" | "npz"
     readers: list[Callable[[Path], object]]
     info: str | None = None  # the path `dla info` takes, for the CLI runs
-    max_message: int | None = MAX_MESSAGE  # None: messages not bounded yet (below)
+    max_message: int = MAX_MESSAGE
     agree: tuple[tuple[int, int], ...] = ((0, -1),)  # readers that must refuse the same files: a
     # command's reader (first) and `dla info`'s (last) share their checks
 
@@ -341,8 +342,22 @@ def _writer_seeds(tmp: Path) -> dict:
     }
 
 
+def _dataset_seed(views: dict[str, bytes]) -> dict[str, bytes]:
+    """A dataset folder (formats/dataset.md) by hand: a manifest listing one subject, the example
+    view folder with a `"dla": {"synth": ...}` record (no `dla synth` run)."""
+    files = {f"subject_7/{rel}": data for rel, data in views.items()}
+    doc = json.loads(views["transforms.json"])
+    doc["dla"]["synth"] = {"seed": 7, "outfit": "suit", "appearance": "lit", "start_yaw": 12.5}
+    files["subject_7/transforms.json"] = json.dumps(doc).encode()
+    entry = {"seed": 7, "path": "subject_7", "outfit": "suit", "seconds": 1.5, "bytes": 1000}
+    manifest = {"format": "dla.dataset/1", "settings": {"res": 8, "motion_files": []}, "subjects": [entry]}
+    files["manifest.json"] = json.dumps(manifest).encode()
+    return files
+
+
 def targets(tmp: Path) -> list[Target]:
     from dlacli.avatar.checkpoint import checkpoint_info, load_checkpoint
+    from dlacli.data.dataset import read_manifest
     from dlacli.io.amass import read_amass
     from dlacli.io.asf_amc import read_amc, read_asf, summarize_amc
     from dlacli.io.avatar import read_avatar
@@ -354,9 +369,10 @@ def targets(tmp: Path) -> list[Target]:
     from dlacli.io.ply import read_ply
     from dlacli.io.splat import read_splat
     from dlacli.io.spz import read_spz
-    from dlacli.io.usd import read_usd
+    from dlacli.io.usd_read import read_usd
     from dlacli.io.validate import load_npz
     from dlacli.io.views import read_views, view_files
+    from dlacli.train.data import TrainingData
     from dlacli.train.loop import _read_record
 
     ex = {p.name: p.read_bytes() for p in EXAMPLES.iterdir() if p.is_file()}
@@ -376,6 +392,8 @@ def targets(tmp: Path) -> list[Target]:
     photo_readers += [lambda d: read_photo(d / "photo.png", d / "mask.png", d / "keypoints.json", [])]
     checkpoint_readers = [lambda d: checkpoint_info(d / "ck"), lambda d: load_checkpoint(d / "ck")]
     keypoints = (DATA / "keypoints" / "pexels-marta-wave-6437749.json").read_bytes()
+    dataset_readers = [lambda d: read_manifest(d / "manifest.json"), lambda d: TrainingData(d, 4, 4, 1)]
+    dataset_readers += [lambda d: TrainingData(d / "subject_7", 4, 4, 1)]
     return [
         one("ply_sh0", "g.ply", ex["gaussians_sh0.ply"], "bytes", read_ply),
         one("ply_sh3", "g.ply", ex["gaussians_sh3.ply"], "ply", read_ply),
@@ -416,9 +434,14 @@ def targets(tmp: Path) -> list[Target]:
         ),
         Target("checkpoint_rehashed", w["ck"], {"ck/config.json": "json+hash"}, checkpoint_readers[1:]),
         one("train", "train.json", w["train.json"], "json", _read_record, info=False),
-        # pxr's parse errors quote whole attribute values (~20 KB): cutting them is io/usd.py's part of
-        # issue 20 (another branch); until it lands, only their length goes unchecked here
-        one("usda", "a.usda", ex["animation.usda"], "bytes", read_usd, max_message=None),
+        Target(
+            "dataset",
+            _dataset_seed(views),
+            {"manifest.json": "json", "subject_7/transforms.json": "json"},
+            dataset_readers,
+            agree=(),  # a training root also needs its subjects' folders, and a subject folder no manifest
+        ),
+        one("usda", "a.usda", ex["animation.usda"], "bytes", read_usd),
     ]
 
 
@@ -485,7 +508,7 @@ def _run(target: Target, index: int, folder: Path) -> tuple[list[str], int, int]
                 problems.append(f"{where}: a message of several lines: {msg[:300]!r}")
             elif err.where is None or not str(err.where).startswith(str(folder)):
                 problems.append(f"{where}: the message names no file of the run: {msg[:300]!r}")
-            elif target.max_message is not None and len(msg) - len(str(err.where)) > target.max_message:
+            elif len(msg) - len(str(err.where)) > target.max_message:
                 problems.append(f"{where}: a message of {len(msg)} characters: {msg[:300]!r}")
         except (Exception, Hang) as err:  # noqa: BLE001 - the point of the fuzzer
             frame = traceback.extract_tb(err.__traceback__)[-1]

@@ -167,11 +167,30 @@ def _avatar(tmp_path, decoder="identity", z=None, canonical=None, name="a.npz") 
     return path
 
 
-def test_the_reader_checks_the_channels_the_renderer_exponentiates():
-    from dlacli.avatar import gaussian_map as gm
-    from dlacli.io.avatar import CANONICAL_CHANNELS, LOG_SCALE_CHANNELS
+def test_the_reader_checks_the_channels_the_renderer_exponentiates(tmp_path):
+    """Channel by channel, by behaviour: 100 in a channel of F overflows the Gaussians' scales
+    (gaussian_map.skinned_params, what every render, animate and export goes through) exactly
+    where the avatar reader refuses it, for z and for the canonical map."""
+    import torch
 
-    assert (LOG_SCALE_CHANNELS, CANONICAL_CHANNELS) == (gm.LOG_SCALE, gm.CHANNELS)
+    from dlacli.avatar import gaussian_map as gm
+    from dlacli.io.avatar import read_avatar
+
+    samples = gm.Samples(np.zeros(1, np.int64), np.full((1, 3), 1 / 3, np.float32), np.full((1, 2), 0.5, np.float32))
+    frames = (torch.zeros(1, 1, 3), torch.eye(3)[None, None], torch.ones(1, 1), torch.tensor([[[1.0, 0, 0, 0]]]))
+    overflowing, refused = [], {"z": [], "canonical": []}
+    for c in range(gm.CHANNELS):
+        fmap = np.zeros((gm.CHANNELS, 4, 4), np.float32)
+        fmap[c] = 100.0
+        params = gm.skinned_params(torch.from_numpy(fmap), samples, frames)
+        if not all(torch.isfinite(p).all() for p in params):
+            overflowing.append(c)
+        for name, kw in (("z", {"z": fmap}), ("canonical", {"canonical": fmap})):
+            try:
+                read_avatar(_avatar(tmp_path, **kw, name=f"{name}{c}.npz"))
+            except DlaInputError:
+                refused[name].append(c)
+    assert overflowing and refused == {"z": overflowing, "canonical": overflowing}
 
 
 def test_avatar_log_scales_beyond_the_range_are_refused(tmp_path):

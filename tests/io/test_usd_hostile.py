@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from dlacli.cli.app import main
-from dlacli.errors import DlaInputError
-from dlacli.io.usd import clipped, excerpt, tf_message
+from dlacli.errors import DlaInputError, excerpt, one_line
+from dlacli.io.usd import tf_message
 from dlacli.io.usd_read import read_usd, summarize_usd
 
 BIG = "9" * 20_000  # an integer literal far out of range, 20 KB long
@@ -183,7 +183,7 @@ def test_without_a_diagnostic_trap_the_warnings_are_silenced_too(tmp_path, capfd
 
 def test_a_long_or_hostile_format_value_is_quoted_as_an_excerpt(tmp_path):
     for value, shown in (
-        ("x" * 20_000, "'" + "x" * 60 + "...' (20,000 characters)"),
+        ("x" * 20_000, "'" + "x" * 55 + "... (20,000 characters)"),
         ("\x1b[31mRED", "'\\x1b[31mRED'"),
     ):
         path = _layer(tmp_path, "f.usda", 'def Xform "Avatar"\n{\n}\n', fmt=value)
@@ -203,13 +203,37 @@ def test_long_prim_names_in_pxr_errors_are_cut(tmp_path):
     assert len(message) < 600 and "N" * 61 not in message and "9" * 61 not in message, message[:1000]
 
 
-def test_excerpt_and_clipped():
-    assert excerpt("dla.usd/9") == "'dla.usd/9'"  # short values as before (repr-like)
+def test_pxr_parse_errors_name_the_file_once_without_pxr_internals(tmp_path):
+    """pxr's parse error names the file again (its full path) and its grammar rule (~1 KB of C++
+    templates in pxr's internal namespace): the line keeps the file's name, the place and what
+    was found there, within the bound every reader keeps (tests/io/test_fuzz.py)."""
+    folder = tmp_path / ("d" * 100) / ("e" * 100)
+    folder.mkdir(parents=True)
+    path = _layer(folder, "p.usda", 'def Xform "Avatar"\n{\n    float3[] extent.timeSam\n}\n')
+    with pytest.raises(DlaInputError) as err:
+        read_usd(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}: not a readable USD file (p.usda:10:21: parse error matching "), message
+    assert "at 'timeSam' in </Avatar.extent>" in message, message
+    assert str(path) not in message[len(str(path)) :] and "pxrInternal" not in message, message
+    assert len(message) - len(str(path)) <= 300, message
+
+
+def test_usd_messages_quote_through_the_one_excerpt_helper():
+    """io/usd*.py quote through dlacli.errors (no copy of their own): a value from a file as an
+    `excerpt`, a prim path as a `one_line`."""
+    import dlacli.io.usd as usd
+    import dlacli.io.usd_read as usd_read
+
+    for module in (usd, usd_read):
+        assert not hasattr(module, "clipped") and not hasattr(module, "MAX_QUOTE")
+        assert getattr(module, "excerpt", excerpt) is excerpt
+    assert excerpt("dla.usd/9") == "'dla.usd/9'"  # short values as before (repr)
     assert excerpt(None) == "None" and excerpt(3) == "3"
-    assert excerpt("it's\n") == "'it\\'s\\n'"
-    assert excerpt("\x1b" * 100) == "'" + "\\x1b" * 15 + "...' (100 characters)"
-    assert clipped("/Avatar/Points/Part000") == "/Avatar/Points/Part000"
-    assert clipped("a" * 200, 10) == "aaaaaaaaaa... (200 characters)"
+    assert excerpt("it's\n") == '"it\'s\\n"'
+    assert excerpt("\x1b" * 100) == "'" + "\\x1b" * 13 + "... (100 characters)"
+    assert one_line("/Avatar/Points/Part000") == "/Avatar/Points/Part000"
+    assert one_line("a" * 200, 10) == "aaaaaaa..."
 
 
 def test_tf_message_keeps_the_message_and_cuts_the_values():
@@ -224,7 +248,7 @@ def test_tf_message_keeps_the_message_and_cuts_the_values():
         Error in 'Open' at line 1 in file stage.cpp : 'Failed to open layer @f.usda@'""")
     )
     assert tf_message(err) == (
-        f"f.usda:3:4: Failed to parse value at '{'9' * 60}...' (20,000 characters) in "
+        f"f.usda:3:4: Failed to parse value at '{'9' * 55}... (20,000 characters) in "
         "</Avatar.x>; Failed to open layer @f.usda@"
     )
     noise = tf_message(Fake("\x00" * 10_000))

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -184,3 +185,144 @@ def test_bad_datasets_name_the_file(dataset, tmp_path):
     assert str(lost) in str(err.value)
     with pytest.raises(DlaInputError, match="smaller than the requested 96 px"):
         TrainingData(dataset, 96, 24, 1).item(0, np.random.default_rng(0))
+
+
+# --- hand-made manifests and subject files (no synthetic dataset needed) ----------------------------
+
+EXAMPLE_VIEWS = Path(__file__).resolve().parents[2] / "formats" / "examples" / "views"
+GOOD = {"seed": 7, "path": "subject_7", "seconds": 1.5, "bytes": 100}
+
+
+def _subject(folder: Path, change=None) -> Path:
+    """A subject folder: the example view folder, its transforms.json changed by `change(doc)`."""
+    shutil.copytree(EXAMPLE_VIEWS, folder)
+    if change is not None:
+        doc = json.loads((folder / "transforms.json").read_text())
+        doc = change(doc) or doc
+        (folder / "transforms.json").write_text(json.dumps(doc))
+    return folder
+
+
+def _dataset(root: Path, manifest) -> Path:
+    root.mkdir(parents=True)
+    _subject(root / "subject_7")
+    text = manifest if isinstance(manifest, str) else json.dumps(manifest)
+    (root / "manifest.json").write_text(text)
+    return root
+
+
+def _doc(subjects, **top) -> dict:
+    return {"format": "dla.dataset/1", "settings": {}, "subjects": subjects, **top}
+
+
+BAD_MANIFESTS = [
+    ("[1, 2]", "is not a JSON object"),
+    ('"dla.dataset/1"', "is not a JSON object"),
+    (_doc([], settings=[]), "missing the 'settings' object"),
+    (_doc({"subject_7": GOOD}), "'subjects' must be a list of objects"),
+    (_doc([GOOD, 7]), "subjects[1] must be an object with an integer 'seed' and a 'path', found int"),
+    (_doc([{**GOOD, "seed": "7"}]), "subjects[0].seed must be an integer >= 0, found '7'"),
+    (_doc([{**GOOD, "seed": True}]), "subjects[0].seed must be an integer >= 0, found True"),
+    (_doc([{**GOOD, "seed": -1}]), "subjects[0].seed must be an integer >= 0, found -1"),
+    (_doc([{"seed": 7}]), "subjects[0].path must be a folder name, found None"),
+    (_doc([{**GOOD, "path": ["subject_7"]}]), "subjects[0].path must be a folder name, found ['subject_7']"),
+    (_doc([{**GOOD, "path": "a\x00b"}]), "subjects[0].path must be a folder name, found 'a\\x00b'"),
+    (_doc([{**GOOD, "path": ".."}]), "subjects[0].path must be a folder name, found '..'"),
+    (_doc([{**GOOD, "path": "../subject_7"}]), "'../subject_7' is not one folder name inside the dataset"),
+    (_doc([{**GOOD, "path": "/etc"}]), "'/etc' is not one folder name inside the dataset"),
+    (_doc([{**GOOD, "path": "x" * 100_000}]), "(100,000 characters)"),
+    (_doc([{**GOOD, "path": "é" * 128}]), "subjects[0].path must be a folder name, found 'ééé"),  # 256 bytes
+    (_doc([{**GOOD, "path": "\ud800"}]), "subjects[0].path must be a folder name, found '\\ud800'"),
+    (_doc([{**GOOD, "seconds": "slow"}]), "subjects[0].seconds must be null or a number >= 0, found 'slow'"),
+    (_doc([{**GOOD, "bytes": 1.5}]), "subjects[0].bytes must be an integer >= 0, found 1.5"),
+    (_doc([GOOD, {**GOOD, "path": "subject_8"}]), "subjects[1] repeats the seed 7"),
+    (_doc([GOOD, {**GOOD, "seed": 8}]), "subjects[1] repeats the path 'subject_7'"),
+]
+
+
+@pytest.mark.parametrize("manifest, needle", BAD_MANIFESTS)
+def test_bad_manifests_are_one_line_errors(tmp_path, manifest, needle):
+    """A manifest of the wrong shape or types: one short line naming manifest.json, never an
+    AttributeError, KeyError or TypeError, nor a path outside the dataset."""
+    from dlacli.data.dataset import read_manifest
+
+    root = _dataset(tmp_path / "data", manifest)
+    for read in (lambda: read_manifest(root / "manifest.json"), lambda: TrainingData(root, 24, 24, 1)):
+        with pytest.raises(DlaInputError) as err:
+            read()
+        assert err.value.where == str(root / "manifest.json") and needle in err.value.problem, err.value.problem[:300]
+        assert "\n" not in str(err.value) and len(err.value.problem) < 200, err.value.problem[:300]
+
+
+def test_a_hand_made_manifest_and_subject_folder_are_read(tmp_path):
+    root = _dataset(tmp_path / "data", _doc([{"seed": 7, "path": "subject_7"}]))  # seconds and bytes optional
+    assert TrainingData(root, 24, 24, 1).subjects == ["subject_7"]
+    assert split_subjects(root, 0) == (["subject_7"], [])
+    seeded = _subject(tmp_path / "one", lambda doc: doc["dla"].update(synth={"seed": 3}))
+    assert TrainingData(seeded, 24, 24, 1).subjects == ["one"]
+    odd = _subject(tmp_path / "odd", lambda doc: doc["dla"].update(synth={"seed": True}))  # not a seed: unseeded
+    assert split_subjects(odd, 0) == (["odd"], [])
+
+
+@pytest.mark.parametrize(
+    "change, needle",
+    [
+        (lambda doc: [doc], "expected a JSON object, found list"),
+        (lambda doc: doc.update(dla=["synth"]), "'dla' must be an object"),
+        (lambda doc: doc["dla"].update(synth=[{"seed": 3}]), "'dla.synth' must be an object, found list"),
+        (lambda doc: doc["dla"].update(synth="x" * 100_000), "'dla.synth' must be an object, found str"),
+    ],
+)
+def test_bad_subject_transforms_are_one_line_errors(tmp_path, change, needle):
+    """A subject folder (the training root, or a subject a resumed `dla synth` finds) whose
+    transforms.json is not an object, or whose "dla" or "dla.synth" is not one."""
+    from dlacli.data.dataset import synth_record
+
+    folder = _subject(tmp_path / "subject_7", change)
+    for read in (lambda: TrainingData(folder, 24, 24, 1), lambda: synth_record(folder)):
+        with pytest.raises(DlaInputError) as err:
+            read()
+        assert err.value.where == str(folder / "transforms.json") and needle in err.value.problem
+        assert len(err.value.problem) < 200
+
+
+def test_dla_train_refuses_a_bad_manifest_in_one_line(tmp_path, capsys):
+    from dlacli.cli.app import main
+
+    root = _dataset(tmp_path / "data", _doc([{**GOOD, "path": "../../etc"}]))
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--data", str(root), "-o", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and err.count("\n") == 1, err
+    assert err.startswith(f"error: {root / 'manifest.json'}: subjects[0].path '../../etc' is not one folder name")
+    assert not (tmp_path / "run").exists()
+
+
+def test_other_settings_are_named_in_short_excerpts(tmp_path):
+    """`dla synth --seeds` into a dataset whose manifest holds other (here hostile) settings: the
+    first differences are named, each value quoted as a short excerpt."""
+    from dlacli.data.dataset import DatasetSettings, synth_dataset
+
+    settings = {"a" * 10_000: 1, "appearance": "9" * 100_000, "builtin_motions": ["\x1b[31m"] * 50_000}
+    root = _dataset(tmp_path / "data", _doc([GOOD], settings=settings))
+    with pytest.raises(DlaInputError) as err:
+        synth_dataset([7], root, DatasetSettings(res=48))
+    problem = err.value.problem
+    assert err.value.where == str(root / "manifest.json") and problem.startswith("was written with other settings")
+    assert "(100,000 characters) there, 'lit' now" in problem and "\x1b" not in problem and len(problem) < 400, problem
+
+
+def test_resuming_remakes_entries_without_seconds_and_bytes(tmp_path):
+    """A manifest entry without `seconds` and `bytes` (they are optional to read) is made again from
+    its complete subject folder when `dla synth --seeds` resumes, as for a subject the manifest lacks."""
+    from dlacli.data.dataset import DatasetSettings, read_manifest, synth_dataset
+
+    settings = DatasetSettings(res=16, novel_views=0, novel_poses=0)
+    root = _dataset(tmp_path / "data", _doc([{"seed": 7, "path": "subject_7"}], settings=settings.record()))
+    images = root / "subject_7" / "images"
+    for k in (2, 3):  # an input view folder has 4 views
+        shutil.copy(images / "view_000.png", images / f"view_00{k}.png")
+    manifest = synth_dataset([7], root, settings)
+    assert manifest == read_manifest(root / "manifest.json")
+    (entry,) = manifest["subjects"]
+    assert entry["seed"] == 7 and entry["seconds"] is None and entry["bytes"] > 0

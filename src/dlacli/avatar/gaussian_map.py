@@ -1,6 +1,7 @@
 """The UV Gaussian map F and the Gaussians drawn from it (DESIGN.md §1 "Animate").
 
-F is a [14, R, R] map over the body's UV space (docs/conventions.md "UV space"), channels:
+F is a [14, R, R] map over the body's UV space (docs/conventions.md "UV space"), CHANNELS channels
+(the slices OPACITY, RGB, OFFSET, ROTATION, LOG_SCALE below, defined once in dlacli.types):
 
     0       opacity, as a logit
     1..3    colour, rgb (rendered clamped to [0, 1])
@@ -25,16 +26,10 @@ import torch.nn.functional as nnf
 
 from dlacli.errors import DlaInputError
 from dlacli.limits import DEFAULT_GAUSSIANS
-from dlacli.types import Gaussians
+from dlacli.types import F_CHANNELS, F_LOG_SCALE, F_OFFSET, F_OPACITY, F_RGB, F_ROTATION, Gaussians
 
-CHANNELS = 14
-OPACITY, RGB, OFFSET, ROTATION, LOG_SCALE = (
-    slice(0, 1),
-    slice(1, 4),
-    slice(4, 7),
-    slice(7, 11),
-    slice(11, 14),
-)
+# F's channel layout, defined once in dlacli.types (io/avatar.py checks files with it), by the names used above io/
+CHANNELS, OPACITY, RGB, OFFSET, ROTATION, LOG_SCALE = F_CHANNELS, F_OPACITY, F_RGB, F_OFFSET, F_ROTATION, F_LOG_SCALE
 
 
 @dataclass

@@ -15,7 +15,7 @@ import torch
 
 from dlacli.data.cameras import POSE_AZIMUTHS
 from dlacli.data.synth import SUBJECT_LAYOUT, _check_options, synth
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt, one_line
 
 Progress = Callable[[str], None]
 
@@ -107,13 +107,23 @@ def subject_complete(folder: Path, settings: DatasetSettings) -> bool:
     return not settings.novel_poses or (folder / "novel_poses" / "motion.npz").is_file()
 
 
-def _subject_entry(folder: Path, seconds: float | None) -> dict:
-    from dlacli.io.validate import load_json
+def synth_record(folder: Path) -> dict:
+    """The `"dla": {"synth": {...}}` object of a subject folder's transforms.json (formats/dataset.md;
+    {} when absent), read through the view-folder reader, so a file that is no valid transforms.json
+    is a DlaInputError naming it."""
+    from dlacli.io.views import TRANSFORMS, read_transforms
 
-    info = load_json(folder / "transforms.json").get("dla", {}).get("synth", {})
+    info = read_transforms(folder)["dla"].get("synth", {})
+    if not isinstance(info, dict):
+        raise DlaInputError(folder / TRANSFORMS, f"'dla.synth' must be an object, found {type(info).__name__}")
+    return info
+
+
+def _subject_entry(folder: Path, seed: int, seconds: float | None) -> dict:
+    info = synth_record(folder)
     size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
     return {
-        "seed": int(info.get("seed", -1)),
+        "seed": int(seed),
         "path": folder.name,
         "outfit": info.get("outfit"),
         "suit_pattern": info.get("suit_pattern"),
@@ -144,7 +154,10 @@ def _write_manifest(path: Path, settings: dict, entries: dict[int, dict]) -> dic
 
 
 def read_manifest(path: str | os.PathLike) -> dict:
-    """A dataset's manifest.json, checked: format, settings and a subject list."""
+    """A dataset's manifest.json, checked (formats/dataset.md): format, a settings object and a list
+    of subjects, each an object with a seed (an integer >= 0), a path (one folder name inside the
+    dataset) and, where present, seconds (null or a number >= 0) and bytes (an integer >= 0); no
+    seed or path twice."""
     from dlacli.io.validate import check_format, load_json
 
     path = Path(path)
@@ -155,21 +168,54 @@ def read_manifest(path: str | os.PathLike) -> dict:
     if not isinstance(data.get("settings"), dict):
         raise DlaInputError(path, "missing the 'settings' object")
     subjects = data.get("subjects")
-    if not isinstance(subjects, list) or not all(
-        isinstance(e, dict) and isinstance(e.get("path"), str) and isinstance(e.get("seed"), int) for e in subjects
-    ):
+    if not isinstance(subjects, list):
         raise DlaInputError(path, "'subjects' must be a list of objects with an integer 'seed' and a 'path'")
+    seen: set = set()
+    for i, entry in enumerate(subjects):
+        _check_subject(entry, path, f"subjects[{i}]")
+        for key in ("seed", "path"):
+            if (key, entry[key]) in seen:
+                raise DlaInputError(path, f"subjects[{i}] repeats the {key} {excerpt(entry[key])}")
+            seen.add((key, entry[key]))
     return data
 
 
+def _whole(value, low: int = 0) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= low
+
+
+def _check_subject(entry, path: Path, at: str) -> None:
+    """One `subjects[]` entry of a manifest (read_manifest)."""
+    if not isinstance(entry, dict):
+        raise DlaInputError(
+            path, f"{at} must be an object with an integer 'seed' and a 'path', found {type(entry).__name__}"
+        )
+    seed, name = entry.get("seed"), entry.get("path")
+    if not _whole(seed):
+        raise DlaInputError(path, f"{at}.seed must be an integer >= 0, found {excerpt(seed)}")
+    if not (isinstance(name, str) and name.isprintable() and 0 < len(name.encode()) <= 255 and name not in (".", "..")):
+        raise DlaInputError(path, f"{at}.path must be a folder name, found {excerpt(name)}")
+    if "/" in name or "\\" in name:
+        raise DlaInputError(path, f"{at}.path {excerpt(name)} is not one folder name inside the dataset")
+    seconds = entry.get("seconds")
+    if seconds is not None and not (
+        isinstance(seconds, (int, float)) and not isinstance(seconds, bool) and 0 <= seconds < float("inf")
+    ):
+        raise DlaInputError(path, f"{at}.seconds must be null or a number >= 0, found {excerpt(seconds)}")
+    if "bytes" in entry and not _whole(entry["bytes"]):
+        raise DlaInputError(path, f"{at}.bytes must be an integer >= 0, found {excerpt(entry['bytes'])}")
+
+
 def _differences(old: dict, new: dict) -> str:
+    """The first 3 settings that differ, each quoted as an excerpt (a manifest may hold anything)."""
+
     def show(key: str, value) -> str:
         if key == "motion_files" and isinstance(value, list):
             value = [f"{m.get('name')} ({str(m.get('sha256'))[:8]})" if isinstance(m, dict) else m for m in value]
-        return repr(value)
+        return excerpt(value)
 
     keys = [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
-    return "; ".join(f"{k} {show(k, old.get(k))} there, {show(k, new.get(k))} now" for k in keys[:3])
+    return "; ".join(f"{one_line(k, 40)} {show(k, old.get(k))} there, {show(k, new.get(k))} now" for k in keys[:3])
 
 
 def _single_threaded() -> tuple[int, int]:
@@ -228,7 +274,10 @@ def synth_dataset(
                 f"was written with other settings ({_differences(old['settings'], record)}); "
                 "use the same options or another folder",
             )
-        entries = {e["seed"]: e for e in old["subjects"] if (out / e["path"]).is_dir()}
+        # an entry without its seconds and bytes is made again below, as for a subject the manifest lacks
+        entries = {
+            e["seed"]: e for e in old["subjects"] if (out / e["path"]).is_dir() and {"seconds", "bytes"} <= e.keys()
+        }
     elif out.exists() and any(out.iterdir()):
         raise DlaInputError(out, f"is not empty and holds no {MANIFEST}: not a dla dataset folder")
     out.mkdir(parents=True, exist_ok=True)
@@ -237,7 +286,7 @@ def synth_dataset(
         folder = out / subject_name(seed)
         if subject_complete(folder, settings):
             if seed not in entries:  # made by a run stopped before its manifest update
-                entries[seed] = _subject_entry(folder, None)
+                entries[seed] = _subject_entry(folder, seed, None)
         else:
             entries.pop(seed, None)
             todo.append(seed)
@@ -258,7 +307,7 @@ def synth_dataset(
         nonlocal manifest
         if error is not None:
             raise DlaInputError(*error)
-        entries[seed] = _subject_entry(out / subject_name(seed), seconds)
+        entries[seed] = _subject_entry(out / subject_name(seed), seed, seconds)
         manifest = _write_manifest(path, record, entries)
         say(f"{subject_name(seed)}: {seconds:.1f} s, {entries[seed]['bytes'] / 1e6:.2f} MB ({n}/{len(todo)})")
 

@@ -26,7 +26,7 @@ from dlacli.io.validate import (
     parse_json,
     save_npz,
 )
-from dlacli.types import Avatar
+from dlacli.types import F_CHANNELS, F_LOG_SCALE, Avatar
 
 # z and canonical together: a 14 x 2048^2 float32 map (the largest --resolution) is 235 MB, the
 # paper's Z (256 x 64^2) 4 MB; an avatar.npz unpacking to more is refused unread.
@@ -35,8 +35,7 @@ MAX_UNPACKED = 320 * 2**20
 FORMAT = "dla.avatar/1"
 KEYS = ("format", "z", "encoder", "decoder", "checkpoint", "body", "uv_layout")
 OPTIONAL_KEYS = ("canonical", "extra")
-CANONICAL_CHANNELS = 14
-LOG_SCALE_CHANNELS = slice(11, 14)  # F's log scale multipliers (formats/avatar.md; avatar.gaussian_map.LOG_SCALE)
+LOG_SCALES = f"channels {F_LOG_SCALE.start}-{F_LOG_SCALE.stop - 1}, log scale"  # F's, as messages name them
 MAP_DECODERS = ("identity", "view-cosine")  # decoders whose z holds F's channels 0-13 (formats/avatar.md)
 # float16 storage rule: max |float16(a) - a| <= FLOAT16_RTOL * max |a|, and nothing overflows.
 FLOAT16_RTOL = 1e-3
@@ -84,7 +83,7 @@ def avatar_from_arrays(data: dict[str, Any], where: Any) -> Avatar:
     encoder = as_str(data["encoder"], where, "encoder")
     decoder = as_str(data["decoder"], where, "decoder")
     if decoder in MAP_DECODERS:  # z is the Gaussian map F itself: its log-scales are read as such
-        check_log_scales(z[LOG_SCALE_CHANNELS], where, "z (channels 11-13, log scale)")
+        check_log_scales(z[F_LOG_SCALE], where, f"z ({LOG_SCALES})")
     uv_layout = as_str(data["uv_layout"], where, "uv_layout")
     checkpoint = as_str(data["checkpoint"], where, "checkpoint", allow_empty=True)
     if checkpoint and not _SHA256.fullmatch(checkpoint):
@@ -94,12 +93,14 @@ def avatar_from_arrays(data: dict[str, Any], where: Any) -> Avatar:
     canonical = None
     if "canonical" in data:
         canonical = _float_map(data["canonical"], where, "canonical")
-        check_shape(canonical, (CANONICAL_CHANNELS, None, None), where, "canonical")
+        check_shape(canonical, (F_CHANNELS, None, None), where, "canonical")
         if 0 in canonical.shape:
             raise DlaInputError(where, f"canonical has an empty shape {canonical.shape}")
         if canonical.shape[1] != canonical.shape[2]:
-            raise DlaInputError(where, f"canonical has shape {canonical.shape}; a UV map is square (14, R, R)")
-        check_log_scales(canonical[LOG_SCALE_CHANNELS], where, "canonical (channels 11-13, log scale)")
+            raise DlaInputError(
+                where, f"canonical has shape {canonical.shape}; a UV map is square ({F_CHANNELS}, R, R)"
+            )
+        check_log_scales(canonical[F_LOG_SCALE], where, f"canonical ({LOG_SCALES})")
     extra = _json_object(data["extra"], where, "extra") if "extra" in data else {}
     return Avatar(z, encoder, decoder, body, uv_layout, checkpoint, canonical, extra)
 

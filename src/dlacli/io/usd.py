@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import EXCERPT_CHARS, DlaInputError, excerpt, one_line
 from dlacli.io.atomic import atomic_path
 from dlacli.types import SH_C0
 
@@ -51,7 +51,6 @@ PARTICLE_FIELD_EXTENT_SIGMAS = 3.0  # the splats' extent covers 3 standard devia
 MAX_TOLERANCE = 1.0  # metres; compaction tolerances above this are refused
 PRIM_TYPES = {"instancer": "PointInstancer", "points": "Points", "particlefield": "ParticleField3DGaussianSplat"}
 PATHS = {"instancer": INSTANCER, "points": POINTS, "particlefield": SPLATS}
-MAX_QUOTE = 60  # characters of a file's content an error line quotes (escaped, then cut)
 
 
 # --------------------------------------------------------------------------------------------
@@ -92,41 +91,23 @@ def _stderr_silenced():
         os.close(saved)
 
 
-def excerpt(value, limit: int = MAX_QUOTE) -> str:
-    """`value` as an error line quotes it: a str in quotes, anything else as its repr, characters
-    that are not printable escaped (`\\n`, `\\x1b`), cut after `limit` characters with the full
-    length noted: "'99999...' (20,000 characters)"."""
-    if isinstance(value, str):
-        return clipped(value, limit, quoted=True)
-    return clipped(repr(value), limit)
-
-
-def clipped(text: str, limit: int = 2 * MAX_QUOTE, quoted: bool = False) -> str:
-    """`text` (a name from a file, a library's message) escaped and cut as `excerpt` does, in
-    quotes or not."""
-    shown, size = [], 0
-    for ch in text:
-        esc = ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii")
-        if quoted and ch in "'\\":
-            esc = "\\" + ch
-        if size + len(esc) > limit:
-            cut = "".join(shown) + "..."
-            return (f"'{cut}'" if quoted else cut) + f" ({len(text):,} characters)"
-        shown.append(esc)
-        size += len(esc)
-    return f"'{''.join(shown)}'" if quoted else "".join(shown)
-
-
-def tf_message(err: BaseException) -> str:
-    """The human part of a pxr error ("Error in 'Func' at line N in file F : 'message'"), one line,
-    escaped; what it quotes from a file (a 20 KB literal, a long prim name) cut to excerpts."""
+def tf_message(err: BaseException, path: str | os.PathLike | None = None) -> str:
+    """The human part of a pxr error ("Error in 'Func' at line N in file F : 'message'") as one
+    line (`one_line`) of at most 4 * EXCERPT_CHARS characters: `path` (the file the error line names
+    already) by its name, pxr's internal namespace left out, and what the message quotes from a file
+    (a 20 KB literal, a long prim name, the parser's grammar rule) cut to excerpts."""
     text = " ".join(str(err).split())
     found = [m.strip() for m in re.findall(r" : '(.*?)'(?= Error in |$)", text)] or [text]
     found = [m for m in dict.fromkeys(found) if not any(m != other and m in other for other in found)]
     message = "; ".join(found)  # each message once, the longest form (pxr repeats some with a line number)
-    message = re.sub(rf"'([^']{{{MAX_QUOTE + 1},}})'", lambda m: excerpt(m.group(1)), message)
-    message = re.sub(rf"[^\s']{{{2 * MAX_QUOTE + 1},}}", lambda m: clipped(m.group(0), MAX_QUOTE), message)
-    return clipped(message, 5 * MAX_QUOTE)
+    if path is not None:
+        message = message.replace(str(path), Path(path).name)
+    message = re.sub(r"pxrInternal_v[0-9_]+?__pxrReserved__(?:::)?", "", message)
+    rule = rf"(parse error matching )(.{{{EXCERPT_CHARS + 1},}}?)( at ')"  # a PEGTL grammar rule, often ~1 KB
+    message = re.sub(rule, lambda m: m[1] + one_line(m[2], EXCERPT_CHARS) + m[3], message)
+    message = re.sub(rf"(?<= at )'([^']{{{EXCERPT_CHARS + 1},}})'", lambda m: excerpt(m[1]), message)  # a value
+    message = re.sub(rf"[^\s']{{{2 * EXCERPT_CHARS + 1},}}", lambda m: one_line(m[0], EXCERPT_CHARS), message)
+    return one_line(message, 4 * EXCERPT_CHARS)
 
 
 def export_layer(layer, tmp: Path, path: Path, fmt: str) -> None:
@@ -137,7 +118,7 @@ def export_layer(layer, tmp: Path, path: Path, fmt: str) -> None:
             written = layer.Export(str(tmp), "", {"format": fmt})
     except Exception as err:  # pxr.Tf.ErrorException
         reason = re.search(r"writing file: (.*?)'", str(err))  # pxr quotes the OS error
-        problem = clipped(reason.group(1), MAX_QUOTE) if reason else tf_message(err)
+        problem = one_line(reason.group(1), EXCERPT_CHARS) if reason else tf_message(err, tmp)
         raise DlaInputError(path, f"cannot write ({problem})") from None
     if not written:
         raise DlaInputError(path, "cannot write (pxr's export failed)")

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt, one_line
 from dlacli.io.usd import (
     FORMAT,
     FORMAT_KEY,
@@ -25,8 +25,6 @@ from dlacli.io.usd import (
     PRIM_TYPES,
     SPLATS,
     SUFFIXES,
-    clipped,
-    excerpt,
     pxr_quiet,
     tf_message,
 )
@@ -63,11 +61,11 @@ def _open_stage(path: Path):
     if _encoding(path) == "usda":
         _check_usda_text(path)
     if path.suffix.lower() not in SUFFIXES:
-        raise DlaInputError(path, f"unknown USD suffix {path.suffix!r} (use .usd, .usda or .usdc)")
+        raise DlaInputError(path, f"unknown USD suffix {excerpt(path.suffix)} (use .usd, .usda or .usdc)")
     try:
         stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Exception as err:  # pxr.Tf.ErrorException and friends
-        raise DlaInputError(path, f"not a readable USD file ({tf_message(err)})") from None
+        raise DlaInputError(path, f"not a readable USD file ({tf_message(err, path)})") from None
     if stage is None:
         raise DlaInputError(path, "not a readable USD file")
     return stage
@@ -160,7 +158,7 @@ def _part_indices(path: Path, prims, n_of) -> list[np.ndarray]:
     for prim in prims:
         value = _array(prim.GetAttribute(INDICES), None, np.int64)
         if value is None or value.size != n_of(prim):
-            where = clipped(str(prim.GetPath()))
+            where = one_line(str(prim.GetPath()))
             raise DlaInputError(path, f"{where}.{INDICES} is missing or does not match its points")
         out.append(value)
     allidx = np.concatenate(out)
@@ -200,9 +198,9 @@ def _read_parts(path: Path, prims, times) -> dict[str, np.ndarray]:
             for time in tcs:
                 arr = _array(attr, time)
                 if arr is None:
-                    raise DlaInputError(path, f"{clipped(str(prim.GetPath()))}.{name} has no value")
+                    raise DlaInputError(path, f"{one_line(str(prim.GetPath()))}.{name} has no value")
                 if arr.size != width * len(idx):
-                    where = clipped(str(prim.GetPath()))
+                    where = one_line(str(prim.GetPath()))
                     raise DlaInputError(path, f"{where}.{name} has {arr.size // width} entries for {len(idx)} points")
                 out.append(arr.reshape(-1, width))
             return np.stack(out)
@@ -240,7 +238,7 @@ def _primvar_frames(path: Path, prims, indices, name: str, width: int, times, n:
         for k, time in enumerate(tcs):
             arr = _array(attr, time)
             if arr is None or arr.size != width * len(idx):
-                raise DlaInputError(path, f"{clipped(str(attr.GetPath()))} has missing or uneven values")
+                raise DlaInputError(path, f"{one_line(str(attr.GetPath()))} has missing or uneven values")
             out[k, idx] = arr.reshape(-1, width)
     return out if timed else out[0]
 

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from dlacli.errors import DlaInputError
+from dlacli.errors import DlaInputError, excerpt
 from dlacli.types import Cameras
 
 NUM_INPUTS = 4
@@ -77,10 +77,10 @@ def _discover(root: Path) -> list[tuple[int | None, str, Path]]:
         manifest = read_manifest(root / MANIFEST)
         return [(int(e["seed"]), Path(e["path"]).name, root / e["path"]) for e in manifest["subjects"]]
     if (root / "transforms.json").is_file():
-        from dlacli.io.validate import load_json
+        from dlacli.data.dataset import synth_record
 
-        seed = load_json(root / "transforms.json").get("dla", {}).get("synth", {}).get("seed")
-        return [(seed if isinstance(seed, int) else None, root.name, root)]
+        seed = synth_record(root).get("seed")
+        return [(seed if isinstance(seed, int) and not isinstance(seed, bool) else None, root.name, root)]
     raise DlaInputError(
         root / MANIFEST,
         "missing: the root is neither a dataset folder (manifest.json) nor a subject folder (transforms.json)",
@@ -150,7 +150,7 @@ class TrainingData:
             subjects = list(found)
         unknown = [s for s in subjects if s not in found]
         if unknown:
-            raise DlaInputError(self.root, f"has no subject {unknown[0]!r}")
+            raise DlaInputError(self.root, f"has no subject {excerpt(unknown[0])}")
         if not subjects:
             raise DlaInputError(self.root, "holds no subjects")
         self.subjects = list(subjects)
