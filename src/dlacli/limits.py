@@ -13,11 +13,16 @@ DEFAULT_GAUSSIANS = 131_072  # the paper's count: 65,536 uniform in UV + 65,536 
 MIN_GAUSSIANS = 2  # one UV and one surface sample
 MAX_GAUSSIANS = 32 * DEFAULT_GAUSSIANS  # the most an avatar or an option may ask to be drawn with
 DEFAULT_SAMPLE_SEED = 0  # seed of the surface sample points
+# --gaussians auto (stages/budget.py): the counts it chooses from, and how far below the best score it may stay
+BUDGET_LADDER = tuple(1 << k for k in range(12, 19))  # 4,096 ... 262,144
+BUDGET_TOLERANCE_DB = 0.2
 
 # --- lift
 LIFT_STEPS = 50  # refinement steps of the default lift (0 = mesh unprojection only)
 LIFT_RESOLUTION = 256  # side of the UV Gaussian map Z
 MAX_LIFT_STEPS = 100_000
+MAX_LIFT_RESOLUTION = 2048  # side of the largest Z (io/avatar.py's MAX_UNPACKED fits it); least: MIN_IMAGE_SIZE
+MIN_VIEW_FALLOFF = 0.05  # |k| below this: the avatar keeps the identity decoder (stages/lift.py, `view_falloff`)
 MAX_VIEWS = 64  # every view is rendered at every refinement step: memory and time grow with them
 
 # --- seeds (sample points, synthetic subjects, diffusion noise): integers in [0, MAX_SEED]
@@ -36,3 +41,10 @@ MIN_VIDEO_FPS = 1.0  # the slowest frame rate of a video dla writes
 # --- animate: pose_avatar holds positions, rotations and scales of every frame (40 bytes a
 # Gaussian-frame): 2^27 of them is ~5 GB, e.g. DEFAULT_GAUSSIANS x 1,024 frames
 MAX_GAUSSIAN_FRAMES = 1 << 27
+
+# --- dla bench
+BENCH_SEED = 1001  # the first synthetic subject of a benchmark (a seed no test uses)
+BENCH_IMAGE_SIZE = 512  # the paper's protocol: subjects rendered and scored at 512 x 512, on black
+MIN_BENCH_IMAGE_SIZE = 32
+MAX_LIST_CHARS = 10_000  # the text of a comma-separated option (--methods, --seeds, --counts, ...)
+MAX_LIST_ITEMS = 64  # numbers in one comma-separated option

@@ -70,6 +70,11 @@ WRONG_SUFFIX = [
     (["motion", "convert", "walk", "-o", "{bad}"], ".npz"),
     (["motion", "preview", "walk", "-o", "{bad}"], ".mp4"),
     (["body", "regions", "-o", "{bad}"], ".png"),
+    (["lift", "{w}/views", "-o", "{bad}"], ".npz"),
+    (["lift", "{w}/views", "-o", "{w}/a.npz", "--ply", "{bad}"], ".ply"),
+    (["bench", "regions", "-o", "{bad}"], ".png"),
+    (["bench", "speed", "--jsonl", "{bad}"], ".jsonl"),
+    (["bench", "report", "{w}/r.jsonl", "-o", "{bad}"], ".md"),
 ]
 
 
@@ -119,15 +124,18 @@ GAUSSIAN_COMMANDS = {
     "animate": ["animate", "{av}", "walk", "-o", "{w}/a.usdc"],
     "view": ["view", "{av}", "-o", "{w}/v.html"],
     "export": ["export", "{av}", "-o", "{w}/a.ply"],
+    "lift": ["lift", "{w}/views", "-o", "{w}/a.npz"],
+    "bench speed": ["bench", "speed", "--suite", "startup"],
 }
+NO_AUTO = {"view", "export", "bench speed"}  # no cameras to budget for
 
 
-@pytest.mark.parametrize("command", list(GAUSSIAN_COMMANDS.values()), ids=list(GAUSSIAN_COMMANDS))
-def test_gaussians_option_of_every_command(command, work, capsys):
+@pytest.mark.parametrize("name, command", list(GAUSSIAN_COMMANDS.items()), ids=list(GAUSSIAN_COMMANDS))
+def test_gaussians_option_of_every_command(name, command, work, capsys):
     argv = [a.format(w=work, av=work / "av.npz") for a in command]
     for bad in ("1", str(limits.MAX_GAUSSIANS + 1), "lots"):
         assert refused([*argv, "--gaussians", bad], capsys).startswith("error: --gaussians: ")
-    if command[0] in ("view", "export"):  # no cameras to budget for
+    if name in NO_AUTO:
         assert "expected an integer, got 'auto'" in refused([*argv, "--gaussians", "auto"], capsys)
     assert sorted(p.name for p in work.iterdir()) == ["av.npz"]
 
@@ -145,9 +153,9 @@ def test_animate_frames_times_gaussians_is_bounded(work, capsys):
 
 def test_limits_are_the_ones_the_layers_use():
     from dlacli import types
-    from dlacli.stages import render
+    from dlacli.avatar import posed  # render's, animate's, ... count check (sample_settings)
 
-    assert options.MAX_GAUSSIANS == render.MAX_GAUSSIANS == limits.MAX_GAUSSIANS
+    assert options.MAX_GAUSSIANS == posed.MAX_GAUSSIANS == limits.MAX_GAUSSIANS
     assert types.MAX_FPS == limits.MAX_FPS
 
 
@@ -159,6 +167,29 @@ def test_help_quotes_the_default_count():
     assert f"else {limits.DEFAULT_GAUSSIANS:,})" in gaussians.help
 
 
+def test_lift_and_bench_quote_the_limits():
+    from dlacli.bench.speed import SpeedConfig
+    from dlacli.cli.app import app
+
+    commands = typer.main.get_command(app).commands
+    lift = {p.name: p for p in commands["lift"].params}
+    assert f"{limits.DEFAULT_GAUSSIANS:,}" in lift["gaussians"].help
+    assert f"({limits.BUDGET_LADDER[0]:,} ... {limits.BUDGET_LADDER[-1]:,})" in lift["gaussians"].help
+    assert f"default {limits.LIFT_STEPS}," in lift["steps"].help and lift["steps"].max == limits.MAX_LIFT_STEPS
+    assert (lift["resolution"].min, lift["resolution"].max) == (
+        limits.MIN_IMAGE_SIZE,
+        limits.MAX_LIFT_RESOLUTION,
+    )
+    assert lift["seed"].max == limits.MAX_SEED and lift["seed"].default == limits.DEFAULT_SAMPLE_SEED
+    bench = {name: {p.name: p for p in c.params} for name, c in commands["bench"].commands.items()}
+    assert f"(default {SpeedConfig().gaussians:,})" in bench["speed"]["gaussians"].help
+    assert bench["budget"]["counts"].default == ",".join(map(str, limits.BUDGET_LADDER))
+    assert bench["stability"]["steps"].max == bench["regions"]["steps"].max == limits.MAX_LIFT_STEPS
+    assert bench["regions"]["seed"].max == limits.MAX_SEED
+    for name in ("pipeline", "accuracy", "regions", "stability", "speed"):
+        assert bench[name]["res"].max == limits.MAX_IMAGE_SIZE, name
+
+
 def _suffix_checks(tree: ast.AST) -> int:
     """`if <...>.suffix... <op> ...:` tests in a module: a command checking a suffix itself."""
     return sum(
@@ -168,11 +199,7 @@ def _suffix_checks(tree: ast.AST) -> int:
     )
 
 
-# cli/lift.py and cli/bench.py are rewritten in other branches of issue 20; they join at the merge
-NOT_YET = {"lift.py", "bench.py"}
-
-
-@pytest.mark.parametrize("path", sorted(p for p in CLI.glob("*.py") if p.name not in NOT_YET), ids=lambda p: p.name)
+@pytest.mark.parametrize("path", sorted(CLI.glob("*.py")), ids=lambda p: p.name)
 def test_commands_use_the_shared_checks(path):
     tree = ast.parse(path.read_text(encoding="utf-8"))
     if path.name != "options.py":

@@ -4,11 +4,29 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import typer
 
-from dlacli.limits import DEFAULT_GAUSSIANS, LIFT_STEPS, MAX_GAUSSIANS
+from dlacli.bench.speed import SPLAT_CASES, SUITES, SpeedConfig, quick_config  # torch-free: the help quotes them
+from dlacli.cli import options
+from dlacli.limits import (
+    BENCH_IMAGE_SIZE,
+    BENCH_SEED,
+    BUDGET_LADDER,
+    DEFAULT_GAUSSIANS,
+    LIFT_STEPS,
+    MAX_GAUSSIANS,
+    MAX_IMAGE_SIZE,
+    MAX_LIFT_RESOLUTION,
+    MAX_LIFT_STEPS,
+    MAX_LIST_CHARS,
+    MAX_LIST_ITEMS,
+    MAX_SEED,
+    MIN_BENCH_IMAGE_SIZE,
+    MIN_GAUSSIANS,
+    MIN_IMAGE_SIZE,
+)
 from dlacli.stages.methods import METHODS
 
 bench_app = typer.Typer(
@@ -21,14 +39,30 @@ bench_app = typer.Typer(
 _KNOWN = "; ".join(f"{m.name} ({m.about})" for m in METHODS.values())
 _SPECS = (
     f"NAME[:KEY=VALUE,...] (dlacli.stages.methods): {_KNOWN}; "
-    "e.g. unproject:steps=50,render_size=256 or learned:checkpoint=CKPT,steps=20"
+    f"e.g. unproject:steps={LIFT_STEPS},render_size=256 or learned:checkpoint=CKPT,steps=20"
 )
+_METHODS = f"unproject,unproject:steps={LIFT_STEPS}"  # --methods: mesh unprojection alone, and refined
+_OLD_STEPS_HELP = (
+    f"Refinement steps of the older spelling 'refine' (default {LIFT_STEPS}); write unproject:steps=N instead."
+)
+_SPEED, _QUICK = SpeedConfig(), quick_config()  # `dla bench speed`'s defaults, without and with --quick
+
+
+def _size(default: int | None, help: str, flag: str = "--res") -> Any:
+    """The image size of a benchmark's subjects (int, or Optional[int] with default None)."""
+    return options.image_size(default, help, flag, minimum=MIN_BENCH_IMAGE_SIZE)
+
+
+def _results(what: str) -> Any:
+    """--jsonl FILE (Optional[Path]): where the rows are appended; `what` the help calls them."""
+    help = f"Also append the {what} as dla.bench/1 JSON lines to this file (`dla bench report` reads it)."
+    return options.side_output("--jsonl", help, (".jsonl",), "results file")
 
 
 def _ints(text: str, name: str, hi: int) -> list[int]:
     from dlacli.errors import DlaInputError
 
-    if len(text) > 10_000:
+    if len(text) > MAX_LIST_CHARS:
         raise DlaInputError(name, "is too long")
     try:
         values = [int(x) for x in text.split(",") if x.strip()]
@@ -36,15 +70,15 @@ def _ints(text: str, name: str, hi: int) -> list[int]:
         raise DlaInputError(name, f"expected comma-separated integers, got {text[:40]!r}") from None
     if not values:
         raise DlaInputError(name, "is empty")
-    if len(values) > 64 or not all(0 <= v <= hi for v in values):
-        raise DlaInputError(name, f"expected at most 64 integers in [0, {hi}]")
+    if len(values) > MAX_LIST_ITEMS or not all(0 <= v <= hi for v in values):
+        raise DlaInputError(name, f"expected at most {MAX_LIST_ITEMS} integers in [0, {hi}]")
     return values
 
 
 def _names(text: str, name: str, known) -> list[str]:
     from dlacli.errors import DlaInputError
 
-    if len(text) > 10_000:
+    if len(text) > MAX_LIST_CHARS:
         raise DlaInputError(name, "is too long")
     values = [x.strip() for x in text.split(",") if x.strip()]
     if not values:
@@ -60,29 +94,28 @@ def _cases(text: str) -> tuple[tuple[int, int], ...]:
     from dlacli.errors import DlaInputError
 
     out = []
-    for part in text[:10_000].split(","):
+    for part in text[:MAX_LIST_CHARS].split(","):
         if not part.strip():
             continue
         try:
             n, res = (int(x) for x in part.split(":"))
         except ValueError:
             raise DlaInputError("--splat-cases", f"expected N:RES pairs, got {part.strip()[:40]!r}") from None
-        if not (1 <= n <= MAX_GAUSSIANS and 16 <= res <= 4096):
-            problem = f"N must be in [1, {MAX_GAUSSIANS}] and RES in [16, 4096]"
+        if not (1 <= n <= MAX_GAUSSIANS and MIN_IMAGE_SIZE <= res <= MAX_IMAGE_SIZE):
+            problem = f"N must be in [1, {MAX_GAUSSIANS}] and RES in [{MIN_IMAGE_SIZE}, {MAX_IMAGE_SIZE}]"
             raise DlaInputError("--splat-cases", f"{part.strip()}: {problem}")
         out.append((n, res))
-    if not out or len(out) > 64:
-        raise DlaInputError("--splat-cases", "expected 1 to 64 N:RES pairs")
+    if not out or len(out) > MAX_LIST_ITEMS:
+        raise DlaInputError("--splat-cases", f"expected 1 to {MAX_LIST_ITEMS} N:RES pairs")
     return tuple(out)
 
 
 def _jsonl(path: Optional[Path]) -> Optional[Path]:
-    from dlacli.errors import DlaInputError
+    """--jsonl (its suffix checked as it is parsed, `_results`): a file rows can be appended to,
+    refused before the run when it is not (a folder, a link to one, a missing parent folder)."""
     from dlacli.io.atomic import check_outputs
 
     if path is not None:
-        if path.suffix.lower() != ".jsonl" or path.is_dir():
-            raise DlaInputError(path, "the results file is a .jsonl file")
         check_outputs(files=[path])
     return path
 
@@ -108,29 +141,24 @@ def _stderr(line: str) -> None:
 
 @bench_app.command("pipeline")
 def pipeline(
-    seeds: str = typer.Option("1001,1002", "--seeds", help="Synthetic subjects (use seeds no test uses)."),
-    steps: str = typer.Option("0,50,150", "--steps", help="Refinement steps to compare."),
-    res: int = typer.Option(512, "--res", min=32, max=4096, help="Image size of the subjects."),
-    as_json: bool = typer.Option(False, "--json", help="Print the full result as one JSON object."),
-    jsonl: Optional[Path] = typer.Option(
-        None,
-        "--jsonl",
-        help="Also append the runs as dla.bench/1 JSON lines to this file (`dla bench report` reads it).",
+    seeds: str = typer.Option(
+        f"{BENCH_SEED},{BENCH_SEED + 1}", "--seeds", help="Synthetic subjects (use seeds no test uses)."
     ),
+    steps: str = typer.Option(f"0,{LIFT_STEPS},{3 * LIFT_STEPS}", "--steps", help="Refinement steps to compare."),
+    res: int = _size(BENCH_IMAGE_SIZE, "Image size of the subjects."),
+    as_json: bool = typer.Option(False, "--json", help="Print the full result as one JSON object."),
+    jsonl: Optional[Path] = _results("runs"),
 ) -> None:
     """synth -> lift -> render: PSNR (whole image and inside the mask), SSIM and alpha IoU on 12
     novel views and 8 novel poses per subject, lift time per steps setting, animate time."""
     import sys
 
     from dlacli.bench.pipeline import markdown_table, result_rows, run
-    from dlacli.errors import DlaInputError
 
-    if jsonl is not None and (jsonl.suffix.lower() != ".jsonl" or jsonl.is_dir()):
-        raise DlaInputError(jsonl, "the results file is a .jsonl file")
-
+    jsonl = _jsonl(jsonl)
     result = run(
-        _ints(seeds, "--seeds", 2**32 - 1),
-        _ints(steps, "--steps", 100_000),
+        _ints(seeds, "--seeds", MAX_SEED),
+        _ints(steps, "--steps", MAX_LIFT_STEPS),
         res=res,
         log=lambda line: print(line, file=sys.stderr),
     )
@@ -152,12 +180,8 @@ def accuracy(
         "--seeds",
         help="Synthetic subjects reserved for benchmarking (no test or training uses 9000-9999).",
     ),
-    methods: str = typer.Option(
-        "unproject,unproject:steps=50", "--methods", help="Methods to compare, comma-separated: " + _SPECS + "."
-    ),
-    res: int = typer.Option(
-        512, "--res", min=32, max=4096, help="Image size (the paper's protocol: 512, black background)."
-    ),
+    methods: str = typer.Option(_METHODS, "--methods", help="Methods to compare, comma-separated: " + _SPECS + "."),
+    res: int = _size(BENCH_IMAGE_SIZE, f"Image size (the paper's protocol: {BENCH_IMAGE_SIZE}, black background)."),
     appearance: str = typer.Option(
         "lit", "--appearance", help="Subjects' appearance: lit (pose- and view-dependent shading) or albedo."
     ),
@@ -165,11 +189,7 @@ def accuracy(
         "heldout", "--wardrobe", help="Subjects' garments: heldout (none a training subject wore), full, default."
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of a table."),
-    jsonl: Optional[Path] = typer.Option(
-        None,
-        "--jsonl",
-        help="Also append the rows as dla.bench/1 JSON lines to this file (`dla bench report` reads it).",
-    ),
+    jsonl: Optional[Path] = _results("rows"),
 ) -> None:
     """Accuracy against cost of every method: lift in a fresh process (wall time, peak memory),
     then PSNR (whole image and inside the mask), SSIM and alpha IoU on novel views, novel poses
@@ -189,22 +209,20 @@ def accuracy(
 
             raise DlaInputError("--methods", f"{spec.label}: no such checkpoint folder")
     jsonl = _jsonl(jsonl)
-    rows = run(
-        _ints(seeds, "--seeds", 2**32 - 1), specs, res=res, appearance=appearance, wardrobe=wardrobe, log=_stderr
-    )
+    rows = run(_ints(seeds, "--seeds", MAX_SEED), specs, res=res, appearance=appearance, wardrobe=wardrobe, log=_stderr)
     _emit(rows, jsonl, as_json, lambda r: report_markdown(r, None))
 
 
 @bench_app.command("regions")
 def regions(
-    seed: int = typer.Option(1001, "--seed", min=0, max=2**32 - 1, help="Synthetic subject (use a seed no test uses)."),
-    steps: int = typer.Option(50, "--steps", min=0, max=100_000, help="Lift refinement steps."),
-    res: int = typer.Option(512, "--res", min=32, max=4096, help="Image size of the subject."),
-    output: Optional[Path] = typer.Option(
-        None,
-        "--output",
-        "-o",
-        help="Error picture (.png): ground truth | render | error x4 | regions, an input view above a novel view.",
+    seed: int = options.seed("Synthetic subject (use a seed no test uses).", default=BENCH_SEED),
+    steps: int = typer.Option(LIFT_STEPS, "--steps", min=0, max=MAX_LIFT_STEPS, help="Lift refinement steps."),
+    res: int = _size(BENCH_IMAGE_SIZE, "Image size of the subject."),
+    output: Optional[Path] = options.output(
+        "Error picture (.png): ground truth | render | error x4 | regions, an input view above a novel view.",
+        (".png",),
+        "image",
+        required=False,
     ),
 ) -> None:
     """Where the error lives: synth -> lift, then masked PSNR per body region (face, hair, hands,
@@ -218,13 +236,10 @@ def regions(
     from dlacli.bench.score import render_split
     from dlacli.body.model import get_body_model
     from dlacli.data.synth import synth
-    from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_path, check_outputs
     from dlacli.io.views import read_views
     from dlacli.stages.methods import make_spec
 
-    if output is not None and output.suffix.lower() != ".png":
-        raise DlaInputError(output, "the error picture is a .png file")
     check_outputs(files=[output])
     rows, pictures = [], []
     with tempfile.TemporaryDirectory() as tmp:
@@ -257,37 +272,39 @@ def regions(
 @bench_app.command("speed")
 def speed(
     suite: str = typer.Option(
-        "startup,splat,body,lift,animate,usd,render",
-        "--suite",
-        help="Suites to run, comma-separated: startup, splat, body, lift, animate, usd, render.",
+        ",".join(SUITES), "--suite", help=f"Suites to run, comma-separated: {', '.join(SUITES)}."
     ),
     quick: bool = typer.Option(False, "--quick", help="Tiny sizes of every suite (a smoke run, seconds)."),
     repeats: Optional[int] = typer.Option(
-        None, "--repeats", min=1, max=1000, help="Timed calls per case (default 5; --quick 2)."
-    ),
-    gaussians: Optional[int] = typer.Option(
         None,
-        "--gaussians",
-        min=2,
-        max=MAX_GAUSSIANS,
-        help=f"Gaussians of the body, animate and render suites (default {DEFAULT_GAUSSIANS:,}).",
+        "--repeats",
+        min=1,
+        max=1000,
+        help=f"Timed calls per case (default {_SPEED.repeats}; --quick {_QUICK.repeats}).",
     ),
-    res: Optional[int] = typer.Option(
-        None, "--res", min=32, max=4096, help="Image size of the lift subject and the render suite (default 512)."
+    gaussians: Optional[str] = options.gaussians(
+        help=f"Gaussians of the body, animate and render suites (default {_SPEED.gaussians:,})."
     ),
+    res: Optional[int] = _size(None, f"Image size of the lift subject and the render suite (default {_SPEED.res})."),
     frames: Optional[int] = typer.Option(
-        None, "--frames", min=1, max=10_000, help="Frames of the animate, usd and render suites (default 30)."
+        None,
+        "--frames",
+        min=1,
+        max=10_000,
+        help=f"Frames of the animate, usd and render suites (default {_SPEED.frames}).",
     ),
     lift_steps: Optional[str] = typer.Option(
-        None, "--lift-steps", help="lift: refinement steps to time, comma-separated (default 0,50)."
+        None,
+        "--lift-steps",
+        help=f"lift: refinement steps to time, comma-separated (default {','.join(map(str, _SPEED.lift_steps))}).",
     ),
     splat_cases: Optional[str] = typer.Option(
         None,
         "--splat-cases",
         metavar="N:RES,...",
         help=(
-            f"splat: Gaussian counts and image sizes, e.g. 20000:256,{DEFAULT_GAUSSIANS}:512 (default: 2048:128 and "
-            "20k/65k/131k at 256 and 512)."
+            f"splat: Gaussian counts and image sizes, e.g. 20000:256,{DEFAULT_GAUSSIANS}:512 "
+            f"(default {','.join(f'{n}:{r}' for n, r in SPLAT_CASES)})."
         ),
     ),
     no_torch: bool = typer.Option(False, "--no-torch", help="splat: skip the slow pure-torch and dense paths."),
@@ -306,11 +323,7 @@ def speed(
         1, "--rounds", min=1, max=100, help="With --baseline: alternate the two versions this many times per case."
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of tables."),
-    jsonl: Optional[Path] = typer.Option(
-        None,
-        "--jsonl",
-        help="Also append the rows as dla.bench/1 JSON lines to this file (`dla bench report` reads it).",
-    ),
+    jsonl: Optional[Path] = _results("rows"),
 ) -> None:
     """Speed: splatting forward and forward+backward per Gaussian count and image size (numba vs
     the pure-torch renderer; gsplat on CUDA), pose + skin per frame, lift and animate stage times,
@@ -318,7 +331,7 @@ def speed(
     from dataclasses import replace
 
     from dlacli.bench.report import speed_markdown
-    from dlacli.bench.speed import SUITES, SpeedConfig, quick_config, run
+    from dlacli.bench.speed import run
     from dlacli.errors import DlaInputError
 
     suites = _names(suite, "--suite", SUITES)
@@ -332,7 +345,7 @@ def speed(
         if v is not None
     }
     if lift_steps is not None:
-        changes["lift_steps"] = tuple(_ints(lift_steps, "--lift-steps", 100_000))
+        changes["lift_steps"] = tuple(_ints(lift_steps, "--lift-steps", MAX_LIFT_STEPS))
     if splat_cases is not None:
         changes["splat_cases"] = _cases(splat_cases)
     if no_torch:
@@ -347,21 +360,11 @@ def speed(
 
 @bench_app.command("stability")
 def stability(
-    seeds: str = typer.Option("1001", "--seeds", help="Synthetic subjects (use seeds no test uses)."),
-    methods: str = typer.Option(
-        "unproject,unproject:steps=50", "--methods", help="Methods to compare, comma-separated: " + _SPECS + "."
-    ),
-    steps: Optional[int] = typer.Option(
-        None,
-        "--steps",
-        min=1,
-        max=100_000,
-        help=(
-            f"Refinement steps of the older spelling 'refine' (default {LIFT_STEPS}); write unproject:steps=N instead."
-        ),
-    ),
-    checkpoint: Optional[Path] = typer.Option(
-        None, "--checkpoint", help="A dla train checkpoint for the methods named 'learned' without checkpoint=."
+    seeds: str = typer.Option(str(BENCH_SEED), "--seeds", help="Synthetic subjects (use seeds no test uses)."),
+    methods: str = typer.Option(_METHODS, "--methods", help="Methods to compare, comma-separated: " + _SPECS + "."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, max=MAX_LIFT_STEPS, help=_OLD_STEPS_HELP),
+    checkpoint: Optional[Path] = options.checkpoint(
+        "A dla train checkpoint for the methods named 'learned' without checkpoint=."
     ),
     perturbations: Optional[str] = typer.Option(
         None,
@@ -378,13 +381,9 @@ def stability(
         max=100,
         help="At most this many levels per perturbation, the clean one and the worst included (default all).",
     ),
-    res: int = typer.Option(256, "--res", min=32, max=4096, help="Image size of the subjects."),
+    res: int = _size(256, "Image size of the subjects."),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of tables."),
-    jsonl: Optional[Path] = typer.Option(
-        None,
-        "--jsonl",
-        help="Also append the runs as dla.bench/1 JSON lines to this file (`dla bench report` reads it).",
-    ),
+    jsonl: Optional[Path] = _results("runs"),
 ) -> None:
     """Degradation curves: each method lifts perturbed inputs (noisy body pose and shape,
     colour-shifted and misregistered views, fewer views, extreme poses and self-contact, the
@@ -399,47 +398,29 @@ def stability(
     specs = list({(s.name, json.dumps(s.options(), sort_keys=True)): s for s in specs}.values())  # each once
     perts = _names(perturbations, "--perturbations", list(PERTURBATIONS)) if perturbations else None
     jsonl = _jsonl(jsonl)
-    rows = run(_ints(seeds, "--seeds", 2**32 - 1), specs, perts, res=res, levels=levels, log=_stderr)
+    rows = run(_ints(seeds, "--seeds", MAX_SEED), specs, perts, res=res, levels=levels, log=_stderr)
     _emit(rows, jsonl, as_json, lambda r: "\n".join(stability_markdown(r, intro=False)).rstrip())
 
 
 @bench_app.command("budget")
 def budget(
-    seeds: str = typer.Option("1001", "--seeds", help="Synthetic subjects (use seeds no test uses)."),
-    counts: str = typer.Option(
-        ",".join(str(2**k) for k in range(12, 19)), "--counts", help="Gaussian counts to compare."
-    ),
+    seeds: str = typer.Option(str(BENCH_SEED), "--seeds", help="Synthetic subjects (use seeds no test uses)."),
+    counts: str = typer.Option(",".join(map(str, BUDGET_LADDER)), "--counts", help="Gaussian counts to compare."),
     uv: str = typer.Option(
         "128,256,512", "--uv", help="UV resolutions of the Gaussian map (lift --resolution) to compare."
     ),
-    size: int = typer.Option(
-        512,
-        "--size",
-        min=32,
-        max=4096,
-        help="The target render size: the subjects' views are rendered and scored at it.",
+    size: int = _size(
+        BENCH_IMAGE_SIZE, "The target render size: the subjects' views are rendered and scored at it.", "--size"
     ),
     method: str = typer.Option(
         "unproject", "--method", help="The method making the avatars (one that takes resolution=): " + _SPECS + "."
     ),
-    steps: Optional[int] = typer.Option(
-        None,
-        "--steps",
-        min=1,
-        max=100_000,
-        help=(
-            f"Refinement steps of the older spelling 'refine' (default {LIFT_STEPS}); write unproject:steps=N instead."
-        ),
-    ),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, max=MAX_LIFT_STEPS, help=_OLD_STEPS_HELP),
     usd_frames: int = typer.Option(
         8, "--usd-frames", min=0, max=1000, help="Frames of the walk written as USD per count (0: no USD sizes)."
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of tables."),
-    jsonl: Optional[Path] = typer.Option(
-        None,
-        "--jsonl",
-        help="Also append the runs as dla.bench/1 JSON lines to this file (`dla bench report` reads it).",
-    ),
+    jsonl: Optional[Path] = _results("runs"),
 ) -> None:
     """The Gaussian budget: masked PSNR against the number of Gaussians and the UV resolution at a
     render size, with render time and USD size per count, and what `--gaussians auto` picks."""
@@ -448,16 +429,16 @@ def budget(
     from dlacli.stages.methods import parse_method
 
     spec = parse_method(method, refine_steps=steps or LIFT_STEPS)
-    uvs = _ints(uv, "--uv", 2048)
+    uvs = _ints(uv, "--uv", MAX_LIFT_RESOLUTION)
     spec.with_options("--method", resolution=uvs[0])  # one that takes the UV resolution
     ns = _ints(counts, "--counts", MAX_GAUSSIANS)
-    if min(ns) < 2:
+    if min(ns) < MIN_GAUSSIANS:
         from dlacli.errors import DlaInputError
 
-        raise DlaInputError("--counts", "every count must be at least 2")
+        raise DlaInputError("--counts", f"every count must be at least {MIN_GAUSSIANS}")
     jsonl = _jsonl(jsonl)
     rows = run(
-        _ints(seeds, "--seeds", 2**32 - 1), ns, uvs, render_size=size, method=spec, usd_frames=usd_frames, log=_stderr
+        _ints(seeds, "--seeds", MAX_SEED), ns, uvs, render_size=size, method=spec, usd_frames=usd_frames, log=_stderr
     )
     _emit(rows, jsonl, as_json, lambda r: "\n".join(budget_markdown(r, intro=False)).rstrip())
 
@@ -469,14 +450,12 @@ def report(
         metavar="RESULTS",
         help="dla.bench/1 JSON lines (`dla bench pipeline / stability / budget / speed --jsonl`).",
     ),
-    output: Path = typer.Option(
-        Path("docs/benchmarks.md"),
-        "--output",
-        "-o",
-        help=(
-            "The markdown page; its charts are written beside it: <name>.png (time against accuracy), "
-            "<name>_stability.png, <name>_budget.png."
-        ),
+    output: Path = options.output(
+        "The markdown page; its charts are written beside it: <name>.png (time against accuracy), "
+        "<name>_stability.png, <name>_budget.png.",
+        (".md",),
+        "Markdown page",
+        default=Path("docs/benchmarks.md"),
     ),
 ) -> None:
     """Regenerate the benchmark page (tables per split, the Pareto frontier, the time-vs-accuracy
@@ -488,8 +467,6 @@ def report(
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_path, check_outputs, output_group
 
-    if output.suffix.lower() != ".md":
-        raise DlaInputError(output, "the page is a .md file")
     chart = output.with_suffix(".png")
     stab_chart = output.with_name(output.stem + "_stability.png")
     budget_chart = output.with_name(output.stem + "_budget.png")

@@ -8,13 +8,25 @@ from typing import Optional
 
 import typer
 
-from dlacli.cli.options import gaussian_count
-from dlacli.limits import DEFAULT_GAUSSIANS, LIFT_RESOLUTION, LIFT_STEPS
+from dlacli.cli import options
+from dlacli.limits import (
+    BUDGET_LADDER,
+    BUDGET_TOLERANCE_DB,
+    DEFAULT_GAUSSIANS,
+    DEFAULT_SAMPLE_SEED,
+    LIFT_RESOLUTION,
+    LIFT_STEPS,
+    MAX_LIFT_RESOLUTION,
+    MAX_LIFT_STEPS,
+    MIN_VIEW_FALLOFF,
+)
 from dlacli.stages.methods import METHODS
 
 # `dlacli.stages.lift.LiftConfig`'s defaults, from the torch-free limits module (loading the CLI for
 # `dla --version` or `dla info` does not import the stage and torch).
-_DEFAULTS = SimpleNamespace(steps=LIFT_STEPS, resolution=LIFT_RESOLUTION, gaussians=DEFAULT_GAUSSIANS)
+_DEFAULTS = SimpleNamespace(
+    steps=LIFT_STEPS, resolution=LIFT_RESOLUTION, gaussians=DEFAULT_GAUSSIANS, seed=DEFAULT_SAMPLE_SEED
+)
 # the options that set a field of the method's config, by field name
 _FIELDS = {
     "steps": "--steps",
@@ -26,59 +38,44 @@ _FIELDS = {
 }
 _KNOWN = "; ".join(f"'{m.name}' ({m.about})" for m in METHODS.values())
 _METHOD_HELP = f"The lift method, NAME[:KEY=VALUE,...] (dlacli.stages.methods): {_KNOWN}. Options below set its keys."
+_STEPS_HELP = (
+    f"Refinement steps against the input views (unproject: default {_DEFAULTS.steps}, 0 = mesh unprojection "
+    "only; learned: default 0, N refines Z through the frozen decoder); more is slower and closer."
+)
+_CHECKPOINT_HELP = (
+    "With --method learned: the network checkpoint folder (`dla train`'s RUN/ckpt-N/generator) or its hash "
+    "in the checkpoints cache."
+)
+_GAUSSIANS_HELP = (
+    f"Gaussians sampled from Z while refining (default {_DEFAULTS.gaussians:,}); 'auto': refine with "
+    f"{_DEFAULTS.gaussians:,}, then record the fewest ({BUDGET_LADDER[0]:,} ... {BUDGET_LADDER[-1]:,}) whose "
+    f"re-renders of the input views score within {BUDGET_TOLERANCE_DB:g} dB masked PSNR of the best "
+    "(docs/benchmarks.md, 'The Gaussian budget')."
+)
+_VIEW_COLOUR_HELP = (
+    f"Measure how the views' colours fall off with the viewing angle and, where they do (|k| >= {MIN_VIEW_FALLOFF:g}), "
+    "model it (decoder 'view-cosine', docs/lift.md); --no-view-colour: colour never depends on the view."
+)
 
 
 def lift(
     ctx: typer.Context,
     views: Path = typer.Argument(..., metavar="VIEWS", help="View folder: transforms.json, images, body.json."),
-    output: Path = typer.Option(
-        ..., "--output", "-o", help="avatar.npz to write; a contact sheet PNG is written beside it."
+    output: Path = options.output(
+        "avatar.npz to write; a contact sheet PNG is written beside it.", (".npz",), "avatar"
     ),
-    ply: Optional[Path] = typer.Option(
-        None, "--ply", help="Also write the unstructured pose-space Gaussians as a 3DGS .ply."
+    ply: Optional[Path] = options.side_output(
+        "--ply", "Also write the unstructured pose-space Gaussians as a 3DGS .ply.", (".ply",), "Gaussians file"
     ),
-    steps: Optional[int] = typer.Option(
-        None,
-        "--steps",
-        min=0,
-        max=100_000,
-        help=(
-            f"Refinement steps against the input views (unproject: default {_DEFAULTS.steps}, 0 = mesh unprojection "
-            "only; learned: default 0, N refines Z through the frozen decoder); more is slower and closer."
-        ),
-    ),
+    steps: Optional[int] = typer.Option(None, "--steps", min=0, max=MAX_LIFT_STEPS, help=_STEPS_HELP),
     method: str = typer.Option("unproject", "--method", help=_METHOD_HELP),
-    checkpoint: Optional[Path] = typer.Option(
-        None,
-        "--checkpoint",
-        help=(
-            "With --method learned: the network checkpoint folder (`dla train`'s RUN/ckpt-N/generator) or its hash "
-            "in the checkpoints cache."
-        ),
+    checkpoint: Optional[Path] = options.checkpoint(_CHECKPOINT_HELP),
+    resolution: int = options.image_size(
+        _DEFAULTS.resolution, "UV resolution of the Gaussian map Z.", "--resolution", maximum=MAX_LIFT_RESOLUTION
     ),
-    resolution: int = typer.Option(
-        _DEFAULTS.resolution, "--resolution", min=16, max=2048, help="UV resolution of the Gaussian map Z."
-    ),
-    gaussians: str = typer.Option(
-        str(_DEFAULTS.gaussians),
-        "--gaussians",
-        callback=gaussian_count,
-        metavar="N|auto",
-        help=(
-            "Gaussians sampled from Z while refining; 'auto': refine with 131,072, then record the fewest (4,096 "
-            "... 262,144) whose re-renders of the input views score within 0.2 dB masked PSNR of the best "
-            "(docs/benchmarks.md, 'The Gaussian budget')."
-        ),
-    ),
-    seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1, help="Seed of the Gaussian sample points."),
-    view_colour: bool = typer.Option(
-        True,
-        "--view-colour/--no-view-colour",
-        help=(
-            "Measure how the views' colours fall off with the viewing angle and, where they do (|k| >= 0.05), model "
-            "it (decoder 'view-cosine', docs/lift.md); --no-view-colour: colour never depends on the view."
-        ),
-    ),
+    gaussians: Optional[str] = options.gaussians("the input views", help=_GAUSSIANS_HELP),
+    seed: int = options.seed("Seed of the Gaussian sample points.", default=_DEFAULTS.seed),
+    view_colour: bool = typer.Option(True, "--view-colour/--no-view-colour", help=_VIEW_COLOUR_HELP),
     allow_outside: bool = typer.Option(
         False,
         "--allow-outside",
@@ -92,7 +89,6 @@ def lift(
     """
     from PIL import Image
 
-    from dlacli.cli.options import naming
     from dlacli.cli.progress import progress_bar
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import atomic_path, check_outputs, output_group
@@ -113,10 +109,6 @@ def lift(
     )
     spec = _spec(method, {k: v for k, v in flags.items() if v is not None and _on_command_line(ctx, k)})
     steps = getattr(spec.config, "steps", 0)  # the progress bar's length: a method without refinement has none
-    if output.suffix.lower() != ".npz":
-        raise DlaInputError(output, "the avatar is an .npz file")
-    if ply is not None and ply.suffix.lower() != ".ply":
-        raise DlaInputError(ply, "the Gaussians are a .ply file")
     sheet = output.with_name(output.stem + "_contact.png")
     novel_dir = views / "novel_views" if views.is_dir() else None  # synth's ground truth, when present
     if novel_dir is not None and not (novel_dir / "transforms.json").is_file():
@@ -133,13 +125,13 @@ def lift(
     view_set = read_views(views, allow_outside=allow_outside)
     novel = read_views(novel_dir, require_body=False, allow_outside=allow_outside) if novel_dir is not None else None
     body = views / "body.json" if views.is_dir() else views.with_name("body.json")
-    with naming(views=views, pose=body, phenotype=body), progress_bar("refining", steps) as update:
+    with options.naming(views=views, pose=body, phenotype=body), progress_bar("refining", steps) as update:
         report = lambda i, loss: update(i + 1, note=f"loss {loss:.4f}")  # noqa: E731
         result = spec.lift(view_set, progress=report, novel=novel)
     if auto:
         from dlacli.stages.budget import choose_for_views
 
-        with naming(views=views, pose=body, phenotype=body):
+        with options.naming(views=views, pose=body, phenotype=body):
             result.avatar, choice = choose_for_views(result.avatar, view_set)
         typer.echo(
             f"note: --gaussians auto: {choice.count:,} Gaussians (input views, masked PSNR "

@@ -153,17 +153,26 @@ def seed(help: str = SAMPLE_SEED_HELP, default: int | None = None, maximum: int 
     return typer.Option(default, "--seed", min=0, max=maximum, help=help)
 
 
-def gaussians(auto_cameras: str | None = None, what: str = "Gaussians sampled from the avatar") -> Any:
+def gaussians(
+    auto_cameras: str | None = None, what: str = "Gaussians sampled from the avatar", help: str | None = None
+) -> Any:
     """--gaussians N (Optional[str]; the parsed value is an int or None), or with `auto_cameras`
-    (the cameras `auto` sizes the person in) N|auto."""
+    (the cameras `auto` sizes the person in) N|auto. `help` replaces the help text (a command whose
+    count means something else, e.g. lift's or a benchmark's)."""
     auto = auto_cameras is not None
-    help = f"{what}, half uniformly in UV, half on the surface "
-    help += f"(default: the count the avatar was lifted with, else {DEFAULT_GAUSSIANS:,})"
-    if auto:
-        help += f"; 'auto': the count lift --gaussians auto recorded, scaled to the person's size in {auto_cameras}, "
-        help += "else the fewest whose sampling noise costs under 0.2 dB (docs/benchmarks.md, 'The Gaussian budget')"
+    if help is None:
+        help = f"{what}, half uniformly in UV, half on the surface "
+        help += f"(default: the count the avatar was lifted with, else {DEFAULT_GAUSSIANS:,})"
+        if auto:
+            help += (
+                f"; 'auto': the count lift --gaussians auto recorded, scaled to the person's size in {auto_cameras}, "
+            )
+            help += (
+                "else the fewest whose sampling noise costs under 0.2 dB (docs/benchmarks.md, 'The Gaussian budget')"
+            )
+        help += "."
     parse = gaussian_count if auto else gaussian_number
-    return typer.Option(None, "--gaussians", callback=parse, metavar="N|auto" if auto else "N", help=help + ".")
+    return typer.Option(None, "--gaussians", callback=parse, metavar="N|auto" if auto else "N", help=help)
 
 
 def motion_argument(help: str = f"The motion: {MOTION_SPEC}.", metavar: str = "MOTION") -> Any:
@@ -209,11 +218,15 @@ def _suffix_callback(suffixes: Sequence[str], what: str):
     return check
 
 
-def output(help: str, suffixes: Sequence[str] = (), what: str = "", required: bool = True) -> Any:
-    """-o/--output: the file or folder the command writes (Path; Optional[Path] unless `required`).
-    With `suffixes` the name is checked as it is parsed (`check_suffix`; `what` names the content)."""
+def output(
+    help: str, suffixes: Sequence[str] = (), what: str = "", required: bool = True, default: Path | None = None
+) -> Any:
+    """-o/--output: the file or folder the command writes (Path; Optional[Path] unless `required`
+    or given a `default`). With `suffixes` the name is checked as it is parsed (`check_suffix`;
+    `what` names the content)."""
     check = _suffix_callback(suffixes, what)
-    return typer.Option(... if required else None, "--output", "-o", help=help, callback=check)
+    value = default if default is not None else ... if required else None
+    return typer.Option(value, "--output", "-o", help=help, callback=check)
 
 
 def side_output(flag: str, help: str, suffixes: Sequence[str], what: str) -> Any:

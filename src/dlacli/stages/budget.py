@@ -33,10 +33,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from dlacli.errors import DlaInputError
+from dlacli.limits import BUDGET_LADDER, BUDGET_TOLERANCE_DB
 from dlacli.types import Avatar, Cameras, ViewSet
 
-LADDER = (4_096, 8_192, 16_384, 32_768, 65_536, 131_072, 262_144)
-TOLERANCE_DB = 0.2
+LADDER = BUDGET_LADDER  # 4,096 ... 262,144 (dlacli.limits: the CLI's help quotes them)
+TOLERANCE_DB = BUDGET_TOLERANCE_DB
 # the error level e of the additive model, as a masked PSNR: what the CPU lift's avatars score on
 # their own input views at 128-512 px (21-22 dB, docs/benchmarks.md "The Gaussian budget"); a
 # higher value keeps more Gaussians.

@@ -30,7 +30,7 @@ from dlacli.avatar import gaussian_map as gm
 from dlacli.avatar.codec import shading
 from dlacli.errors import DlaInputError
 from dlacli.geometry import project_points as _project  # points [..., 3] -> (pixels [..., 2], z [...])
-from dlacli.limits import LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS
+from dlacli.limits import LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS, MIN_VIEW_FALLOFF
 from dlacli.types import Avatar, Cameras, Gaussians, ViewSet, rgb_to_sh0
 
 ENCODER = "unproject"
@@ -43,7 +43,7 @@ MAX_OFFSET = 0.08  # metres: farther Gaussians are not attached to a texel (loos
 VIEW_SHARPNESS = 4.0  # texel colour weight ~ cos(view angle) ** VIEW_SHARPNESS
 VISIBLE_DEPTH = 0.03  # metres: a texel point up to this far behind the body's depth still counts as seen
 FALLOFF_RANGE = (-0.5, 0.95)  # the view falloffs k `view_falloff` considers (1 - k + k cos > 0 for cos >= 0)
-MIN_FALLOFF = 0.05  # |k| below this: the avatar keeps the identity decoder (colour does not depend on the view)
+MIN_FALLOFF = MIN_VIEW_FALLOFF  # |k| below this: the identity decoder (colour does not depend on the view)
 
 
 @dataclass
