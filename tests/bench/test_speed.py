@@ -9,6 +9,7 @@ import pytest
 from dlacli.bench import speed as S
 from dlacli.bench.report import speed_markdown
 from dlacli.bench.rows import check_row, speed_row
+from dlacli.bench.speed_stages import walk_like
 from dlacli.errors import DlaInputError
 
 
@@ -79,7 +80,7 @@ def test_a_tiny_usd_run_and_the_walk():
     cfg = S.SpeedConfig(usd_gaussians=64, frames=3, usd_tolerances_mm=(0.0,), usd_schemas=("points",), repeats=1)
     (row,) = S.run(["usd"], cfg, log=lambda s: None)
     assert row["items"] == 64 * 3 and row["size_mib"] > 0 and row["config"]["schema"] == "points"
-    positions, quats, scales, rgb, opacities = S.walk_like(3, 64)
+    positions, quats, scales, rgb, opacities = walk_like(3, 64)
     assert positions.shape == (3, 64, 3) and quats.shape == (3, 64, 4) and scales.shape == (64, 3)
     assert np.allclose(np.linalg.norm(quats, axis=-1), 1.0, atol=1e-6)
     # every Gaussian turns about +X only (w, x, 0, 0), at most 30 degrees

@@ -40,7 +40,6 @@ from dataclasses import replace
 from pathlib import Path
 
 from dlacli.bench.speed_config import DENSE_MAX_PAIRS, SUITES, SpeedConfig, median_min
-from dlacli.bench.speed_config import quick_config as quick_config  # re-exported: cli/bench.py reads it here
 from dlacli.bench.speed_stages import animate_suite, lift_suite, render_suite, usd_suite
 
 # ------------------------------------------------------------------------------------ startup

@@ -8,7 +8,7 @@ from typing import Any, Optional
 
 import typer
 
-from dlacli.bench.speed import SPLAT_CASES, SUITES, SpeedConfig, quick_config  # torch-free: the help quotes them
+from dlacli.bench.speed_config import SPLAT_CASES, SUITES, SpeedConfig, quick_config  # torch-free: the help quotes them
 from dlacli.cli import options
 from dlacli.limits import (
     BENCH_IMAGE_SIZE,

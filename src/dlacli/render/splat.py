@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from dlacli.errors import DlaInputError
+from dlacli.render import camera_kernels
 from dlacli.render import splat_kernels as K
 from dlacli.types import Cameras, Gaussians
 
@@ -90,7 +91,7 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
 
 class _CameraPoints(torch.autograd.Function):
     """p[c, n] = R[c] mu[n] + t[c] on CPU tensors, by numba kernels whose results do not depend
-    on the thread count (`splat_kernels.camera_points`).
+    on the thread count (`camera_kernels.camera_points`).
 
     torch's einsum / matmul hands these shapes to MKL's gemm, whose results change with the
     number of threads, forward (C = 3, N = 3,000: 1 vs 2 threads, up to 8e-6 px in the 2D
@@ -108,7 +109,7 @@ class _CameraPoints(torch.autograd.Function):
             return x.detach().to(dtype).contiguous().numpy()
 
         out = torch.empty((R.shape[0], means.shape[0], 3), dtype=dtype)
-        K.camera_points(arr(R), arr(t), arr(means), out.numpy())
+        camera_kernels.camera_points(arr(R), arr(t), arr(means), out.numpy())
         return out
 
     @staticmethod
@@ -118,7 +119,7 @@ class _CameraPoints(torch.autograd.Function):
         g_R = g_t = g_means = None
         if ctx.needs_input_grad[2]:
             out = torch.empty(means.shape, dtype=g.dtype)
-            K.camera_points_grad(R.detach().to(g.dtype).contiguous().numpy(), g.numpy(), out.numpy())
+            camera_kernels.camera_points_grad(R.detach().to(g.dtype).contiguous().numpy(), g.numpy(), out.numpy())
             g_means = out.to(means.dtype)
         if ctx.needs_input_grad[0]:
             g_R = (g[:, :, :, None] * means[None, :, None, :].to(g.dtype)).sum(dim=1).to(R.dtype)

@@ -573,38 +573,5 @@ def reduce_grads(isect_grad, isect_hit, sptr, src, out):
                 out[src[s], c] = v[c]
 
 
-@njit(parallel=True, cache=True)
-def camera_points(rot, trans, means, out):
-    """out[c, n] = rot[c] @ means[n] + trans[c]: rot [C, 3, 3], trans [C, 3], means [N, 3],
-    out [C, N, 3]. One thread per Gaussian, a fixed order of operations (float64)."""
-    ncam, n = rot.shape[0], means.shape[0]
-    for g in prange(n):
-        m0 = np.float64(means[g, 0])
-        m1 = np.float64(means[g, 1])
-        m2 = np.float64(means[g, 2])
-        for c in range(ncam):
-            for i in range(3):
-                out[c, g, i] = (
-                    np.float64(rot[c, i, 0]) * m0
-                    + np.float64(rot[c, i, 1]) * m1
-                    + np.float64(rot[c, i, 2]) * m2
-                    + np.float64(trans[c, i])
-                )
-
-
-@njit(parallel=True, cache=True)
-def camera_points_grad(rot, grad, out):
-    """out[n, j] = sum over c, i (in that order) of grad[c, n, i] rot[c, i, j]: the gradient of
-    `camera_points` w.r.t. the means. rot [C, 3, 3], grad [C, N, 3], out [N, 3]."""
-    ncam, n = grad.shape[0], grad.shape[1]
-    for g in prange(n):
-        for j in range(3):
-            v = 0.0
-            for c in range(ncam):
-                for i in range(3):
-                    v += np.float64(grad[c, g, i]) * np.float64(rot[c, i, j])
-            out[g, j] = v
-
-
 def num_threads() -> int:
     return numba.get_num_threads()
