@@ -33,7 +33,17 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from dlacli.errors import DlaInputError
-from dlacli.limits import LIFT_STEPS, MAX_GAUSSIANS, MAX_LIFT_STEPS
+from dlacli.limits import (
+    LIFT_STEPS,
+    MAX_GAUSSIANS,
+    MAX_IMAGE_SIZE,
+    MAX_LIFT_RESOLUTION,
+    MAX_LIFT_STEPS,
+    MAX_LIST_CHARS,
+    MAX_SEED,
+    MIN_GAUSSIANS,
+    MIN_IMAGE_SIZE,
+)
 
 Progress = Callable[[int, float], None]  # (step index, loss) after each refinement step
 LiftFn = Callable[[Any, Any, "Progress | None", Any], Any]  # (views, config, progress, novel) -> LiftResult
@@ -205,7 +215,7 @@ def parse_methods(
     bad spec. `refine_steps`: what the older bare spelling `refine` refines; `fill`: options
     (from a command's own flags, e.g. a checkpoint) for every spec whose method takes them and
     that does not set them itself; `flags`: the flag that sets a field, named when it is missing."""
-    if len(text) > 10_000:
+    if len(text) > MAX_LIST_CHARS:
         raise DlaInputError(where, "is too long")
     pieces = [p.strip() for p in text.split(",") if p.strip()]
     specs: list[str] = []
@@ -263,18 +273,18 @@ class UnprojectConfig:
     def __post_init__(self):
         _check(0 <= self.steps <= MAX_LIFT_STEPS, f"steps must be in [0, {MAX_LIFT_STEPS}], got {self.steps}")
         _check(
-            self.resolution is None or 16 <= self.resolution <= 2048,
-            f"resolution must be in [16, 2048], got {self.resolution}",
+            self.resolution is None or MIN_IMAGE_SIZE <= self.resolution <= MAX_LIFT_RESOLUTION,
+            f"resolution must be in [{MIN_IMAGE_SIZE}, {MAX_LIFT_RESOLUTION}], got {self.resolution}",
         )
         _check(
-            self.gaussians is None or 2 <= self.gaussians <= MAX_GAUSSIANS,
-            f"gaussians must be in [2, {MAX_GAUSSIANS}], got {self.gaussians}",
+            self.gaussians is None or MIN_GAUSSIANS <= self.gaussians <= MAX_GAUSSIANS,
+            f"gaussians must be in [{MIN_GAUSSIANS}, {MAX_GAUSSIANS}], got {self.gaussians}",
         )
         _check(
-            self.render_size is None or 16 <= self.render_size <= 4096,
-            f"render_size must be in [16, 4096], got {self.render_size}",
+            self.render_size is None or MIN_IMAGE_SIZE <= self.render_size <= MAX_IMAGE_SIZE,
+            f"render_size must be in [{MIN_IMAGE_SIZE}, {MAX_IMAGE_SIZE}], got {self.render_size}",
         )
-        _check(self.seed is None or 0 <= self.seed < 2**32, f"seed must be in [0, 2^32), got {self.seed}")
+        _check(self.seed is None or 0 <= self.seed <= MAX_SEED, f"seed must be in [0, {MAX_SEED}], got {self.seed}")
 
 
 def _lift_unproject(views, config: UnprojectConfig, progress: Progress | None = None, novel=None):
@@ -298,8 +308,8 @@ class LearnedConfig:
             raise Missing("checkpoint", "a dla train checkpoint folder or its hash")
         _check(0 <= self.steps <= MAX_LIFT_STEPS, f"steps must be in [0, {MAX_LIFT_STEPS}], got {self.steps}")
         _check(
-            self.render_size is None or 16 <= self.render_size <= 4096,
-            f"render_size must be in [16, 4096], got {self.render_size}",
+            self.render_size is None or MIN_IMAGE_SIZE <= self.render_size <= MAX_IMAGE_SIZE,
+            f"render_size must be in [{MIN_IMAGE_SIZE}, {MAX_IMAGE_SIZE}], got {self.render_size}",
         )
 
 
