@@ -532,6 +532,7 @@ def _run(target: Target, index: int, folder: Path) -> tuple[list[str], int, int]
     return problems, len(target.readers), returned
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # numpy's overflow warnings would reach a user's terminal
 def test_every_reader_survives_the_mutations(tmp_path):
     old = signal.signal(signal.SIGALRM, _alarm)
     try:

@@ -446,6 +446,19 @@ def test_keypoints_integer_beyond_float_range(tmp_path):
     _refused(read_coco_keypoints, path, "'keypoints' holds a number too large for a pixel coordinate")
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_keypoints_beyond_float32_are_refused_without_a_warning(tmp_path):
+    """Before: a coordinate of 1e39 is finite in float64 but not in the float32 the fit takes: numpy
+    printed an overflow warning and dream went on with an infinite keypoint."""
+    from dlacli.io.photo import MAX_KEYPOINT_PX, read_coco_keypoints
+
+    path = tmp_path / "k.json"
+    path.write_text('{"keypoints": [' + ", ".join(["1e39"] + ["1"] * 50) + "]}")
+    _refused(read_coco_keypoints, path, "'keypoints' holds a coordinate beyond")
+    path.write_text('{"keypoints": [' + ", ".join([str(MAX_KEYPOINT_PX)] + ["1"] * 50) + "]}")
+    assert read_coco_keypoints(path)[0, 0] == MAX_KEYPOINT_PX  # the bound itself is read
+
+
 def test_json_arrays_with_integers_beyond_64_bits(tmp_path):
     from dlacli.io.validate import as_array
 

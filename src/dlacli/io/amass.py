@@ -157,10 +157,9 @@ def read_amass(path: str | os.PathLike) -> SkeletonMotion:
             raise DlaInputError(
                 path, f"{name} holds non-finite values (first at frame {np.argwhere(~np.isfinite(arr))[0][0]})"
             )
-        if arr.size and np.abs(arr).max() > most:
-            raise DlaInputError(
-                path, f"{name} holds values beyond +-{most:g} (largest {np.abs(arr).max():g}): not a motion"
-            )
+        largest = float(np.abs(arr.astype(np.float64)).max()) if arr.size else 0.0  # float16: no overflow on compare
+        if largest > most:
+            raise DlaInputError(path, f"{name} holds values beyond +-{most:g} (largest {largest:g}): not a motion")
     key = next((k for k in FRAMERATE_KEYS if k in data), None)
     if key is None:
         raise DlaInputError(path, f"no frame rate ({' or '.join(FRAMERATE_KEYS)})")

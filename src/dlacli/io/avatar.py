@@ -167,15 +167,16 @@ def summarize_avatar(path: str | os.PathLike) -> dict[str, Any]:
     """JSON-able summary of an avatar.npz."""
     data = load_npz(path, MAX_UNPACKED)
     a = avatar_from_arrays(data, Path(path))
+    z64 = a.z.astype(np.float64)
     out = {
         "kind": "avatar",
         "format": FORMAT,
         "z_shape": list(a.z.shape),
         "z_stored_dtype": str(data["z"].dtype),
-        "z_min": float(a.z.min()),
-        "z_max": float(a.z.max()),
-        "z_mean": float(a.z.mean()),
-        "z_std": float(a.z.std()),
+        "z_min": float(z64.min()),
+        "z_max": float(z64.max()),
+        "z_mean": float(z64.mean()),
+        "z_std": float(z64.std()),  # float64: a finite float32 z up to 3.4e38 squares without overflow
         "encoder": a.encoder,
         "decoder": a.decoder,
         "checkpoint": a.checkpoint,

@@ -40,6 +40,7 @@ from dlacli.io.validate import load_json
 
 MIN_SIDE = 64
 MAX_SIDE = 8192
+MAX_KEYPOINT_PX = 1e6  # a keypoint farther off the image than this is a broken file, not a detection
 NUM_KEYPOINTS = 17
 
 
@@ -114,6 +115,8 @@ def read_coco_keypoints(path: str | Path) -> np.ndarray:
             raise DlaInputError(path, f"{where}'keypoints' holds a number too large for a pixel coordinate") from None
         if not np.all(np.isfinite(arr)):
             raise DlaInputError(path, f"{where}'keypoints' contains NaN or infinite values")
+        if np.abs(arr[:, :2]).max() > MAX_KEYPOINT_PX:
+            raise DlaInputError(path, f"{where}'keypoints' holds a coordinate beyond +-{MAX_KEYPOINT_PX:g} px")
         if not np.all(np.isin(arr[:, 2], (0, 1, 2))):
             raise DlaInputError(path, f"{where}visibility values must be 0, 1 or 2")
         visible = int((arr[:, 2] > 0).sum())
