@@ -25,6 +25,11 @@ MAX_LIFT_RESOLUTION = 2048  # side of the largest Z (io/avatar.py's MAX_UNPACKED
 MIN_VIEW_FALLOFF = 0.05  # |k| below this: the avatar keeps the identity decoder (stages/lift.py, `view_falloff`)
 MAX_VIEWS = 64  # every view is rendered at every refinement step: memory and time grow with them
 
+# --- the suffixes of the files dla writes, in the order messages list them (the writers check them,
+# the CLI's output options check them while parsing)
+USD_SUFFIXES = (".usdc", ".usda", ".usd")
+SPLAT_SUFFIXES = (".ply", ".spz", ".splat", ".glb")
+
 # --- seeds (sample points, synthetic subjects, diffusion noise): integers in [0, MAX_SEED]
 MAX_SEED = 2**32 - 1  # what numpy's legacy seeding and an avatar's extra.samples.seed take
 MAX_TRAIN_SEED = 2**31 - 1  # dla train's seed: a signed 32-bit integer

@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as nnf
 
 from dlacli.errors import DlaInputError
-from dlacli.limits import DEFAULT_GAUSSIANS
+from dlacli.limits import DEFAULT_GAUSSIANS, MIN_GAUSSIANS
 from dlacli.types import F_CHANNELS, F_LOG_SCALE, F_OFFSET, F_OPACITY, F_RGB, F_ROTATION, Gaussians
 
 # F's channel layout, defined once in dlacli.types (io/avatar.py checks files with it), by the names used above io/
@@ -49,8 +49,8 @@ def make_samples(n: int = DEFAULT_GAUSSIANS, seed: int = 0) -> Samples:
     """n samples: n // 2 uniform over the covered UV texels, the rest uniform by surface area."""
     from dlacli.body.uv import sample_surface, sample_uv, sample_uv_points
 
-    if n < 2:
-        raise DlaInputError("--gaussians", f"needs at least 2 Gaussians, got {n}")
+    if n < MIN_GAUSSIANS:
+        raise DlaInputError("--gaussians", f"needs at least {MIN_GAUSSIANS} Gaussians, got {n}")
     f_uv, b_uv = sample_uv(n // 2, seed=seed)
     f_s, b_s = sample_surface(n - n // 2, seed=seed + 1)
     face_id = np.concatenate([f_uv, f_s])

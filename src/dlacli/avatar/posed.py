@@ -27,7 +27,7 @@ import torch
 from dlacli.avatar import gaussian_map as gm
 from dlacli.avatar.codec import Decoded
 from dlacli.errors import DlaInputError
-from dlacli.limits import DEFAULT_GAUSSIANS, MAX_GAUSSIANS
+from dlacli.limits import DEFAULT_GAUSSIANS, MAX_GAUSSIANS, MAX_SEED, MIN_GAUSSIANS
 from dlacli.types import Avatar, Cameras, Gaussians
 
 CAMERAS_PER_CALL = 8  # splat this many cameras at once: projections are [C, N, ...], memory grows with C
@@ -40,10 +40,12 @@ def sample_settings(avatar: Avatar, n_gaussians: int | None = None, seed: int | 
     recorded = avatar.extra.get("samples", {}) if isinstance(avatar.extra.get("samples"), dict) else {}
     count = n_gaussians if n_gaussians is not None else recorded.get("count", DEFAULT_GAUSSIANS)
     seed = seed if seed is not None else recorded.get("seed", 0)
-    if not isinstance(count, int) or isinstance(count, bool) or not 2 <= count <= MAX_GAUSSIANS:
-        raise DlaInputError("avatar", f"extra.samples.count must be an integer in [2, {MAX_GAUSSIANS}], got {count!r}")
-    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**32:
-        raise DlaInputError("avatar", f"extra.samples.seed must be an integer in [0, 2^32), got {seed!r}")
+    if not isinstance(count, int) or isinstance(count, bool) or not MIN_GAUSSIANS <= count <= MAX_GAUSSIANS:
+        raise DlaInputError(
+            "avatar", f"extra.samples.count must be an integer in [{MIN_GAUSSIANS}, {MAX_GAUSSIANS}], got {count!r}"
+        )
+    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed <= MAX_SEED:
+        raise DlaInputError("avatar", f"extra.samples.seed must be an integer in [0, {MAX_SEED}], got {seed!r}")
     return count, seed
 
 

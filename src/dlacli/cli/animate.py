@@ -8,7 +8,8 @@ from typing import Optional
 import typer
 
 from dlacli.cli import options
-from dlacli.cli.options import USD_SUFFIXES, auto_note, naming_avatar
+from dlacli.cli.options import auto_note, naming_avatar
+from dlacli.limits import USD_SUFFIXES
 
 
 def animate(

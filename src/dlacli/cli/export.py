@@ -8,7 +8,8 @@ from typing import Optional
 import typer
 
 from dlacli.cli import options
-from dlacli.cli.options import SPLAT_SUFFIXES, USD_SUFFIXES, check_suffix, naming_avatar
+from dlacli.cli.options import check_suffix, naming_avatar
+from dlacli.limits import SPLAT_SUFFIXES, USD_SUFFIXES
 
 
 def export(

@@ -42,11 +42,6 @@ MOTION_SPEC = (
 )
 RESAMPLE_HELP = "Resample the motion to this frame rate (default: the motion's own)."
 
-# Suffixes of the files the commands write, in the order the messages list them. The writers' own
-# lists (their modules load numpy or torch) are checked equal to these in tests/cli/test_options.py.
-USD_SUFFIXES = (".usdc", ".usda", ".usd")  # dlacli.io.usd.SUFFIXES
-SPLAT_SUFFIXES = (".ply", ".spz", ".splat", ".glb")  # dlacli.stages.export.FORMATS
-
 
 # ------------------------------------------------------------------------------------------------
 # callbacks: the checks

@@ -34,12 +34,13 @@ import numpy as np
 
 from dlacli.errors import EXCERPT_CHARS, DlaInputError, excerpt, one_line
 from dlacli.io.atomic import atomic_path
+from dlacli.limits import USD_SUFFIXES
 from dlacli.types import SH_C0
 
 FORMAT = "dla.usd/1"
 FORMAT_KEY = "dla:format"
 SCHEMAS = ("points", "instancer", "particlefield", "both")
-SUFFIXES = (".usd", ".usda", ".usdc")
+SUFFIXES = USD_SUFFIXES
 AVATAR = "/Avatar"
 INSTANCER = "/Avatar/Gaussians"
 POINTS = "/Avatar/Points"
@@ -197,7 +198,7 @@ def write_usd(
     """Write T frames of N Gaussians as USD (binary for .usdc and .usd, text for .usda), atomically."""
     path = Path(path)
     if path.suffix.lower() not in SUFFIXES:
-        raise DlaInputError(path, f"unknown USD suffix {path.suffix!r} (use .usd, .usda or .usdc)")
+        raise DlaInputError(path, f"unknown USD suffix {path.suffix!r} (use {', '.join(SUFFIXES)})")
     if schema not in SCHEMAS:
         raise DlaInputError("--schema", f"unknown schema {schema!r} (use one of {', '.join(SCHEMAS)})")
     if not (np.isfinite(fps) and fps > 0):

@@ -61,7 +61,7 @@ def _open_stage(path: Path):
     if _encoding(path) == "usda":
         _check_usda_text(path)
     if path.suffix.lower() not in SUFFIXES:
-        raise DlaInputError(path, f"unknown USD suffix {excerpt(path.suffix)} (use .usd, .usda or .usdc)")
+        raise DlaInputError(path, f"unknown USD suffix {excerpt(path.suffix)} (use {', '.join(SUFFIXES)})")
     try:
         stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Exception as err:  # pxr.Tf.ErrorException and friends

@@ -123,7 +123,7 @@ def write_rig_usd(path: str | os.PathLike, asset: RigAsset) -> Path:
 
     path = Path(path)
     if path.suffix.lower() not in SUFFIXES:
-        raise DlaInputError(path, f"unknown USD suffix {path.suffix!r} (use .usd, .usda or .usdc)")
+        raise DlaInputError(path, f"unknown USD suffix {path.suffix!r} (use {', '.join(SUFFIXES)})")
     _check(asset)
     tex_path = texture_path(path)
 

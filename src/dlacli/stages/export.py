@@ -33,11 +33,12 @@ import numpy as np
 import torch
 
 from dlacli.errors import DlaInputError
+from dlacli.limits import SPLAT_SUFFIXES
 from dlacli.types import Avatar, BodyParams, Gaussians, Motion
 
 POSES = ("rest", "canonical", "input")
 UPS = ("y", "z")
-FORMATS = (".ply", ".spz", ".splat", ".glb")
+FORMATS = SPLAT_SUFFIXES
 
 # rotation matrices, world -> file, as (x, y, z) -> row-vector images
 R_3DGS = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])  # 180 deg about (0, 1, -1)/sqrt 2
