@@ -11,7 +11,7 @@ hash is what a learned avatar records, and `dla animate` / `render` / `edit` dec
 Z through it. The training loop (dlacli.train) and the learned lift (stages/learned.py) call the
 same batched pieces, `reconstruct` and `encode`, and decode Z as every avatar is decoded: the
 codec's `Decoded.of(net, z)` placed by avatar/posed.py (`prepare` shares the GPD trunk between
-F_c and every F_delta). `decode` is the GPD's batched form (z [B], cond [B]).
+F_c and every F_delta).
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
-import numpy as np
 import torch
 from torch import nn
 
@@ -98,18 +97,6 @@ def output_rays(cameras: Cameras, side: int) -> tuple[torch.Tensor, torch.Tensor
     return pixel_rays(cameras.to(dtype=torch.float32).resized(side, side))
 
 
-def conditioning(vertices: torch.Tensor, rest_vertices, eye, resolution: int, pose=None) -> torch.Tensor:
-    """[12, R, R] what the GPD's pose/view branch sees of one target: the posed body's relative
-    vertex positions (3) and normals (3) and the camera's Plücker rays (6) in UV space. `pose`:
-    the body's codec.PoseConditioning when already computed (several cameras, one body)."""
-    from dlacli.avatar.codec import pose_conditioning, uv_rays
-
-    v = torch.as_tensor(vertices, dtype=torch.float32)
-    pose = pose if pose is not None else pose_conditioning(v, np.asarray(rest_vertices), resolution)
-    rays = uv_rays(v, torch.as_tensor(eye, dtype=torch.float32), resolution)
-    return torch.cat([pose.relative_positions, pose.normals, rays], dim=0)
-
-
 class LearnedAvatarNet(nn.Module, Decoder):
     """U-Net G + encoder F + GPD, built from a LearnedConfig; the codec's decoder "gpd"."""
 
@@ -173,15 +160,6 @@ class LearnedAvatarNet(nn.Module, Decoder):
 
         r = self.config.encoder.uv_resolution
         return torch.stack([position_map(v.float(), r).permute(2, 0, 1) for v in vertices])
-
-    def decode(self, z: torch.Tensor, cond: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """z [B, C, r, r], cond [B, 12, R, R] or None -> (F [B, 14, R, R], F_delta [B, 14, R, R])."""
-        trunk = self.gpd.trunk(z)
-        f_c = self.gpd.canonical(z, trunk=trunk)
-        if cond is None or not self.conditioned:
-            return f_c, torch.zeros_like(f_c)
-        d = self.gpd.delta(z, cond, trunk=trunk)
-        return f_c + d, d
 
     # ------------------------------------------------------------------ the codec's Decoder
     def prepare(self, z: torch.Tensor):
