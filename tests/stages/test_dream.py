@@ -169,7 +169,7 @@ def test_silhouette_excess_measures_what_sticks_out(folder, posed):
     from dlacli.body.model import get_body_model
     from dlacli.io.views import read_views
     from dlacli.render.raster import rasterize
-    from dlacli.stages.dream import silhouette_excess
+    from dlacli.stages.plausibility import silhouette_excess
 
     vs = read_views(folder)
     verts = posed["verts"]
@@ -304,7 +304,7 @@ def test_real_photo(stem, third_party_data, tmp_path):
     # no sheets or streaks: measured 0.000-0.019 on these photos (raised knee 0.009, raised arms
     # 0.007); a side view smeared to twice the body's width would score ~1
     from dlacli.body.model import get_body_model
-    from dlacli.stages.dream import silhouette_excess
+    from dlacli.stages.plausibility import silhouette_excess
 
     verts = get_body_model().forward_body(vs.body).vertices[0].numpy()
     assert silhouette_excess(vs.masks, vs.cameras, verts).max() < 0.08

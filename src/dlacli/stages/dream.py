@@ -29,6 +29,7 @@ import torch
 from scipy import ndimage
 
 from dlacli.errors import DlaInputError
+from dlacli.stages.plausibility import plausibility, silhouette_excess  # noqa: F401  (silhouette_excess: moved)
 from dlacli.types import Cameras, ViewSet
 
 AZIMUTHS = (0.0, 90.0, 180.0, 270.0)  # degrees, view order in the folder
@@ -494,32 +495,10 @@ def build_views(
         rgb, alpha, cam, fit.vertices, pipe, frames=frames, steps=steps, seed=seed, say=say
     )
     info.update(settings)
-    info["silhouette_excess"] = [round(float(x), 4) for x in silhouette_excess(masks, cams, fit.vertices)]
+    info["plausibility"] = plausibility(images, masks, cams, fit.vertices)
+    info["silhouette_excess"] = info["plausibility"]["excess"]
     names = [f"images/view_{i:03d}.png" for i in range(len(images))]
     return ViewSet(images, masks, cams, fit.body, names, [None] * len(images), {"dream": info})
-
-
-def silhouette_excess(masks: np.ndarray, cameras: Cameras, vertices: np.ndarray) -> np.ndarray:
-    """How far each view's person mask goes beyond a plausible body-plus-clothing volume.
-
-    masks [A, H, W] (view 0 the photo), cameras [A], vertices [V, 3] the fitted body -> [A] floats:
-    the area of view a's mask farther from the fitted body's silhouette in view a than the
-    clothing the photo shows (the 99th percentile of the photo mask's distance outside the body's
-    photo silhouette, plus 2 px for the outline's antialiasing), as a fraction of the body's
-    silhouette area in view a. View 0 scores ~0.01 by construction; a side view smeared into a
-    sheet as wide as the body scores ~0.5 or more. Stored in transforms.json (`dream.silhouette_excess`).
-    """
-    from dlacli.body.model import get_body_model
-    from dlacli.render.raster import rasterize
-
-    body = rasterize(vertices, get_body_model().faces, cameras).face_id >= 0  # [A, H, W]
-    person = masks > 0.5
-    outside = [ndimage.distance_transform_edt(~b) if b.any() else np.full(b.shape, np.inf) for b in body]
-    spill = outside[0][person[0] & ~body[0]]
-    allowance = (float(np.percentile(spill, 99)) if spill.size else 0.0) + 2.0  # pixels
-    return np.array(
-        [float((person[a] & (outside[a] > allowance)).sum()) / max(int(body[a].sum()), 1) for a in range(len(masks))]
-    )
 
 
 def write_dream_folder(views: ViewSet, overlay: np.ndarray, output: str | os.PathLike) -> Path:
