@@ -301,13 +301,14 @@ def test_real_photo(stem, third_party_data, tmp_path):
     for i in range(1, 4):  # novel views are about the person's size
         assert 0.3 < (vs.masks[i] > 0.5).sum() / (vs.masks[0] > 0.5).sum() < 3.0
     assert (out / "fit_overlay.png").is_file() and alpha.any()
-    # no sheets or streaks: measured 0.000-0.019 on these photos (raised knee 0.009, raised arms
-    # 0.007); a side view smeared to twice the body's width would score ~1
+    # no body-wide sheets: the per-part excess (stages/plausibility.py) measured 0.020-0.055 on
+    # these photos at these settings (the seated woman's hoodie bulging behind her back 0.055, 0.095
+    # with 300 fit steps); a side view smeared to twice the body's width would score ~1
     from dlacli.body.model import get_body_model
     from dlacli.stages.plausibility import silhouette_excess
 
     verts = get_body_model().forward_body(vs.body).vertices[0].numpy()
-    assert silhouette_excess(vs.masks, vs.cameras, verts).max() < 0.08
+    assert silhouette_excess(vs.masks, vs.cameras, verts).max() < 0.15
 
 
 # ------------------------------------------------------------------------------- wrong inputs

@@ -7,8 +7,8 @@ striped fabric that the photo has are allowed and only what the views add is cou
 - `silhouette_excess` (sheets): the photo's mask spill beyond the fitted body's silhouette is
   measured per body part (the part of the nearest body pixel), as a robust percentile of the
   distance in metres at that part's depth; in view a, a pixel outside the body is allowed when it
-  is within its nearest body part's allowance (converted back to pixels at that pixel's depth in
-  view a) plus an antialiasing margin. Excess = the view's mask area not allowed / the body's
+  is within its nearest body part's allowance (converted back to pixels at that body pixel's depth
+  in view a) plus an antialiasing margin. Excess = the view's mask area not allowed / the body's
   silhouette area in that view.
 - `streak_fractions` (streaks): from the structure tensor of the view's luminance inside the person
   mask, the share of textured pixels whose texture is coherent (one dominant orientation) and runs
@@ -29,7 +29,7 @@ from dlacli.types import Cameras
 
 ALLOWANCE_PERCENTILE = 97.0  # robust extent of the photo's clothing spill per body part
 AA_MARGIN_PX = 2.0  # mask outlines are antialiased and the body raster samples pixel centres
-ANALYSIS_RES = 256  # streaks are measured on views block-averaged to about this size
+ANALYSIS_RES = 256  # views are measured block-averaged to about this size (cost, fixed scales)
 GRADIENT_SIGMA = 1.0  # px (at ANALYSIS_RES): luminance smoothing before differencing
 TENSOR_SIGMA = 2.0  # px: integration scale of the structure tensor
 TEXTURED = 0.01  # rms luminance gradient per pixel above which a pixel counts as textured
@@ -103,9 +103,7 @@ def part_allowance(
     return out
 
 
-def silhouette_excess(
-    masks: np.ndarray, cameras: Cameras, vertices: np.ndarray, *, raster=None, allowance: np.ndarray | None = None
-) -> np.ndarray:
+def silhouette_excess(masks: np.ndarray, cameras: Cameras, vertices: np.ndarray) -> np.ndarray:
     """How far each view's person mask goes beyond the fitted body plus the clothing the photo shows
     around each body part.
 
@@ -113,19 +111,17 @@ def silhouette_excess(
     the area of view a's mask outside the body's silhouette grown per part (each pixel outside the
     body is allowed up to its nearest part's `part_allowance`, in pixels at that body pixel's depth
     in view a, + AA_MARGIN_PX), as a fraction of the body's silhouette area in view a. Body pixels
-    are never counted. A sheet as wide as the body beside it scores ~1. Views larger than
-    ~1.5 ANALYSIS_RES are measured block-averaged (`to_analysis`). `raster` ((part, depth) at that
-    size) and `allowance` may be passed to share work.
+    are never counted; a view without the body counts its whole mask. A sheet as wide as the body
+    beside it scores ~1. Views of 1.5 ANALYSIS_RES or more are measured block-averaged (`to_analysis`).
     """
     from dlacli.body.regions import PARTS
 
     _, masks, cameras = to_analysis(None, masks, cameras)
     person = np.asarray(masks) > 0.5
-    part, depth = _body_raster(vertices, cameras) if raster is None else raster
+    part, depth = _body_raster(vertices, cameras)
     fx = cameras.Ks[:, 0, 0].double().numpy()
     nearest = [_nearest_body(part[a], depth[a]) for a in range(len(person))]
-    if allowance is None:
-        allowance = part_allowance(person[0], part[0], depth[0], float(fx[0]), len(PARTS), nearest[0])
+    allowance = part_allowance(person[0], part[0], depth[0], float(fx[0]), len(PARTS), nearest[0])
     out = np.empty(len(person))
     for a in range(len(person)):
         d, near, z = nearest[a]
