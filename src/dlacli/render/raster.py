@@ -395,8 +395,8 @@ def render_textured(
     px_uv = _interpolate_numpy(uvs.astype(np.float32), fuv, fid, bary)  # [C, Hh, Wh, 2]
     col = np.zeros(fid.shape + (3,), np.float32)
     col[covered] = sample_texture(tex, px_uv[covered])
-    c, h, w = len(cameras), cameras.height, cameras.width
-    col = col.reshape(c, h, aa, w, aa, 3).mean(axis=(2, 4))
-    alpha = covered.reshape(c, h, aa, w, aa).mean(axis=(2, 4), dtype=np.float32)
+    cov = covered.astype(np.float32)
+    col = sum(col[:, i::aa, j::aa] for i in range(aa) for j in range(aa)) / float(aa * aa)  # box filter
+    alpha = sum(cov[:, i::aa, j::aa] for i in range(aa) for j in range(aa)) / float(aa * aa)
     rgb = col + (1.0 - alpha[..., None]) * bg
     return np.concatenate([rgb, alpha[..., None]], axis=-1).astype(np.float32)

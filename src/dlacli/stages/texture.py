@@ -100,6 +100,12 @@ def _rest() -> np.ndarray:
     return get_body_model().rest_vertices().astype(np.float64)
 
 
+@functools.lru_cache(maxsize=4)
+def rest_texel_points(resolution: int) -> np.ndarray:
+    """[N, 3] the texels' points on the rest body (default phenotype, zero pose)."""
+    return texel_points(_rest(), resolution)
+
+
 def _cached(name: str, resolution: int, build) -> np.ndarray:
     """An int64 texel map, cached on disk beside the UV rasters (cache_dir("uv"))."""
     from dlacli.body.uv import UV_LAYOUT, _layout_hash
@@ -128,7 +134,7 @@ def mirror_texels(resolution: int) -> np.ndarray:
     (anny's rest body is symmetric to 0.4 mm)."""
 
     def build():
-        p = texel_points(_rest(), resolution)
+        p = rest_texel_points(resolution)
         return cKDTree(p).query(p * [-1.0, 1.0, 1.0])[1]
 
     return _cached("mirror", resolution, build)
@@ -140,7 +146,7 @@ def back_texels(resolution: int) -> np.ndarray:
     coronal plane (y = the part's mean y in the rest pose): front <-> back."""
 
     def build():
-        p = texel_points(_rest(), resolution)
+        p = rest_texel_points(resolution)
         part = texel_samples(resolution)[2]
         out = np.arange(p.shape[0])
         for k in np.unique(part):
@@ -355,25 +361,25 @@ def complete(colour: np.ndarray, weight: np.ndarray, resolution: int) -> np.ndar
     acc, cov = _over(acc, cov, col2, a2)
     known = cov > 0.5
     known_col = acc / np.maximum(cov, 1e-6)[:, None]
-    fill = _fill(known_col, known, part, resolution)
+    fill = _fill(known_col, known, part, resolution, need=cov < 1.0)
     out = acc + (1.0 - cov)[:, None] * fill
     if not known.any():  # nothing of the body seen: keep the photo's mean colour
         out[:] = colour[weight > 0].mean(0) if (weight > 0).any() else 0.5
     return np.clip(out, 0.0, 1.0).astype(np.float32)
 
 
-def _fill(colour, known, part, resolution):
+def _fill(colour, known, part, resolution, need=None):
     """[N, 3]: per part, the colour of the nearest known texel of the same part (FALLBACK parts
     when it has none) in the rest body, then a Gaussian blur (sigma R / 96 texels) in UV space
-    within the part."""
+    within the part. Only parts with a texel in `need` [N] bool (default all) are filled."""
     from dlacli.body.regions import PARTS
     from dlacli.body.uv import valid_texels
 
-    rest = texel_points(_rest(), resolution)
+    rest = rest_texel_points(resolution)
     rows, cols, _ = valid_texels(resolution)
     out = np.zeros_like(colour)
     sigma = resolution / 96.0
-    for k in np.unique(part):
+    for k in np.unique(part if need is None else part[need]):
         idx = np.nonzero(part == k)[0]
         src = idx[known[idx]]
         for name in FALLBACK[PARTS[k]]:
@@ -385,8 +391,9 @@ def _fill(colour, known, part, resolution):
             src = np.nonzero(known & (part != PARTS.index("face")))[0]
         if not src.size:
             continue
-        near = src[cKDTree(rest[src]).query(rest[idx])[1]]
-        val = colour[near]
+        val = colour[idx].copy()  # a known texel is its own nearest known texel
+        todo = ~known[idx]
+        val[todo] = colour[src[cKDTree(rest[src]).query(rest[idx[todo]])[1]]]
         r0, r1, c0, c1 = rows[idx].min(), rows[idx].max() + 1, cols[idx].min(), cols[idx].max() + 1
         pad = int(3 * sigma) + 1
         r0, c0 = max(r0 - pad, 0), max(c0 - pad, 0)
