@@ -200,6 +200,40 @@ def offset_bounds() -> np.ndarray:
     return out
 
 
+@functools.lru_cache(maxsize=1)
+def local_radius() -> np.ndarray:
+    """[V] metres: each rest-pose vertex's distance to the nearest axis segment (bone head to a
+    child bone's head; a leaf bone: its head) of the bones that move it (skinning weight > 0.05):
+    about the local half thickness of the limb, neck or trunk there."""
+    from dlacli.body.model import get_body_model
+
+    m = get_body_model()
+    heads = m.rest_bone_heads().astype(np.float64)  # [J, 3]
+    parents = np.asarray(m.bone_parents)
+    kids = [np.nonzero(parents == j)[0] for j in range(heads.shape[0])]
+    cmax = max(1, max(len(c) for c in kids))
+    tails = np.repeat(heads[:, None], cmax, axis=1)  # [J, Cmax, 3], padded with the head itself
+    for j, c in enumerate(kids):
+        tails[j, : len(c)] = heads[c]
+    idx, wts = m.vertex_bone_weights
+    rest = _rest()
+    out = np.full(rest.shape[0], np.inf)
+    for k in range(idx.shape[1]):
+        a, b = heads[idx[:, k]][:, None], tails[idx[:, k]]  # [V, 1, 3], [V, Cmax, 3]
+        ab = b - a
+        t = np.clip(((rest[:, None] - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)
+        d = np.linalg.norm(rest[:, None] - (a + t[..., None] * ab), axis=-1).min(axis=1)
+        out = np.where(wts[:, k] > 0.05, np.minimum(out, d), out)
+    return np.where(np.isfinite(out), out, 0.0)
+
+
+def vertex_bounds() -> np.ndarray:
+    """[V] metres: the largest offset of each vertex: its part's bound (`offset_bounds`) and at
+    most its `local_radius` (a limb's surface at most doubles its thickness there)."""
+    part, _ = _vertex_parts_and_adjacency()
+    return np.minimum(offset_bounds()[part], local_radius())
+
+
 def silhouette_offsets(alpha: np.ndarray, camera: Cameras, vertices: np.ndarray, normals: np.ndarray):
     """Per silhouette vertex: how far the person mask reaches beyond the body along its normal.
 
@@ -231,7 +265,8 @@ def silhouette_offsets(alpha: np.ndarray, camera: Cameras, vertices: np.ndarray,
     tn = np.hypot(tx, ty)
     cand = np.nonzero(visible & (cosv < GRAZING) & (tn > 1e-9))[0]
     part, _ = _vertex_parts_and_adjacency()
-    bound_px = offset_bounds()[part[cand]] * k[0, 0] / z[cand]  # [S]
+    bound = vertex_bounds()[cand]
+    bound_px = bound * k[0, 0] / z[cand]  # [S]
     steps = int(math.ceil(bound_px.max())) + 4 if cand.size else 1
     s = np.arange(steps, dtype=np.float64)
     px = x[cand, None] + (tx / tn)[cand, None] * s
@@ -248,7 +283,7 @@ def silhouette_offsets(alpha: np.ndarray, camera: Cameras, vertices: np.ndarray,
     run_end = np.where((beyond | ~after).all(axis=1), steps, run_end)
     run = np.clip(run_end - exit_, 0, None).astype(np.float64)
     metres = np.minimum(run, bound_px) * z[cand] / np.maximum(tn[cand], 0.5 * k[0, 0])  # px / (px per metre)
-    metres = np.minimum(metres, offset_bounds()[part[cand]])
+    metres = np.minimum(metres, bound)
     return cand[on_edge], metres[on_edge]
 
 
@@ -257,7 +292,7 @@ def clothing_offsets(alpha: np.ndarray, camera: Cameras, vertices: np.ndarray, n
     and hair the photo shows (module docstring, step 1). Each part's vertices take a Gaussian
     (SPREAD) average of its silhouette vertices' offsets, mixed with the part's median where none
     is near; then 8 steps of mesh smoothing join the parts; the result is clamped to
-    `offset_bounds`."""
+    `vertex_bounds`."""
     normals = _normals(vertices) if normals is None else normals
     ids, off = silhouette_offsets(alpha, camera, vertices, normals)
     part, adj = _vertex_parts_and_adjacency()
@@ -280,7 +315,7 @@ def clothing_offsets(alpha: np.ndarray, camera: Cameras, vertices: np.ndarray, n
             num[a : a + 4096] += wgt @ val
             den[a : a + 4096] += wgt.sum(1)
         out[dst] = num / den
-    cap = bounds[part]
+    cap = vertex_bounds()
     out = np.clip(out, 0.0, cap)
     for _ in range(8):
         out = np.minimum(0.5 * out + 0.5 * (adj @ out), cap)
