@@ -121,15 +121,17 @@ def test_render_textured_matches_vertex_colours(scene):
 
 def test_bake_sees_the_true_texture_face_on(scene):
     """(a) texels the photo sees face-on (weight > 0.6, i.e. within ~40 degrees) carry the true
-    texture: the photo resamples a UV-256 texture at ~1 texel per pixel, is resampled to the crop
-    and bilinearly sampled back, which blurs the pattern by ~1 texel: PSNR > 26 dB."""
+    texture. The photo resamples the UV-256 texture (bilinear), is resampled to the crop and
+    sampled back (bilinear): each step blurs by < 1 texel / pixel, and the pattern's shortest
+    wavelength (2 pi / 23 m, ~27 cm) spans ~25 crop pixels, so the loss is ~(pi / 25)^2 / 2 of
+    the 0.2 amplitude: PSNR > 40 dB (measured 55.8); part borders are not baked at all."""
     from dlacli.stages.texture import bake
 
     s = scene["pattern"]
     colour, weight = bake(s["rgb"], s["alpha"], s["cam"], scene["verts"], UV)
     seen = weight > 0.6
     assert seen.mean() > 0.15  # a third of the body faces the camera; the UV layout is not uniform
-    assert _psnr(colour, s["texels"], seen) > 26.0
+    assert _psnr(colour, s["texels"], seen) > 40.0
     # and a texel facing away is never baked
     assert (weight[weight > 0] > 0).all() and weight.max() <= 1.0
 

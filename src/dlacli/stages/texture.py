@@ -57,9 +57,10 @@ FALLBACK = {  # where a part no texel of which is seen takes its colours from (i
 
 def uv_resolution(res: int) -> int:
     """The UV map's resolution for a res x res crop: res rounded to a power of two, in [256, 1024].
-    The person fills ~85 % of the crop's height; at R = res the texels the photo sees face-on
-    are about as many as the person's pixels (measured: 0.9-1.3 texels per pixel on the synthetic
-    photo), so the bake neither loses nor invents resolution."""
+    The person fills ~85 % of the crop's height; at R = res the texels the photo sees within 45
+    degrees are about as many as the person's pixels (measured on the synthetic photo at 512:
+    31,093 texels for 31,484 person pixels; 42,526 texels seen at any angle), so the bake keeps
+    the photo's resolution without many texels per pixel."""
     return int(min(UV_MAX, max(UV_MIN, 2 ** round(math.log2(max(int(res), 1))))))
 
 
