@@ -234,8 +234,8 @@ def test_thickness_from_a_grown_mask(scene):
         clothing_offsets,
         mask_iou,
         offset_bounds,
-        vertex_bounds,
         silhouette_offsets,
+        vertex_bounds,
     )
 
     s = scene["pattern"]
@@ -260,3 +260,25 @@ def test_thickness_from_a_grown_mask(scene):
     assert np.median(full[part == PARTS.index("right_arm")]) < 0.2 * np.median(expect)
     displaced = verts + full[:, None] * normals
     assert mask_iou(grown, cam, displaced) > mask_iou(grown, cam, verts)
+
+
+def test_render_textured_refuses_bad_input(scene):
+    from dlacli.body.model import get_body_model
+    from dlacli.errors import DlaInputError
+    from dlacli.render.raster import render_textured
+
+    m = get_body_model()
+    cam = _camera(w=32, h=32, f=40.0)
+    tex = np.zeros((8, 8, 3), np.float32)
+    with pytest.raises(DlaInputError, match="texture"):
+        render_textured(scene["verts"], m.faces, m.uv, m.face_uv, np.zeros((8, 8)), cam)
+    with pytest.raises(DlaInputError, match="face_uv"):
+        render_textured(scene["verts"], m.faces, m.uv, m.face_uv[:10], tex, cam)
+    with pytest.raises(DlaInputError, match="antialias"):
+        render_textured(scene["verts"], m.faces, m.uv, m.face_uv, tex, cam, antialias=0)
+
+
+def test_uv_resolution_rule():
+    from dlacli.stages.texture import uv_resolution
+
+    assert [uv_resolution(r) for r in (64, 256, 300, 512, 700, 4096)] == [256, 256, 256, 512, 512, 1024]

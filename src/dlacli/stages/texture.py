@@ -34,6 +34,7 @@ SEEN = 0.5  # weight at which a texel's own photo colour is fully trusted (about
 UV_MIN, UV_MAX = 256, 1024  # the UV map resolution's range
 DEPTH_TOL = 0.01  # metres: a texel within this of the z-buffer is visible
 BORDER_DIV = 170  # photo pixels within max(1, res // BORDER_DIV) of a part border are not baked
+FACE_BORDER_DIV = 40  # nor those of other parts within res / FACE_BORDER_DIV of the face
 GRAZING = 0.35  # |cos(normal, view ray)| below this: a silhouette vertex candidate
 SPREAD = 0.06  # metres: Gaussian radius spreading silhouette offsets over a part
 OFFSET_FRACTION = 0.25  # an offset is at most this fraction of its part's length (rest pose)
@@ -333,7 +334,7 @@ def bake(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarr
     between its normal and the direction to the camera x the mask there, 0 where the body's
     z-buffer hides it or it faces away."""
     from dlacli.body.model import get_body_model
-    from dlacli.body.regions import face_parts
+    from dlacli.body.regions import PARTS, face_parts
     from dlacli.render.raster import rasterize, sample_texture, world_to_camera
 
     h, w = alpha.shape
@@ -358,6 +359,12 @@ def bake(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarr
     size = 2 * max(1, w // BORDER_DIV) + 1
     pure = (ndimage.maximum_filter(pimg, size) == ndimage.minimum_filter(pimg, size))[yi, xi]
     visible &= pure & (pimg[yi, xi] == part)
+    # a wider border around the face: skin and beard must not reach the hair or the neck, whose
+    # colours are mirrored to the back of the head and neck
+    face_px = pimg == PARTS.index("face")
+    if face_px.any():
+        near_face = ndimage.distance_transform_edt(~face_px) < max(1.0, w / FACE_BORDER_DIV)
+        visible &= ~near_face[yi, xi] | (part == PARTS.index("face"))
     eye = np.linalg.inv(vm)[:3, 3]
     to_cam = eye - pts
     cos = (nrm * to_cam).sum(1) / np.linalg.norm(to_cam, axis=1)
