@@ -34,7 +34,7 @@ SEEN = 0.5  # weight at which a texel's own photo colour is fully trusted (about
 UV_MIN, UV_MAX = 256, 1024  # the UV map resolution's range
 DEPTH_TOL = 0.01  # metres: a texel within this of the z-buffer is visible
 BORDER_DIV = 170  # photo pixels within max(1, res // BORDER_DIV) of a part border are not baked
-FACE_BORDER_DIV = 40  # nor those of other parts within res / FACE_BORDER_DIV of the face
+FACE_BORDER_DIV = 40  # nor torso (neck) texels within res / FACE_BORDER_DIV of the face
 GRAZING = 0.35  # |cos(normal, view ray)| below this: a silhouette vertex candidate
 SPREAD = 0.06  # metres: Gaussian radius spreading silhouette offsets over a part
 OFFSET_FRACTION = 0.25  # an offset is at most this fraction of its part's length (rest pose)
@@ -359,12 +359,13 @@ def bake(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarr
     size = 2 * max(1, w // BORDER_DIV) + 1
     pure = (ndimage.maximum_filter(pimg, size) == ndimage.minimum_filter(pimg, size))[yi, xi]
     visible &= pure & (pimg[yi, xi] == part)
-    # a wider border around the face: skin and beard must not reach the hair or the neck, whose
-    # colours are mirrored to the back of the head and neck
+    # a wider border between the face and the torso (the neck): the chin or a beard seen over the
+    # fitted neck would be mirrored to the back of the neck (the hair keeps the narrow border: a
+    # short haircut is only a thin band above the forehead)
     face_px = pimg == PARTS.index("face")
     if face_px.any():
         near_face = ndimage.distance_transform_edt(~face_px) < max(1.0, w / FACE_BORDER_DIV)
-        visible &= ~near_face[yi, xi] | (part == PARTS.index("face"))
+        visible &= ~near_face[yi, xi] | (part != PARTS.index("torso"))
     eye = np.linalg.inv(vm)[:3, 3]
     to_cam = eye - pts
     cos = (nrm * to_cam).sum(1) / np.linalg.norm(to_cam, axis=1)
