@@ -253,7 +253,9 @@ def test_thickness_from_a_grown_mask(scene):
     z = (verts[ids[on_arm]] @ cam.viewmats[0, :3, :3].double().numpy().T + cam.viewmats[0, :3, 3].numpy())[:, 2]
     expect = margin * z / float(cam.Ks[0, 0, 0])  # metres at each vertex's depth
     ratio = np.median(off[on_arm] / expect)
-    assert 0.6 < ratio < 1.4, ratio  # the dilation's octagonal corners and the 1 px steps
+    print("offset / margin, median over the arm's silhouette vertices:", ratio)
+    # 4 dilation steps grow a diamond: 4 px along the image axes, 2.8 px diagonally (measured 0.78)
+    assert 0.6 < ratio < 1.1, ratio
     full = clothing_offsets(grown, cam, verts, normals)
     assert (full <= vertex_bounds() + 1e-12).all() and (vertex_bounds() <= offset_bounds()[part] + 1e-12).all()
     assert np.median(full[part == la]) > 0.5 * np.median(expect)
