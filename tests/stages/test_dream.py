@@ -1,6 +1,7 @@
-"""dla dream, template backend: a synthetic photo of the posed body (known camera and body) and the
-4 real photos. Oracles: a direct render of the same textured body through the crop's camera,
-analytic camera positions, the mirrored front silhouette, the true body's side silhouette."""
+"""dla dream, shell backend (the legacy "template") and the defaults: a synthetic photo of the
+posed body (known camera and body) and the 4 real photos. Oracles: a direct render of the same
+textured body through the crop's camera, analytic camera positions, the mirrored front
+silhouette, the true body's side silhouette. The body backend: tests/stages/test_texture.py."""
 
 from __future__ import annotations
 
@@ -67,7 +68,7 @@ def posed():
 def folder(posed, tmp_path_factory):
     from dlacli.stages.dream import build_views, write_dream_folder
 
-    views = build_views(posed["rgb"], posed["alpha"], posed["fit"], backend="template", res=RES)
+    views = build_views(posed["rgb"], posed["alpha"], posed["fit"], backend="shell", res=RES)
     out = tmp_path_factory.mktemp("dream") / "views"
     overlay = (posed["rgb"] * 255).astype(np.uint8)
     return write_dream_folder(views, overlay, out)
@@ -188,14 +189,14 @@ def test_silhouette_excess_measures_what_sticks_out(folder, posed):
 
 
 def test_dream_views_stay_within_the_body_and_clothing(folder):
-    """The template's side and back views of the synthetic photo add nothing beyond the body
+    """The shell's side and back views of the synthetic photo add nothing beyond the body
     (the photo is the body's own render): stored in transforms.json by dream itself."""
     excess = json.loads((folder / "transforms.json").read_text())["dla"]["dream"]["silhouette_excess"]
     assert len(excess) == 4 and max(excess) < 0.02
 
 
-def test_lift_keeps_template_views_view_independent(folder):
-    """The template copies the photo's colours to the other views without shading them, so lift
+def test_lift_keeps_shell_views_view_independent(folder):
+    """The shell copies the photo's colours to the other views without shading them, so lift
     must find no view falloff in them (stages/lift.py `view_falloff`) and keep the identity
     decoder. (Dreams of the four photos in tests/data/third_party/images measured k = -0.04 ... 0.02.)"""
     from dlacli.io.views import read_views
@@ -260,6 +261,19 @@ def test_errors(posed, tmp_path):
     with pytest.raises(DlaInputError, match="--res"):
         dream(tmp_path / "x.png", tmp_path / "out", res=8)
     assert not (tmp_path / "out").exists()
+
+
+def test_backend_names(posed):
+    """ "body" is the default; "template" is the legacy name of "shell" and gives the same views."""
+    from dlacli.stages.dream import build_views
+
+    default = build_views(posed["rgb"], posed["alpha"], posed["fit"], res=64)
+    assert default.extra["dream"]["backend"] == "body"
+    shell = build_views(posed["rgb"], posed["alpha"], posed["fit"], backend="shell", res=64)
+    legacy = build_views(posed["rgb"], posed["alpha"], posed["fit"], backend="template", res=64)
+    np.testing.assert_array_equal(shell.images, legacy.images)
+    np.testing.assert_array_equal(shell.masks, legacy.masks)
+    assert not np.array_equal(default.masks[1:], shell.masks[1:])
 
 
 def test_failed_write_leaves_nothing(posed, tmp_path):

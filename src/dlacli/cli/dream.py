@@ -18,9 +18,11 @@ def dream(
     ),
     output: Path = options.output("View folder to write (replaced whole, written atomically)."),
     backend: str = typer.Option(
-        "template",
+        "body",
         "--backend",
-        help="'template' (CPU, no weights: the photo projected on a 2.5D shell of the fitted body) or 'diffusion' "
+        help="'body' (default; CPU, no weights: the photo baked onto the fitted body's UV map, completed by "
+        "symmetry, rendered from the fitted body with clothes and hair as a bounded thickness), 'shell' (CPU: the "
+        "photo on a 2.5D image-space shell; 'template' is its legacy name, same output) or 'diffusion' "
         "(pose-controlled video diffusion; extra 'diffusion' and local weights).",
     ),
     keypoints: Optional[Path] = typer.Option(

@@ -86,7 +86,7 @@ def _diffusers():
         import diffusers
     except ImportError:
         raise DlaInputError(
-            "--backend diffusion", "needs the diffusion extra: pip install 'dla[diffusion]' (or use --backend template)"
+            "--backend diffusion", "needs the diffusion extra: pip install 'dla[diffusion]' (or use --backend body)"
         ) from None
     return diffusers
 

@@ -334,3 +334,69 @@ def visible_vertices(
     cam = np.arange(z.shape[0])[:, None]
     zbuf = depth[cam, yi, xi].astype(np.float64)  # [C, V]
     return inside & (z <= zbuf + tol)
+
+
+def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of a UV map: texture [R, R, D], uv [..., 2] (u right, v up; texel centres at
+    u = (j + 0.5) / R, v = 1 - (i + 0.5) / R) -> [..., D]. Outside the map the border texel holds."""
+    tex = np.asarray(texture)
+    r = tex.shape[0]
+    x = np.asarray(uv[..., 0], np.float64) * tex.shape[1] - 0.5
+    y = (1.0 - np.asarray(uv[..., 1], np.float64)) * r - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = (x - x0)[..., None], (y - y0)[..., None]
+    xa, xb = np.clip(x0, 0, tex.shape[1] - 1).astype(np.int64), np.clip(x0 + 1, 0, tex.shape[1] - 1).astype(np.int64)
+    ya, yb = np.clip(y0, 0, r - 1).astype(np.int64), np.clip(y0 + 1, 0, r - 1).astype(np.int64)
+    top = tex[ya, xa] * (1.0 - fx) + tex[ya, xb] * fx
+    bottom = tex[yb, xa] * (1.0 - fx) + tex[yb, xb] * fx
+    return (top * (1.0 - fy) + bottom * fy).astype(np.float32)
+
+
+def render_textured(
+    vertices,
+    faces,
+    uv,
+    face_uv,
+    texture,
+    cameras: Cameras,
+    *,
+    antialias: int = 2,
+    background=(0.0, 0.0, 0.0),
+    near: float = NEAR,
+) -> np.ndarray:
+    """Render a UV-textured triangle mesh without shading: -> RGBA [C, H, W, 4] float32.
+
+    vertices [V, 3] (or [C, V, 3]) world, faces [F, 3], uv [Vt, 2] texture coordinates, face_uv
+    [F, 3] their indices per face corner (corner k of faces[f] has uv[face_uv[f, k]]), texture
+    [R, R, 3] rgb in [0, 1] (row 0 = top = v near 1). Each covered sample of the `antialias` x
+    supersampled image takes the bilinear texture value at its perspective-correct UV; the image
+    is box-filtered down, alpha = the covered fraction, rgb composited over `background` (so with
+    a black background rgb is premultiplied), as in `render_mesh`.
+    """
+    if not _is_int(antialias) or antialias < 1:
+        raise DlaInputError("antialias", f"expected an integer >= 1, got {antialias!r}")
+    tex = _np(texture, "texture", np.float32)
+    if tex.ndim != 3 or tex.shape[2] != 3 or min(tex.shape[:2]) < 1:
+        raise DlaInputError("texture", f"expected shape [R, R, 3], got {list(tex.shape)}")
+    bg = _np(background, "background", np.float32).reshape(-1)
+    if bg.shape != (3,):
+        raise DlaInputError("background", f"expected 3 values (rgb), got {bg.shape[0]}")
+    uvs = _check_points(uv, "uv", 2)
+    fuv = _check_faces(face_uv, uvs.shape[0])
+    aa = int(antialias)
+    _check_cameras(cameras)
+    hi = cameras.resized(cameras.width * aa, cameras.height * aa)
+    verts_cam, intr = _camera_vertices(vertices, hi)
+    faces = _check_faces(faces, verts_cam.shape[1])
+    if fuv.shape != faces.shape:
+        raise DlaInputError("face_uv", f"expected shape {list(faces.shape)}, got {list(fuv.shape)}")
+    fid, bary, _ = _raster_core(verts_cam, faces, intr, hi.width, hi.height, float(near), False)
+    covered = fid >= 0  # [C, Hh, Wh]
+    px_uv = _interpolate_numpy(uvs.astype(np.float32), fuv, fid, bary)  # [C, Hh, Wh, 2]
+    col = np.zeros(fid.shape + (3,), np.float32)
+    col[covered] = sample_texture(tex, px_uv[covered])
+    cov = covered.astype(np.float32)
+    col = sum(col[:, i::aa, j::aa] for i in range(aa) for j in range(aa)) / float(aa * aa)  # box filter
+    alpha = sum(cov[:, i::aa, j::aa] for i in range(aa) for j in range(aa)) / float(aa * aa)
+    rgb = col + (1.0 - alpha[..., None]) * bg
+    return np.concatenate([rgb, alpha[..., None]], axis=-1).astype(np.float32)

@@ -8,11 +8,14 @@ Steps (docs/dream.md):
 3. novel views at azimuths 90 / 180 / 270 degrees: the input camera turned about the vertical
    (+Z) axis through the body's centre, counter-clockwise seen from above (`orbit_cameras`), so
    azimuth 90 puts the camera on the +X side when the input camera is at azimuth 0 (-Y side);
-4. backend "template" (`template_views`, CPU, no weights): a 2.5D shell built from the photo's
-   silhouette and the fitted body's depth (`shell_mesh`), coloured from the photo in front and from
-   the mirrored front behind (`back_colours`), rendered by the triangle rasteriser; backend
-   "diffusion" (`diffusion_views`): the paper's pose-controlled video diffusion
-   (dlacli.nn.video_diffusion).
+4. backend "body" (default; `dlacli.stages.texture.body_views`, CPU, no weights): the photo baked
+   onto the fitted body's UV map, completed by symmetry and per body part, on the body displaced
+   along its normals where the photo's mask shows clothes or hair beyond it, rendered textured;
+   backend "shell" (`template_views`, CPU, no weights; "template" is its legacy alias): a 2.5D
+   shell built from the photo's silhouette and the fitted body's depth (`shell_mesh`), coloured
+   from the photo in front and from the mirrored front behind (`back_colours`), rendered by the
+   triangle rasteriser; backend "diffusion" (`diffusion_views`): the paper's pose-controlled video
+   diffusion (dlacli.nn.video_diffusion).
 View 0 is always the cropped photo itself, so the input view is exact.
 """
 
@@ -51,10 +54,17 @@ class Backend:
     load: Callable | None = None
 
 
-def _template(rgb, alpha, cam, vertices, loaded, *, frames, steps, seed, say):
-    say("rendering the template views")
+def _shell(rgb, alpha, cam, vertices, loaded, *, frames, steps, seed, say):
+    say("rendering the shell views")
     images, masks, cams = template_views(rgb, alpha, cam, vertices)
     return images, masks, cams, {}
+
+
+def _body(rgb, alpha, cam, vertices, loaded, *, frames, steps, seed, say):
+    from dlacli.stages.texture import body_views
+
+    say("baking the photo onto the body and rendering its views")
+    return body_views(rgb, alpha, cam, vertices)
 
 
 def _load_diffusion(model, device, res, frames, say):
@@ -83,7 +93,13 @@ def _diffusion(rgb, alpha, cam, vertices, pipe, *, frames, steps, seed, say):
     )
 
 
-BACKENDS: dict[str, Backend] = {"template": Backend(_template), "diffusion": Backend(_diffusion, _load_diffusion)}
+BACKENDS: dict[str, Backend] = {
+    "body": Backend(_body),
+    "shell": Backend(_shell),
+    "template": Backend(_shell),  # legacy alias of "shell" (the default before "body"): same output
+    "diffusion": Backend(_diffusion, _load_diffusion),
+}
+DEFAULT_BACKEND = "body"
 
 
 def _backend(name: str) -> Backend:
@@ -344,7 +360,7 @@ def _nearest_fill(label: np.ndarray) -> np.ndarray:
 
 
 def template_views(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarray, azimuths=AZIMUTHS):
-    """The template backend on a framed photo.
+    """The shell backend (legacy name "template") on a framed photo.
 
     rgb [R, R, 3], alpha [R, R] (the cropped photo), camera (its camera), vertices [V, 3] the
     fitted posed body -> (images [A, R, R, 3], masks [A, R, R], cameras). View 0 is the photo.
@@ -473,7 +489,7 @@ def build_views(
     mask: np.ndarray,
     fit,
     *,
-    backend: str = "template",
+    backend: str = DEFAULT_BACKEND,
     res: int = 512,
     pipe=None,
     frames: int = 80,
@@ -518,7 +534,7 @@ def dream(
     photo: str | os.PathLike,
     output: str | os.PathLike,
     *,
-    backend: str = "template",
+    backend: str = DEFAULT_BACKEND,
     keypoints: str | os.PathLike | None = None,
     mask: str | os.PathLike | None = None,
     res: int = 512,
