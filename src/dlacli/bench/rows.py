@@ -16,6 +16,14 @@ spec set them (`MethodSpec.options`) plus the protocol's keys; rows written befo
 say "refine", "unproject+refine" or "learned+refine", and `read_rows` reads them under the
 registry's names (`upgrade`).
 
+Accuracy rows of `dla bench accuracy --input photo` (bench/single_photo.py) have `input: "photo"`
+and `backend` (the dream backend) in the config, `seconds` = dream + lift, and also `stages`
+({dream_s, lift_s}), `alignment_mm` / `pose_alignment_mm` (the residual of the body alignment),
+`alignment_scale`, `fit` (dream's fit numbers) and `dreamed_per_view`; their splits include
+"dreamed_views". An accuracy row may carry `status` (STATUSES; "ok" when absent) and `error`:
+a run that could not be scored (its dream found no person) has status "error" and no metrics,
+and `points` leaves it out. `label` and `group` name photo rows "photo/BACKEND METHOD ...".
+
 Rows with a `kind` carry more (a row without one is an accuracy row, as above; `KINDS`):
 - "stability" (`dla bench stability`): also `perturbation`, `level`, `status` ("ok", "nan",
   "empty", "error") and `error`; metrics are required only when the status is "ok";
