@@ -84,7 +84,8 @@ def draw_chart(
                 lambda v, _: f"{v:g}" if v > 0 and round(v / 10 ** math.floor(math.log10(v))) in (2, 5) else ""
             )
         )
-        ax.set_xlabel("lift time per subject, s (log)")
+        photo = any(p["group"].startswith("photo/") for p in pts)
+        ax.set_xlabel("lift time per subject, s (log)" + ("; photo/*: dream + lift" if photo else ""))
         ax.set_ylabel({"psnr_masked": "PSNR inside the mask, dB", "psnr": "PSNR, dB"}.get(metric, metric))
         ax.set_title(split.replace("_", " "))
         ax.grid(True, which="both", alpha=0.3)

@@ -196,7 +196,9 @@ def accuracy(
     backend: str = typer.Option(
         "template", "--backend", help="With --input photo: dream backends to compare, comma-separated."
     ),
-    fit_steps: int = typer.Option(300, "--fit-steps", min=3, help="With --input photo: dream's body-fit steps."),
+    fit_steps: int = typer.Option(
+        300, "--fit-steps", min=3, max=100_000, help="With --input photo: dream's body-fit steps (as dla dream)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of a table."),
     jsonl: Optional[Path] = _results("rows"),
 ) -> None:
