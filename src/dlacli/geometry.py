@@ -293,6 +293,35 @@ def rigid_motion(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return r, mean
 
 
+def similarity_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None):
+    """The similarity that best carries points src [N, 3] onto dst [N, 3] (weighted Umeyama, no
+    reflection): (s, R [3, 3], t [3]) float64 minimising sum_i w_i |s R src_i + t - dst_i|^2;
+    weights [N] >= 0 (None: equal). Exact when dst is a similarity of src."""
+    p = np.asarray(src, np.float64)
+    q = np.asarray(dst, np.float64)
+    w = np.ones(len(p)) if weights is None else np.asarray(weights, np.float64)
+    w = w / w.sum()
+    mp, mq = w @ p, w @ q
+    a, b = p - mp, q - mq
+    cov = (b * w[:, None]).T @ a  # [3, 3] sum_i w_i b_i a_i^T
+    u, sv, vt = np.linalg.svd(cov)
+    d = np.ones(3)
+    d[2] = -1.0 if np.linalg.det(u) * np.linalg.det(vt) < 0 else 1.0
+    r = (u * d) @ vt
+    s = float((sv * d).sum() / (w @ (a * a).sum(axis=1)))
+    return s, r, mq - s * r @ mp
+
+
+def similarity_cameras(cameras: Cameras, s: float, r: np.ndarray, t: np.ndarray) -> Cameras:
+    """The same cameras in a world moved by the similarity x' = s R x + t: every camera sees the
+    moved world as it saw the old one (the same pixels; depths scale by s). Intrinsics unchanged."""
+    vm = cameras.viewmats.detach().cpu().double().numpy()  # [C, 4, 4]
+    out = vm.copy()
+    out[:, :3, :3] = vm[:, :3, :3] @ r.T
+    out[:, :3, 3] = s * vm[:, :3, 3] - out[:, :3, :3] @ np.asarray(t, np.float64)
+    return Cameras(torch.from_numpy(out).to(cameras.viewmats.dtype), cameras.Ks.clone(), cameras.width, cameras.height)
+
+
 # ---------------------------------------------------------------------------------- projection
 
 

@@ -9,6 +9,10 @@ the paper's three splits:
     novel_poses      8 other poses seen from the front input camera (azimuth 0)
     novel_view_pose  the same 8 poses from azimuths 120 and 240 (no input camera there)
 
+With `--input photo` (bench/single_photo.run_photo) the subject's view 0 alone goes through
+`dla dream` (one or more backends) before the lift, and the splits are scored in the dream's world
+aligned to the subject's through the bodies, plus the dreamed views themselves.
+
 Metrics: PSNR over the whole image, PSNR inside the person's mask, SSIM, alpha IoU
 (bench/score.py). LPIPS needs AlexNet weights the toolkit does not ship: it is absent, and the
 report says so. Methods (`--methods`) are specs of dlacli.stages.methods, e.g.
@@ -115,7 +119,8 @@ def run(
     novel_poses: int = 8,
     log: Callable[[str], None] = print,
 ) -> list[dict]:
-    """dla.bench/1 rows: one per seed, method and split."""
+    """dla.bench/1 rows: one per seed, method and split (the 4 true views as the input; one photo
+    through `dla dream`: bench/single_photo.run_photo)."""
     from dlacli.bench.rows import make_row
     from dlacli.data.synth import synth
     from dlacli.io.avatar import read_avatar

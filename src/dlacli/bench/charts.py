@@ -39,7 +39,7 @@ def draw_chart(
     rows: list[dict],
     path: str | os.PathLike,
     metric: str = "psnr_masked",
-    splits: tuple[str, ...] = ("novel_views", "novel_poses", "novel_view_pose"),
+    splits: tuple[str, ...] = ("novel_views", "novel_poses", "novel_view_pose", "dreamed_views"),
 ) -> Path:
     """Time (log) against `metric`, one panel per split present, one marker per point, the Pareto
     frontier as a line; written to a PNG (matplotlib, extra `bench`)."""
@@ -53,9 +53,9 @@ def draw_chart(
     fig, axes = plt.subplots(1, len(present), figsize=(6 * len(present), 4.5), squeeze=False)
     for ax, split in zip(axes[0], present):
         pts = points(rows, split, metric)
-        methods = sorted({p["method"] for p in pts})
+        methods = sorted({p["group"] for p in pts})  # the method, or "photo/BACKEND METHOD"
         for m, marker in zip(methods, "osD^v<>ph*"):
-            sel = [p for p in pts if p["method"] == m]
+            sel = [p for p in pts if p["group"] == m]
             ax.scatter([p["seconds"] for p in sel], [p["value"] for p in sel], marker=marker, s=40, label=m, zorder=3)
             words = [p["label"][len(m) :].split() for p in sel]
             shared = set.intersection(*map(set, words)) if len(sel) > 1 else set()  # said once, in the legend's sense
@@ -84,7 +84,8 @@ def draw_chart(
                 lambda v, _: f"{v:g}" if v > 0 and round(v / 10 ** math.floor(math.log10(v))) in (2, 5) else ""
             )
         )
-        ax.set_xlabel("lift time per subject, s (log)")
+        photo = any(p["group"].startswith("photo/") for p in pts)
+        ax.set_xlabel("lift time per subject, s (log)" + ("; photo/*: dream + lift" if photo else ""))
         ax.set_ylabel({"psnr_masked": "PSNR inside the mask, dB", "psnr": "PSNR, dB"}.get(metric, metric))
         ax.set_title(split.replace("_", " "))
         ax.grid(True, which="both", alpha=0.3)

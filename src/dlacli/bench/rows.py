@@ -16,6 +16,14 @@ spec set them (`MethodSpec.options`) plus the protocol's keys; rows written befo
 say "refine", "unproject+refine" or "learned+refine", and `read_rows` reads them under the
 registry's names (`upgrade`).
 
+Accuracy rows of `dla bench accuracy --input photo` (bench/single_photo.py) have `input: "photo"`
+and `backend` (the dream backend) in the config, `seconds` = dream + lift, and also `stages`
+({dream_s, lift_s}), `alignment_mm` / `pose_alignment_mm` (the residual of the body alignment),
+`alignment_scale`, `fit` (dream's fit numbers) and `dreamed_per_view`; their splits include
+"dreamed_views". An accuracy row may carry `status` (STATUSES; "ok" when absent) and `error`:
+a run that could not be scored (its dream found no person) has status "error" and no metrics,
+and `points` leaves it out. `label` and `group` name photo rows "photo/BACKEND METHOD ...".
+
 Rows with a `kind` carry more (a row without one is an accuracy row, as above; `KINDS`):
 - "stability" (`dla bench stability`): also `perturbation`, `level`, `status` ("ok", "nan",
   "empty", "error") and `error`; metrics are required only when the status is "ok";
@@ -41,7 +49,7 @@ from dlacli.bench.score import METRICS
 from dlacli.errors import DlaInputError
 
 FORMAT = "dla.bench/1"
-SPLITS = ("novel_views", "novel_poses", "novel_view_pose", "inputs")
+SPLITS = ("novel_views", "novel_poses", "novel_view_pose", "dreamed_views", "inputs")
 _FIELDS = {
     "method": str,
     "config": dict,
@@ -168,7 +176,10 @@ def check_row(row: Any, where: str = "row") -> dict:
         if row["gaussians"] < 2 or row["render_size"] < 1:
             raise DlaInputError(where, "gaussians must be >= 2 and render_size >= 1")
         _check_cost(row, ("render_ms", "usd_mib", "usd_s", "noise"), where)
-    _check_metrics(row["metrics"], where, required=True)
+    status = row.get("status", "ok")
+    if status not in STATUSES:
+        raise DlaInputError(where, f"unknown status {status!r} (one of {', '.join(STATUSES)})")
+    _check_metrics(row["metrics"], where, required=status == "ok")
     return row
 
 
@@ -181,8 +192,11 @@ def make_row(
     metrics: dict,
     subject: int | None = None,
     device: str | None = None,
+    status: str = "ok",
+    error: str | None = None,
 ) -> dict:
-    """A validated row (device defaults to this process's: "cpu (N threads)" or the CUDA name)."""
+    """A validated row (device defaults to this process's: "cpu (N threads)" or the CUDA name);
+    a run that failed before it could be scored: status "error", `error` why, metrics {}."""
     if device is None:
         import torch
 
@@ -200,6 +214,8 @@ def make_row(
         "peak_mb": None if peak_mb is None else float(peak_mb),
         "metrics": {k: float(v) for k, v in metrics.items()},
     }
+    if status != "ok":
+        row.update(status=status, error=error)
     return check_row(row)
 
 
@@ -358,13 +374,24 @@ def upgrade(row: dict) -> dict:
 PROTOCOL_KEYS = ("res", "appearance", "wardrobe", "checkpoint")  # what the subjects were / the weights' hash
 
 
+def group(row: dict) -> str:
+    """What made the avatar, for chart markers: the method ("unproject") from the 4 true views,
+    or "photo/BACKEND METHOD" from one photo through that dream backend (config `input`)."""
+    cfg = row["config"]
+    if cfg.get("input", "views") == "views":
+        return row["method"]
+    return f"{cfg['input']}/{cfg.get('backend', '?')} {row['method']}"
+
+
 def label(row: dict, leave_out: tuple[str, ...] = ()) -> str:
-    """A method and its setting, for tables and legends: "unproject steps=50" (the protocol's
-    keys, the same for every row of a run, the checkpoint's hash, what a stability row measured
-    of its subject (`subject_*`) and `leave_out` are left out)."""
-    shown = [(k, v) for k, v in sorted(row["config"].items()) if k not in PROTOCOL_KEYS and k not in leave_out]
+    """A method and its setting, for tables and legends: "unproject steps=50", "photo/template
+    unproject steps=50" (`group`; the protocol's keys, the same for every row of a run, the
+    checkpoint's hash, what a stability row measured of its subject (`subject_*`) and `leave_out`
+    are left out)."""
+    hidden = PROTOCOL_KEYS + ("input", "backend") + tuple(leave_out)
+    shown = [(k, v) for k, v in sorted(row["config"].items()) if k not in hidden]
     cfg = " ".join(f"{k}={v}" for k, v in shown if not k.startswith("subject_"))
-    return f"{row['method']} {cfg}".strip()
+    return f"{group(row)} {cfg}".strip()
 
 
 def level_text(level: float) -> str:
@@ -373,16 +400,18 @@ def level_text(level: float) -> str:
 
 
 def points(rows: list[dict], split: str, metric: str = "psnr_masked") -> list[dict]:
-    """One point per (method, config) on `split`: median seconds, mean metric, subject count."""
+    """One point per (method, config) on `split`: median seconds, mean metric, subject count
+    (rows whose status is not "ok" left out)."""
     groups: dict[str, list[dict]] = {}
     for row in rows:
-        if row["split"] == split:
+        if row["split"] == split and row.get("status", "ok") == "ok":
             key = json.dumps([row["method"], row["config"]], sort_keys=True)  # the full config, not the label
             groups.setdefault(key, []).append(row)
     pts = [
         {
             "label": label(rs[0]),
             "method": rs[0]["method"],
+            "group": group(rs[0]),
             "seconds": statistics.median(r["seconds"] for r in rs),
             "value": statistics.fmean(r["metrics"][metric] for r in rs),
             "subjects": len(rs),

@@ -188,12 +188,25 @@ def accuracy(
     wardrobe: str = typer.Option(
         "heldout", "--wardrobe", help="Subjects' garments: heldout (none a training subject wore), full, default."
     ),
+    input: str = typer.Option(
+        "views",
+        "--input",
+        help="What is lifted: views (the subject's 4 true views) or photo (its front view alone, through dla dream).",
+    ),
+    backend: str = typer.Option(
+        "template", "--backend", help="With --input photo: dream backends to compare, comma-separated."
+    ),
+    fit_steps: int = typer.Option(
+        300, "--fit-steps", min=3, max=100_000, help="With --input photo: dream's body-fit steps (as dla dream)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of a table."),
     jsonl: Optional[Path] = _results("rows"),
 ) -> None:
     """Accuracy against cost of every method: lift in a fresh process (wall time, peak memory),
     then PSNR (whole image and inside the mask), SSIM and alpha IoU on novel views, novel poses
-    and novel view & pose. LPIPS is absent: it needs AlexNet weights dla does not ship."""
+    and novel view & pose. LPIPS is absent: it needs AlexNet weights dla does not ship. With
+    --input photo the subject's front view is the photo: dream -> lift, scored after aligning the
+    dream's world to the subject's through the bodies, plus the dreamed views (docs/dream.md)."""
     from dlacli.bench.accuracy import run
     from dlacli.bench.report import report_markdown
     from dlacli.data.appearance import APPEARANCES
@@ -209,7 +222,15 @@ def accuracy(
 
             raise DlaInputError("--methods", f"{spec.label}: no such checkpoint folder")
     jsonl = _jsonl(jsonl)
-    rows = run(_ints(seeds, "--seeds", MAX_SEED), specs, res=res, appearance=appearance, wardrobe=wardrobe, log=_stderr)
+    from dlacli.bench.single_photo import INPUTS, check_backends, run_photo
+
+    _names(input, "--input", INPUTS)
+    seed_list = _ints(seeds, "--seeds", MAX_SEED)
+    common = dict(res=res, appearance=appearance, wardrobe=wardrobe, log=_stderr)
+    if input == "photo":
+        rows = run_photo(seed_list, specs, check_backends(backend.split(",")), fit_steps=fit_steps, **common)
+    else:
+        rows = run(seed_list, specs, **common)
     _emit(rows, jsonl, as_json, lambda r: report_markdown(r, None))
 
 

@@ -76,6 +76,27 @@ def _check_options(res, novel_views, novel_poses, appearance: str, wardrobe: str
         raise DlaInputError("--wardrobe", f"must be one of {', '.join(WARDROBES)}, got {wardrobe!r}")
 
 
+def _dressed_subject(seed: int, appearance: str, wardrobe: str):
+    """(spec, dressed body, lighting or None, vertices [V, 3] in the input pose, ao [V] or None)."""
+    spec = sample_subject(seed, wardrobe)
+    body = DressedBody(spec)
+    lighting = sample_lighting(seed) if appearance == "lit" else None
+    zero = torch.zeros(1, 3)
+    verts = body.vertices(spec.rotations[None], zero, zero)[0]  # [V, 3] the input pose
+    ao = None if lighting is None else ambient_occlusion(verts, body.faces)
+    return spec, body, lighting, verts, ao
+
+
+def render_subject(seed: int, cameras: Cameras, *, appearance: str = "albedo", wardrobe: str = "default") -> np.ndarray:
+    """The subject `seed` in its input pose (that of its input and novel views, in its world:
+    body.json's pose, root at the origin) from any cameras -> RGBA [C, H, W, 4] float32 (straight
+    alpha), rendered exactly as `synth` renders its views (the benchmarks' ground truth for
+    cameras the subject folder does not hold)."""
+    _check_options(16, 0, 0, appearance, wardrobe)
+    _, body, lighting, verts, ao = _dressed_subject(seed, appearance, wardrobe)
+    return render(body, verts, cameras, seed, lighting=lighting, ao=ao)
+
+
 def synth(
     seed: int,
     out: str | os.PathLike,
@@ -102,24 +123,18 @@ def synth(
     _check_options(res, novel_views, novel_poses, appearance, wardrobe)
     say = progress or (lambda msg: None)
     out = Path(out)
-    say("sampling the subject")
-    spec = sample_subject(seed, wardrobe)
-    say("dressing the body")
-    body = DressedBody(spec)
+    say("sampling and dressing the subject")
+    spec, body, lighting, verts, ao = _dressed_subject(seed, appearance, wardrobe)
     info = {
         "seed": int(seed),
         "outfit": list(spec.outfit),
         "suit_pattern": spec.palette["suit"]["pattern"],
         "generator": "dla synth",
     }
-    lighting = sample_lighting(seed) if appearance == "lit" else None
     if wardrobe != "default":
         info["wardrobe"] = wardrobe
     if lighting is not None:
         info.update(appearance=appearance, lighting=lighting.as_dict())
-    zero = torch.zeros(1, 3)
-    verts = body.vertices(spec.rotations[None], zero, zero)[0]  # [V, 3] the input pose
-    ao = None if lighting is None else ambient_occlusion(verts, body.faces)
     truth = _body_params(spec, spec.rotations)
     az0, el0, yaw = input_rig(seed, random_yaw)
     with atomic_dir(out) as tmp:
