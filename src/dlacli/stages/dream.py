@@ -32,7 +32,7 @@ import torch
 from scipy import ndimage
 
 from dlacli.errors import DlaInputError
-from dlacli.stages.plausibility import plausibility, silhouette_excess  # noqa: F401  (silhouette_excess: moved)
+from dlacli.stages.plausibility import plausibility
 from dlacli.types import Cameras, ViewSet
 
 AZIMUTHS = (0.0, 90.0, 180.0, 270.0)  # degrees, view order in the folder
