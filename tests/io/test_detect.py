@@ -87,7 +87,8 @@ def test_detection_matches_alpha_and_stored_keypoints(name, third_party_data):
 
     photo, kp_path = _case(name, third_party_data)
     rgba = _rgba(photo)
-    mask, kp = detect_person(_over_grey(rgba))
+    det = detect_person(_over_grey(rgba))
+    mask, kp = det.mask, det.keypoints
     assert mask.shape == rgba.shape[:2] and mask.dtype == np.float32 and kp.shape == (17, 3)
     det, ref = mask > 0.5, rgba[..., 3] > 0.5
     assert (det & ref).sum() / (det | ref).sum() >= 0.9
@@ -103,14 +104,14 @@ def test_alpha_argument_hides_what_is_behind_the_cut_out(third_party_data):
     photo, kp_path = _case(PHOTOS[0], third_party_data)
     rgba = _rgba(photo)
     assert rgba[..., :3][rgba[..., 3] == 0].max() > 0.5  # the hidden pixels are not black
-    _, kp = detect_person(rgba[..., :3], alpha=rgba[..., 3])
+    kp = detect_person(rgba[..., :3], alpha=rgba[..., 3]).keypoints
     _check_keypoints(kp, _stored(kp_path), rgba[..., 3])
 
 
 _DETECT = (
     "import numpy as np, sys; from PIL import Image; from dlacli.io.detect import detect_person; "
     "a = np.asarray(Image.open(sys.argv[1]).convert('RGBA'), np.float32) / 255; "
-    "m, k = detect_person(a[..., :3], alpha=a[..., 3]); print(k.shape, (m > 0.5).mean() > 0.05)"
+    "d = detect_person(a[..., :3], alpha=a[..., 3]); print(d.keypoints.shape, (d.mask > 0.5).mean() > 0.05)"
 )
 _RAW = (  # the same model without quiet_fd2: the control that shows the lines exist
     "import numpy as np, sys; from PIL import Image; import mediapipe as mp; "

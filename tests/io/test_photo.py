@@ -287,14 +287,22 @@ def test_detect_maps_blazepose_to_coco_by_name(monkeypatch):
         def process(self, img):
             assert img.dtype == np.uint8 and img.shape == (100, 120, 3)
             lms = [types.SimpleNamespace(x=i / 40, y=i / 80, visibility=i / 33) for i in range(33)]
+            world = [types.SimpleNamespace(x=i / 100, y=-i / 50, z=i / 25, visibility=i / 33) for i in range(33)]
             seg = np.zeros(img.shape[:2], np.float32)
             seg[10:20] = 1.0
-            return types.SimpleNamespace(pose_landmarks=types.SimpleNamespace(landmark=lms), segmentation_mask=seg)
+            return types.SimpleNamespace(
+                pose_landmarks=types.SimpleNamespace(landmark=lms),
+                pose_world_landmarks=types.SimpleNamespace(landmark=world),
+                segmentation_mask=seg,
+            )
 
     fake = types.SimpleNamespace(solutions=types.SimpleNamespace(pose=types.SimpleNamespace(Pose=_Pose)))
     monkeypatch.setitem(sys.modules, "mediapipe", fake)
-    mask, kp = detect_person(np.zeros((100, 120, 3), np.float32))
+    det = detect_person(np.zeros((100, 120, 3), np.float32))
+    mask, kp = det.mask, det.keypoints
     assert mask.shape == (100, 120) and mask[15].min() == 1.0 and mask[50].max() == 0.0
+    assert det.world.shape == (17, 4)
     for k, name in enumerate(COCO_NAMES):
         i = BLAZEPOSE_NAMES.index(name)
         np.testing.assert_allclose(kp[k], [i / 40 * 120, i / 80 * 100, i / 33], rtol=1e-5)
+        np.testing.assert_allclose(det.world[k], [i / 100, -i / 50, i / 25, i / 33], rtol=1e-5)
