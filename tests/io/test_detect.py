@@ -94,6 +94,12 @@ def test_detection_matches_alpha_and_stored_keypoints(name, third_party_data):
     assert (det & ref).sum() / (det | ref).sum() >= 0.9
     _check_keypoints(kp, _stored(kp_path), rgba[..., 3])
     assert (kp[:, 2] > 0.5).all()  # a whole, upright person: every point is visible
+    # the world landmarks: as stored (made the same way), with the 2D confidences
+    from dlacli.io.photo import read_coco_keypoints_3d
+
+    stored3 = read_coco_keypoints_3d(kp_path)
+    assert det.world.shape == (17, 4) and np.array_equal(det.world[:, 3], kp[:, 2])
+    np.testing.assert_allclose(det.world[:, :3], stored3[:, :3], rtol=0, atol=0.02)
 
 
 def test_alpha_argument_hides_what_is_behind_the_cut_out(third_party_data):
@@ -178,7 +184,14 @@ def test_cli_dream_detects_the_person_without_keypoints(third_party_data, tmp_pa
     assert not any(m in out.stderr for m in LOG_MARKERS), out.stderr
     body = json.loads((tmp_path / "views" / "body.json").read_text())
     assert body["format"] == "dla.body/1"
-    assert len(json.loads((tmp_path / "views" / "transforms.json").read_text())["frames"]) == 4
+    transforms = json.loads((tmp_path / "views" / "transforms.json").read_text())
+    assert len(transforms["frames"]) == 4
+    # the per-joint report: a 3-step fit is far off, so its worst joint is reported and warned about
+    fit = transforms["dla"]["dream"]["fit"]
+    worst = fit["worst_joint"]
+    assert worst["pct"] == max(fit["joint_error_pct"].values()) and worst["pct"] > 3.0
+    line = f"warning: fit: {worst['name']} is {worst['pct']:.1f} % of the person's height"
+    assert line in out.stderr and line in transforms["dla"]["dream"]["notes"][-1]
 
 
 def test_dream_without_mediapipe_names_the_missing_option(monkeypatch, tmp_path):

@@ -17,7 +17,7 @@ import pytest
 from PIL import Image
 
 from dlacli.errors import DlaInputError
-from dlacli.io.photo import MAX_SIDE, read_coco_keypoints, read_photo
+from dlacli.io.photo import MAX_SIDE, read_coco_keypoints, read_coco_keypoints_3d, read_photo
 
 KP_DIR = Path(__file__).resolve().parents[1] / "data" / "keypoints"
 
@@ -223,6 +223,54 @@ def test_bad_keypoints_json(tmp_path, content, problem):
     (tmp_path / "k.json").write_text(content)
     with pytest.raises(DlaInputError, match=r"k\.json: (annotation 0: )?" + problem):
         read_coco_keypoints(tmp_path / "k.json")
+
+
+def test_keypoints_3d_read_from_the_chosen_annotation(tmp_path):
+    vals = np.tile([10.0, 20.0, 2.0], (17, 1))
+    vals[4, 2] = 0  # not labelled: its 3D point gets confidence 0 too
+    xyz = np.arange(51, dtype=np.float64).reshape(17, 3) / 100.0 - 0.2
+    anns = [
+        {"keypoints": [0.0] * 51},
+        {"keypoints": vals.reshape(-1).tolist(), "keypoints_3d": xyz.reshape(-1).tolist()},
+    ]
+    (tmp_path / "k.json").write_text(json.dumps(anns))
+    lm = read_coco_keypoints_3d(tmp_path / "k.json")
+    assert lm.shape == (17, 4) and lm.dtype == np.float32
+    np.testing.assert_allclose(lm[:, :3], xyz, rtol=0, atol=1e-7)
+    np.testing.assert_array_equal(lm[:, 3], (np.arange(17) != 4).astype(np.float32))
+    (tmp_path / "old.json").write_text(json.dumps({"keypoints": vals.reshape(-1).tolist()}))
+    assert read_coco_keypoints_3d(tmp_path / "old.json") is None  # old files: no 3D prior
+
+
+@pytest.mark.parametrize(
+    "xyz,problem",
+    [
+        ("[1, 2, 3]", "'keypoints_3d' must be a list of 51 numbers .* got 3"),
+        ('"abc"', "'keypoints_3d' must be a list of 51 numbers .* got str"),
+        ("[" + ", ".join(["0.1"] * 50) + ", NaN]", "'keypoints_3d' contains NaN or infinite"),
+        ("[" + ", ".join(["0.1"] * 50) + ", Infinity]", "'keypoints_3d' contains NaN or infinite"),
+        ("[" + ", ".join(["0.1"] * 50) + ', "a"]', "'keypoints_3d' must contain numbers only"),
+        ("[" + ", ".join(["0.1"] * 50) + ", true]", "'keypoints_3d' must contain numbers only"),
+        ("[" + ", ".join(["0.1"] * 50) + ", 12.5]", r"'keypoints_3d' holds a coordinate beyond \+-10 m"),
+        ("[" + ", ".join(["0.1"] * 50) + ", " + "9" * 400 + "]", "'keypoints_3d' holds a number too large"),
+    ],
+)
+def test_bad_keypoints_3d(tmp_path, xyz, problem):
+    kp = ", ".join(["1"] * 51)
+    (tmp_path / "k.json").write_text('{"keypoints": [' + kp + '], "keypoints_3d": ' + xyz + "}")
+    with pytest.raises(DlaInputError, match=r"k\.json: " + problem):
+        read_coco_keypoints_3d(tmp_path / "k.json")
+
+
+def test_shipped_keypoints_carry_3d_landmarks():
+    """The stored test keypoints have MediaPipe's world landmarks (tests/data/README.md): metres,
+    hip-centred, y down, and the person's left on +x for these front-facing people."""
+    for path in sorted(KP_DIR.glob("*.json")):
+        lm = read_coco_keypoints_3d(path)
+        assert lm is not None, path
+        np.testing.assert_allclose(lm[11:13, :3].mean(0), 0.0, atol=0.01)  # origin between the hips
+        assert lm[[15, 16], 1].min() > lm[[5, 6], 1].max() + 0.3  # ankles below the shoulders (y down)
+        assert lm[5, 0] > lm[6, 0]  # left shoulder on the camera's right
 
 
 def test_keypoints_far_outside_the_photo(tmp_path):

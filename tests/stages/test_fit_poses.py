@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from dlacli.body.keypoints import COCO_NAMES, coco_keypoints
 from dlacli.body.model import get_body_model
 from dlacli.render.raster import render_mesh
-from dlacli.stages.fit import fit_body, fit_info, fit_warning, overlay_png
+from dlacli.stages.fit import _limb_targets, fit_body, fit_info, fit_warning, limb_loss, overlay_png
 from dlacli.types import Cameras
 
 W, H = 256, 320  # person ~190 px tall: 3 % of the height is ~6 px
@@ -124,6 +124,21 @@ def _similarity_residual(src, dst):
     r = u @ d @ vt
     s = np.trace(np.diag(sv) @ d) / (a**2).sum()
     return np.linalg.norm(s * a @ r.T - b, axis=1)
+
+
+def test_limb_prior_axes_match_mediapipes_frame():
+    """The true body's own landmarks (MediaPipe frame) give a zero limb loss on its keypoints in
+    the fitting world; the same landmarks with z negated (depth flipped) do not."""
+    subj = make_pose("arms_forward")
+    x, y, z = subj["cam3"].T
+    world = torch.tensor(np.stack([x, z, -y], 1), dtype=torch.float32)  # camera axes -> fitting world
+    lm = subj["lm"].copy()
+    lm[:, :3] = subj["cam3"] - subj["cam3"][11]
+    dirs, w = _limb_targets(lm)
+    assert float(limb_loss(world, dirs, w, sigma=None)) < 1e-10
+    lm[:, 2] *= -1.0
+    dirs, w = _limb_targets(lm)
+    assert float(limb_loss(world, dirs, w, sigma=None)) > 0.5
 
 
 @pytest.mark.parametrize("name", list(POSES))

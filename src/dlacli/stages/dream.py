@@ -552,7 +552,7 @@ def dream(
     steps: int = 50,
     frames: int = 80,
     seed: int = 0,
-    fit_steps: int = 300,
+    fit_steps: int = 150,
     device: str | None = None,
     progress: Progress | None = None,
 ) -> Path:

@@ -265,7 +265,7 @@ def fit_body(
     mask: np.ndarray,  # [H, W] float person mask in [0, 1]
     keypoints: np.ndarray,  # [17, 3] (x, y, confidence), COCO order, pixels
     *,
-    steps: int = 300,
+    steps: int = 150,
     progress: Callable[[int, int], None] | None = None,
     surface_samples: int = 2000,
     silhouette_samples: int = 2000,
