@@ -87,8 +87,8 @@ def test_detection_matches_alpha_and_stored_keypoints(name, third_party_data):
 
     photo, kp_path = _case(name, third_party_data)
     rgba = _rgba(photo)
-    det = detect_person(_over_grey(rgba))
-    mask, kp = det.mask, det.keypoints
+    found = detect_person(_over_grey(rgba))
+    mask, kp = found.mask, found.keypoints
     assert mask.shape == rgba.shape[:2] and mask.dtype == np.float32 and kp.shape == (17, 3)
     det, ref = mask > 0.5, rgba[..., 3] > 0.5
     assert (det & ref).sum() / (det | ref).sum() >= 0.9
@@ -98,8 +98,8 @@ def test_detection_matches_alpha_and_stored_keypoints(name, third_party_data):
     from dlacli.io.photo import read_coco_keypoints_3d
 
     stored3 = read_coco_keypoints_3d(kp_path)
-    assert det.world.shape == (17, 4) and np.array_equal(det.world[:, 3], kp[:, 2])
-    np.testing.assert_allclose(det.world[:, :3], stored3[:, :3], rtol=0, atol=0.02)
+    assert found.world.shape == (17, 4) and np.array_equal(found.world[:, 3], kp[:, 2])
+    np.testing.assert_allclose(found.world[:, :3], stored3[:, :3], rtol=0, atol=0.02)
 
 
 def test_alpha_argument_hides_what_is_behind_the_cut_out(third_party_data):
