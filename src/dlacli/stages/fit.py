@@ -16,6 +16,11 @@ Method (docs/fit.md):
 - coarse to fine (Adam): A) root only, torso keypoints (20 % of the steps); B) + joint rotations,
   all keypoints, the thighs started flexed when foreshortened (`_init_thighs`), the silhouette
   from half-way (40 %); C) + phenotype, narrower robust kernel (40 %).
+- with 3D landmarks (MediaPipe's world-landmark frame): a robust limb-direction prior
+  (`limb_loss`) and three starts optimised together (default; inverse kinematics from the
+  landmarks; the most ambiguous limb's depth flipped), the best by the stage-B loss at the
+  silhouette switch continuing alone.
+- per-joint report: `FitResult.joint_error` / `worst_joint`, `fit_info`, `fit_warning`.
 The posed points come from `dlacli.body.keypoints.PointRig` (a few ms a step); the result is
 recomputed exactly with the body model.
 """
