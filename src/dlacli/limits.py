@@ -18,6 +18,7 @@ BUDGET_LADDER = tuple(1 << k for k in range(12, 19))  # 4,096 ... 262,144
 BUDGET_TOLERANCE_DB = 0.2
 
 # --- lift
+FIT_STEPS = 150  # optimisation steps of dream's body fit (docs/fit.md: 300 fitted no better)
 LIFT_STEPS = 50  # refinement steps of the default lift (0 = mesh unprojection only)
 LIFT_RESOLUTION = 256  # side of the UV Gaussian map Z
 MAX_LIFT_STEPS = 100_000

@@ -87,12 +87,19 @@ def test_detection_matches_alpha_and_stored_keypoints(name, third_party_data):
 
     photo, kp_path = _case(name, third_party_data)
     rgba = _rgba(photo)
-    mask, kp = detect_person(_over_grey(rgba))
+    found = detect_person(_over_grey(rgba))
+    mask, kp = found.mask, found.keypoints
     assert mask.shape == rgba.shape[:2] and mask.dtype == np.float32 and kp.shape == (17, 3)
     det, ref = mask > 0.5, rgba[..., 3] > 0.5
     assert (det & ref).sum() / (det | ref).sum() >= 0.9
     _check_keypoints(kp, _stored(kp_path), rgba[..., 3])
     assert (kp[:, 2] > 0.5).all()  # a whole, upright person: every point is visible
+    # the world landmarks: as stored (made the same way), with the 2D confidences
+    from dlacli.io.photo import read_coco_keypoints_3d
+
+    stored3 = read_coco_keypoints_3d(kp_path)
+    assert found.world.shape == (17, 4) and np.array_equal(found.world[:, 3], kp[:, 2])
+    np.testing.assert_allclose(found.world[:, :3], stored3[:, :3], rtol=0, atol=0.02)
 
 
 def test_alpha_argument_hides_what_is_behind_the_cut_out(third_party_data):
@@ -103,14 +110,14 @@ def test_alpha_argument_hides_what_is_behind_the_cut_out(third_party_data):
     photo, kp_path = _case(PHOTOS[0], third_party_data)
     rgba = _rgba(photo)
     assert rgba[..., :3][rgba[..., 3] == 0].max() > 0.5  # the hidden pixels are not black
-    _, kp = detect_person(rgba[..., :3], alpha=rgba[..., 3])
+    kp = detect_person(rgba[..., :3], alpha=rgba[..., 3]).keypoints
     _check_keypoints(kp, _stored(kp_path), rgba[..., 3])
 
 
 _DETECT = (
     "import numpy as np, sys; from PIL import Image; from dlacli.io.detect import detect_person; "
     "a = np.asarray(Image.open(sys.argv[1]).convert('RGBA'), np.float32) / 255; "
-    "m, k = detect_person(a[..., :3], alpha=a[..., 3]); print(k.shape, (m > 0.5).mean() > 0.05)"
+    "d = detect_person(a[..., :3], alpha=a[..., 3]); print(d.keypoints.shape, (d.mask > 0.5).mean() > 0.05)"
 )
 _RAW = (  # the same model without quiet_fd2: the control that shows the lines exist
     "import numpy as np, sys; from PIL import Image; import mediapipe as mp; "
@@ -177,7 +184,14 @@ def test_cli_dream_detects_the_person_without_keypoints(third_party_data, tmp_pa
     assert not any(m in out.stderr for m in LOG_MARKERS), out.stderr
     body = json.loads((tmp_path / "views" / "body.json").read_text())
     assert body["format"] == "dla.body/1"
-    assert len(json.loads((tmp_path / "views" / "transforms.json").read_text())["frames"]) == 4
+    transforms = json.loads((tmp_path / "views" / "transforms.json").read_text())
+    assert len(transforms["frames"]) == 4
+    # the per-joint report: a 3-step fit is far off, so its worst joint is reported and warned about
+    fit = transforms["dla"]["dream"]["fit"]
+    worst = fit["worst_joint"]
+    assert worst["pct"] == max(fit["joint_error_pct"].values()) and worst["pct"] > 3.0
+    line = f"warning: fit: {worst['name']} is {worst['pct']:.1f} % of the person's height"
+    assert line in out.stderr and line in transforms["dla"]["dream"]["notes"][-1]
 
 
 def test_dream_without_mediapipe_names_the_missing_option(monkeypatch, tmp_path):

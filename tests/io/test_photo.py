@@ -17,7 +17,7 @@ import pytest
 from PIL import Image
 
 from dlacli.errors import DlaInputError
-from dlacli.io.photo import MAX_SIDE, read_coco_keypoints, read_photo
+from dlacli.io.photo import MAX_SIDE, read_coco_keypoints, read_coco_keypoints_3d, read_photo
 
 KP_DIR = Path(__file__).resolve().parents[1] / "data" / "keypoints"
 
@@ -225,6 +225,54 @@ def test_bad_keypoints_json(tmp_path, content, problem):
         read_coco_keypoints(tmp_path / "k.json")
 
 
+def test_keypoints_3d_read_from_the_chosen_annotation(tmp_path):
+    vals = np.tile([10.0, 20.0, 2.0], (17, 1))
+    vals[4, 2] = 0  # not labelled: its 3D point gets confidence 0 too
+    xyz = np.arange(51, dtype=np.float64).reshape(17, 3) / 100.0 - 0.2
+    anns = [
+        {"keypoints": [0.0] * 51},
+        {"keypoints": vals.reshape(-1).tolist(), "keypoints_3d": xyz.reshape(-1).tolist()},
+    ]
+    (tmp_path / "k.json").write_text(json.dumps(anns))
+    lm = read_coco_keypoints_3d(tmp_path / "k.json")
+    assert lm.shape == (17, 4) and lm.dtype == np.float32
+    np.testing.assert_allclose(lm[:, :3], xyz, rtol=0, atol=1e-7)
+    np.testing.assert_array_equal(lm[:, 3], (np.arange(17) != 4).astype(np.float32))
+    (tmp_path / "old.json").write_text(json.dumps({"keypoints": vals.reshape(-1).tolist()}))
+    assert read_coco_keypoints_3d(tmp_path / "old.json") is None  # old files: no 3D prior
+
+
+@pytest.mark.parametrize(
+    "xyz,problem",
+    [
+        ("[1, 2, 3]", "'keypoints_3d' must be a list of 51 numbers .* got 3"),
+        ('"abc"', "'keypoints_3d' must be a list of 51 numbers .* got str"),
+        ("[" + ", ".join(["0.1"] * 50) + ", NaN]", "'keypoints_3d' contains NaN or infinite"),
+        ("[" + ", ".join(["0.1"] * 50) + ", Infinity]", "'keypoints_3d' contains NaN or infinite"),
+        ("[" + ", ".join(["0.1"] * 50) + ', "a"]', "'keypoints_3d' must contain numbers only"),
+        ("[" + ", ".join(["0.1"] * 50) + ", true]", "'keypoints_3d' must contain numbers only"),
+        ("[" + ", ".join(["0.1"] * 50) + ", 12.5]", r"'keypoints_3d' holds a coordinate beyond \+-10 m"),
+        ("[" + ", ".join(["0.1"] * 50) + ", " + "9" * 400 + "]", "'keypoints_3d' holds a number too large"),
+    ],
+)
+def test_bad_keypoints_3d(tmp_path, xyz, problem):
+    kp = ", ".join(["1"] * 51)
+    (tmp_path / "k.json").write_text('{"keypoints": [' + kp + '], "keypoints_3d": ' + xyz + "}")
+    with pytest.raises(DlaInputError, match=r"k\.json: " + problem):
+        read_coco_keypoints_3d(tmp_path / "k.json")
+
+
+def test_shipped_keypoints_carry_3d_landmarks():
+    """The stored test keypoints have MediaPipe's world landmarks (tests/data/README.md): metres,
+    hip-centred, y down, and the person's left on +x for these front-facing people."""
+    for path in sorted(KP_DIR.glob("*.json")):
+        lm = read_coco_keypoints_3d(path)
+        assert lm is not None, path
+        np.testing.assert_allclose(lm[11:13, :3].mean(0), 0.0, atol=0.01)  # origin between the hips
+        assert lm[[15, 16], 1].min() > lm[[5, 6], 1].max() + 0.3  # ankles below the shoulders (y down)
+        assert lm[5, 0] > lm[6, 0]  # left shoulder on the camera's right
+
+
 def test_keypoints_far_outside_the_photo(tmp_path):
     Image.fromarray(_rgba(), "RGBA").save(tmp_path / "p.png")
     vals = np.full((17, 3), 2.0)
@@ -287,14 +335,22 @@ def test_detect_maps_blazepose_to_coco_by_name(monkeypatch):
         def process(self, img):
             assert img.dtype == np.uint8 and img.shape == (100, 120, 3)
             lms = [types.SimpleNamespace(x=i / 40, y=i / 80, visibility=i / 33) for i in range(33)]
+            world = [types.SimpleNamespace(x=i / 100, y=-i / 50, z=i / 25, visibility=i / 33) for i in range(33)]
             seg = np.zeros(img.shape[:2], np.float32)
             seg[10:20] = 1.0
-            return types.SimpleNamespace(pose_landmarks=types.SimpleNamespace(landmark=lms), segmentation_mask=seg)
+            return types.SimpleNamespace(
+                pose_landmarks=types.SimpleNamespace(landmark=lms),
+                pose_world_landmarks=types.SimpleNamespace(landmark=world),
+                segmentation_mask=seg,
+            )
 
     fake = types.SimpleNamespace(solutions=types.SimpleNamespace(pose=types.SimpleNamespace(Pose=_Pose)))
     monkeypatch.setitem(sys.modules, "mediapipe", fake)
-    mask, kp = detect_person(np.zeros((100, 120, 3), np.float32))
+    det = detect_person(np.zeros((100, 120, 3), np.float32))
+    mask, kp = det.mask, det.keypoints
     assert mask.shape == (100, 120) and mask[15].min() == 1.0 and mask[50].max() == 0.0
+    assert det.world.shape == (17, 4)
     for k, name in enumerate(COCO_NAMES):
         i = BLAZEPOSE_NAMES.index(name)
         np.testing.assert_allclose(kp[k], [i / 40 * 120, i / 80 * 100, i / 33], rtol=1e-5)
+        np.testing.assert_allclose(det.world[k], [i / 100, -i / 50, i / 25, i / 33], rtol=1e-5)

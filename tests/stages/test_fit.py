@@ -221,6 +221,7 @@ def test_fit_is_robust_to_missing_and_wrong_keypoints(subject):
     moved = [7, 14]  # left elbow, right knee: 50 px off
     kp[moved, 0] += 50.0
     res = fit_body(subject["image"], subject["mask"], kp, steps=STEPS)
+    assert COCO_NAMES.index(res.worst_joint[0]) in moved  # the per-joint report finds one of them
     uv = _project_result(coco_keypoints(res.vertices), res)
     err = np.linalg.norm(uv - subject["kp"][:, :2], axis=1)  # vs the TRUE positions
     assert np.median(err) < 3.0, err  # stated threshold: 3 px median over all 17
@@ -248,17 +249,27 @@ PHOTOS = (
 
 @pytest.mark.parametrize("stem,min_iou", PHOTOS)
 def test_real_photos_fit(third_party_data, stem, min_iou):
+    from dlacli.io.photo import read_coco_keypoints_3d
+
     image, mask, kp = _photo(third_party_data, stem)
     assert mask is not None and kp is not None
-    res = fit_body(image, mask, kp, steps=150)
+    lm = read_coco_keypoints_3d(KP_DIR / f"{stem}.json")  # MediaPipe's world landmarks, as dream passes them
+    res = fit_body(image, mask, kp, steps=150, landmarks_3d=lm)
     ys = np.nonzero(mask > 0.5)[0]
     height_px = ys.max() - ys.min()
     uv = _project_result(coco_keypoints(res.vertices), res)
     err = np.linalg.norm(uv - kp[:, :2], axis=1)
-    # stated thresholds: median reprojection < 2 % of the person's height in pixels, worst < 10 %
+    # stated thresholds: median reprojection < 2 % of the person's height in pixels; the worst
+    # joint < 5 % with the 3D landmarks (measured 0.9-2.6 %; without them barbara-olsen's left
+    # knee was 5.7-6 %)
     assert np.median(err) < 0.02 * height_px, err
-    assert err.max() < 0.10 * height_px, err
+    assert err.max() < 0.05 * height_px, err
+    assert res.worst_joint[1] < 0.05 and res.worst_joint[0] == COCO_NAMES[int(np.argmax(err))]
     assert res.mask_iou > min_iou
+    if stem == "pexels-photo-6311555-removebg":  # the raised left knee is in front of its hip
+        vm = res.camera.viewmats[0].double().numpy()
+        depth = (coco_keypoints(res.vertices).astype(np.float64) @ vm[:3, :3].T + vm[:3, 3])[:, 2]
+        assert depth[13] < depth[11] - 0.1, depth[[11, 13]]  # measured 0.22 m (2D only: 0.06 m behind)
     ov = overlay_png(image, res)
     assert ov.shape == image.shape and ov.dtype == np.uint8
 

@@ -35,12 +35,12 @@ from pathlib import Path
 import numpy as np
 
 from dlacli.errors import DlaInputError
+from dlacli.limits import FIT_STEPS
 from dlacli.types import Cameras
 
 INPUTS = ("views", "photo")  # what `dla bench accuracy --input` lifts: the 4 true views, or one photo
 PHOTO_SPLITS = ("novel_views", "novel_poses", "novel_view_pose", "dreamed_views")
 DREAMED = (1, 2, 3)  # the dream's views scored against the truth (view 0 is the photo itself)
-FIT_STEPS = 300  # dream's default
 
 
 @dataclass(frozen=True)

@@ -178,24 +178,30 @@ class PointRig:
     def __call__(
         self,
         phenotype: torch.Tensor | None,  # [K] values of `free_keys` (None = the reference)
-        rotations: torch.Tensor,  # [J, 3] axis-angle, local-ref
-        root_rotation: torch.Tensor,  # [3]
-        root_translation: torch.Tensor,  # [3]
+        rotations: torch.Tensor,  # [J, 3] axis-angle, local-ref, or [S, J, 3] for S poses at once
+        root_rotation: torch.Tensor,  # [3] (or [S, 3])
+        root_translation: torch.Tensor,  # [3] (or [S, 3])
         keypoints_only: bool = False,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """-> (points [P, 3] world, the first 17 being the COCO keypoints (only those with
-        `keypoints_only`); joints [J, 3])."""
+        `keypoints_only`); joints [J, 3]); with [S, J, 3] rotations [S, P, 3] and [S, J, 3]
+        (one call for S poses costs about as much as one: the bone chain dominates)."""
         n = NUM_KEYPOINTS if keypoints_only else self.num_points
         q, b = self._q0[:n], self._b0
         if phenotype is not None and len(self.free_keys):
             d = phenotype - self._p0  # [K]
             q = q + (d @ self._dq[:, :n].reshape(d.shape[0], -1)).reshape(q.shape)
             b = b + (d @ self._db.reshape(d.shape[0], -1)).reshape(b.shape)
-        params = axis_angle_to_pose_params(rotations[None], root_rotation.reshape(1, 3), root_translation.reshape(1, 3))
-        transforms, poses = self._anny.get_bone_transforms(params, b[None])  # [1, J, 4, 4] each
-        t34 = transforms[0][:, :3, :].transpose(1, 2).reshape(-1, 3)  # [J * 4, 3]
-        pts = q.reshape(q.shape[0], -1) @ t34  # [P, 3] = sum_j T_j[:3] q_pj
-        return pts, poses[0, :, :3, 3]
+        batched = rotations.dim() == 3
+        rot = rotations if batched else rotations[None]
+        s = rot.shape[0]
+        params = axis_angle_to_pose_params(rot, root_rotation.reshape(s, 3), root_translation.reshape(s, 3))
+        transforms, poses = self._anny.get_bone_transforms(params, b[None].expand(s, *b.shape))  # [S, J, 4, 4]
+        t34 = transforms[:, :, :3, :].transpose(2, 3).reshape(s, -1, 3)  # [S, J * 4, 3]
+        pts = q.reshape(q.shape[0], -1) @ t34  # [S, P, 3] = sum_j T_j[:3] q_pj
+        if not batched:
+            return pts[0], poses[0, :, :3, 3]
+        return pts, poses[:, :, :3, 3]
 
     def phenotype_dict(self, phenotype: torch.Tensor | None) -> dict[str, float]:
         """The full phenotype for `phenotype` [K] (other keys from the reference)."""

@@ -15,6 +15,7 @@ from dlacli.limits import (
     BENCH_SEED,
     BUDGET_LADDER,
     DEFAULT_GAUSSIANS,
+    FIT_STEPS,
     LIFT_STEPS,
     MAX_GAUSSIANS,
     MAX_IMAGE_SIZE,
@@ -197,7 +198,7 @@ def accuracy(
         "template", "--backend", help="With --input photo: dream backends to compare, comma-separated."
     ),
     fit_steps: int = typer.Option(
-        300, "--fit-steps", min=3, max=100_000, help="With --input photo: dream's body-fit steps (as dla dream)."
+        FIT_STEPS, "--fit-steps", min=3, max=100_000, help="With --input photo: dream's body-fit steps (as dla dream)."
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of a table."),
     jsonl: Optional[Path] = _results("rows"),

@@ -8,6 +8,7 @@ from typing import Optional
 import typer
 
 from dlacli.cli import options
+from dlacli.limits import FIT_STEPS
 
 
 def dream(
@@ -50,7 +51,9 @@ def dream(
         help="Diffusion backend: frames of the 360-degree orbit (multiple of 4; views are frames N/4, N/2, 3N/4).",
     ),
     seed: int = options.seed("Diffusion backend: noise seed.", default=0),
-    fit_steps: int = typer.Option(300, "--fit-steps", min=3, max=100_000, help="Optimisation steps of the body fit."),
+    fit_steps: int = typer.Option(
+        FIT_STEPS, "--fit-steps", min=3, max=100_000, help="Optimisation steps of the body fit."
+    ),
 ) -> None:
     """Dream novel views of a person from one photo: fit the body, then write a view folder with
     the photo (azimuth 0) and views at azimuths 90, 180, 270, plus body.json and fit_overlay.png.
@@ -63,7 +66,15 @@ def dream(
     from dlacli.stages.dream import dream as run
 
     check_outputs(folders=[(output, (*LAYOUT, "fit_overlay.png"))], inputs=[photo, keypoints, mask])
+    warnings: list[str] = []
+
     with status("dla dream") as update:
+
+        def report(message: str) -> None:  # warnings outlive the spinner: printed after it
+            if message.startswith("warning: "):
+                warnings.append(message)
+            update(message)
+
         path = run(
             photo,
             output,
@@ -76,8 +87,10 @@ def dream(
             frames=frames,
             seed=seed,
             fit_steps=fit_steps,
-            progress=update,
+            progress=report,
         )
+    for line in warnings:
+        typer.echo(line, err=True)
     typer.echo(str(path))
 
 

@@ -24,7 +24,9 @@ Rules (docs/fit.md):
   the most visible points is used; ties: the first). x, y in pixels of the photo as stored on
   disk (continuous coordinates, the image's top-left corner at (0, 0)); v is COCO's visibility:
   0 = not labelled -> confidence 0; 1 (labelled, occluded) and 2 (visible) -> confidence 1.
-  Other keys are ignored.
+  Optional "keypoints_3d": 51 numbers (17 x [x, y, z]), metres in MediaPipe's world-landmark
+  frame (x right, y down, z away from the camera, origin anywhere, e.g. the hips), read by
+  `read_coco_keypoints_3d`. Other keys are ignored.
 Every problem raises DlaInputError naming the file.
 """
 
@@ -42,6 +44,7 @@ MIN_SIDE = 64
 MAX_SIDE = 8192
 MAX_KEYPOINT_PX = 1e6  # a keypoint farther off the image than this is a broken file, not a detection
 NUM_KEYPOINTS = 17
+MAX_LANDMARK_M = 10.0  # a 3D landmark farther than this from the hips is not a person's
 
 
 def _open_image(path: Path):
@@ -93,12 +96,44 @@ def _read_mask_file(path: Path) -> np.ndarray:
 
 def read_coco_keypoints(path: str | Path) -> np.ndarray:
     """COCO keypoints JSON (module docstring) -> [17, 3] float32 (x, y, confidence 0 or 1)."""
+    return _read_annotation(Path(path))[0]
+
+
+def read_coco_keypoints_3d(path: str | Path) -> np.ndarray | None:
+    """The optional "keypoints_3d" of the annotation `read_coco_keypoints` picks: 51 numbers
+    (17 x [x, y, z]) in metres, MediaPipe's world-landmark frame (x right, y down, z away from the
+    camera) -> [17, 4] float32 (x, y, z, confidence of the 2D point), or None without the key."""
     path = Path(path)
+    kp, ann, where = _read_annotation(path)
+    if "keypoints_3d" not in ann:
+        return None
+    values = ann["keypoints_3d"]
+    if not isinstance(values, list) or len(values) != 3 * NUM_KEYPOINTS:
+        n = len(values) if isinstance(values, list) else type(values).__name__
+        raise DlaInputError(path, f"{where}'keypoints_3d' must be a list of 51 numbers (17 x [x, y, z]), got {n}")
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+        raise DlaInputError(path, f"{where}'keypoints_3d' must contain numbers only")
+    try:
+        arr = np.asarray(values, dtype=np.float64).reshape(NUM_KEYPOINTS, 3)
+    except OverflowError:
+        raise DlaInputError(path, f"{where}'keypoints_3d' holds a number too large for metres") from None
+    if not np.all(np.isfinite(arr)):
+        raise DlaInputError(path, f"{where}'keypoints_3d' contains NaN or infinite values")
+    if np.abs(arr).max() > MAX_LANDMARK_M:
+        raise DlaInputError(path, f"{where}'keypoints_3d' holds a coordinate beyond +-{MAX_LANDMARK_M:g} m")
+    out = np.zeros((NUM_KEYPOINTS, 4), np.float32)
+    out[:, :3] = arr
+    out[:, 3] = kp[:, 2]
+    return out
+
+
+def _read_annotation(path: Path) -> tuple[np.ndarray, dict, str]:
+    """-> (keypoints [17, 3], the chosen annotation, its "annotation i: " prefix for messages)."""
     data = load_json(path)
     anns = data if isinstance(data, list) else [data]
     if not anns:
         raise DlaInputError(path, "empty list: no person annotation")
-    best, best_visible = None, -1
+    best, best_visible, best_ann, best_where = None, -1, None, ""
     for i, ann in enumerate(anns):
         where = f"annotation {i}: " if isinstance(data, list) else ""
         if not isinstance(ann, dict) or "keypoints" not in ann:
@@ -121,10 +156,10 @@ def read_coco_keypoints(path: str | Path) -> np.ndarray:
             raise DlaInputError(path, f"{where}visibility values must be 0, 1 or 2")
         visible = int((arr[:, 2] > 0).sum())
         if visible > best_visible:
-            best, best_visible = arr, visible
+            best, best_visible, best_ann, best_where = arr, visible, ann, where
     out = best.astype(np.float32)
     out[:, 2] = (best[:, 2] > 0).astype(np.float32)
-    return out
+    return out, best_ann, best_where
 
 
 def _downscale(rgb, alpha, mask, keypoints, path: Path, notes):

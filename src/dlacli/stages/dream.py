@@ -32,6 +32,7 @@ import torch
 from scipy import ndimage
 
 from dlacli.errors import DlaInputError
+from dlacli.limits import FIT_STEPS
 from dlacli.stages.plausibility import plausibility
 from dlacli.types import Cameras, ViewSet
 
@@ -463,25 +464,28 @@ def diffusion_views(
 
 
 def _read_inputs(photo, mask_path, keypoints_path, notes: list[str]):
-    """-> image [H, W, 3], mask [H, W], keypoints [17, 3]. Mask: --mask, else the photo's alpha
-    channel (dlacli.io.photo's rule), else mediapipe; keypoints: --keypoints, else mediapipe.
-    When the mask is known, the detector sees the photo composited over grey (`detect_person`'s
-    alpha), as the stored test keypoints were made."""
-    from dlacli.io.photo import read_photo
+    """-> image [H, W, 3], mask [H, W], keypoints [17, 3], 3D landmarks [17, 4] or None. Mask:
+    --mask, else the photo's alpha channel (dlacli.io.photo's rule), else mediapipe; keypoints:
+    --keypoints (with its optional "keypoints_3d"), else mediapipe (its world landmarks). When the
+    mask is known, the detector sees the photo composited over grey (`detect_person`'s alpha), as
+    the stored test keypoints were made."""
+    from dlacli.io.photo import read_coco_keypoints_3d, read_photo
 
     image, mask, keypoints = read_photo(photo, mask_path=mask_path, keypoints_path=keypoints_path, notes=notes)
+    landmarks = None if keypoints_path is None else read_coco_keypoints_3d(keypoints_path)
     if mask is None or keypoints is None:
         try:
             from dlacli.io.detect import detect_person
 
-            det_mask, det_kp = detect_person(image, alpha=mask)
+            det = detect_person(image, alpha=mask)
         except DlaInputError as err:
             missing = " and ".join(n for n, v in (("--mask", mask), ("--keypoints", keypoints)) if v is None)
             why = " (the photo has no alpha channel)" if mask is None else ""
             raise DlaInputError(photo, f"{err.problem}: pass {missing}{why}") from None
-        mask = det_mask if mask is None else mask
-        keypoints = det_kp if keypoints is None else keypoints
-    return image, np.asarray(mask, np.float32), np.asarray(keypoints, np.float32)
+        mask = det.mask if mask is None else mask
+        if keypoints is None:
+            keypoints, landmarks = det.keypoints, det.world
+    return image, np.asarray(mask, np.float32), np.asarray(keypoints, np.float32), landmarks
 
 
 def build_views(
@@ -499,13 +503,15 @@ def build_views(
 ) -> ViewSet:
     """Photo [H, W, 3] + person mask [H, W] + body fit (`dlacli.stages.fit.FitResult`) -> the
     4 views (azimuths 0, 90, 180, 270) as a ViewSet with the fitted body."""
+    from dlacli.stages.fit import fit_info
+
     say = progress or (lambda msg: None)
     rgb, alpha, cam = frame_crop(image, mask, fit.camera, res)
     info = {
         "backend": backend,
         "azimuths": list(AZIMUTHS),
         "fit_overlay": "fit_overlay.png",
-        "fit": {"reprojection_px": float(fit.reprojection_px), "mask_iou": float(fit.mask_iou)},
+        "fit": fit_info(fit),
     }
     images, masks, cams, settings = _backend(backend).views(
         rgb, alpha, cam, fit.vertices, pipe, frames=frames, steps=steps, seed=seed, say=say
@@ -542,12 +548,12 @@ def dream(
     steps: int = 50,
     frames: int = 80,
     seed: int = 0,
-    fit_steps: int = 300,
+    fit_steps: int = FIT_STEPS,
     device: str | None = None,
     progress: Progress | None = None,
 ) -> Path:
     """One photo -> a view folder at `output` (written atomically; see the module docstring)."""
-    from dlacli.stages.fit import fit_body, overlay_png
+    from dlacli.stages.fit import fit_body, fit_warning, overlay_png
 
     say = progress or (lambda msg: None)
     chosen = _backend(backend)
@@ -559,14 +565,23 @@ def dream(
     if chosen.load is not None:
         pipe, model = chosen.load(model, device, res, frames, say)
     notes: list[str] = []
-    image, person, kps = _read_inputs(photo, mask, keypoints, notes)
+    image, person, kps, landmarks = _read_inputs(photo, mask, keypoints, notes)
     for note in notes:
         say(note)
     crop_box(person)  # fail early on an empty mask or a tiny person
     say("fitting the body")
     fit = fit_body(
-        image, person, kps, steps=fit_steps, progress=lambda done, total: say(f"fitting the body {done}/{total}")
+        image,
+        person,
+        kps,
+        steps=fit_steps,
+        landmarks_3d=landmarks,
+        progress=lambda done, total: say(f"fitting the body {done}/{total}"),
     )
+    warning = fit_warning(fit)
+    if warning:
+        notes.append(warning)
+        say(warning)
     views = build_views(
         image, person, fit, backend=backend, res=res, pipe=pipe, frames=frames, steps=steps, seed=seed, progress=say
     )
