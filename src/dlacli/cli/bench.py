@@ -195,7 +195,7 @@ def accuracy(
         help="What is lifted: views (the subject's 4 true views) or photo (its front view alone, through dla dream).",
     ),
     backend: str = typer.Option(
-        "template", "--backend", help="With --input photo: dream backends to compare, comma-separated."
+        "body", "--backend", help="With --input photo: dream backends to compare, comma-separated (e.g. shell,body)."
     ),
     fit_steps: int = typer.Option(
         FIT_STEPS, "--fit-steps", min=3, max=100_000, help="With --input photo: dream's body-fit steps (as dla dream)."
