@@ -231,3 +231,36 @@ def test_a_deferred_module_runs_on_first_use_only(tmp_path, monkeypatch):
     finally:
         for name in ("dla_deferred_pkg.heavy", "dla_deferred_pkg"):
             sys.modules.pop(name, None)
+
+
+def test_background_detection_is_detect_person(third_party_data):
+    """The child interpreter's detection is exactly the in-process one (same arrays, bit for bit),
+    and its folder is gone afterwards."""
+    from dlacli.io.detect import BackgroundDetection, detect_person
+    from dlacli.io.photo import read_photo
+
+    image, alpha, _ = read_photo(third_party_data / "images" / f"{PHOTOS[2]}.png", notes=[])
+    bg = BackgroundDetection(image, alpha)
+    folder = bg._dir
+    got, want = bg.result(), detect_person(image, alpha=alpha)
+    assert not folder.exists()
+    assert want.world is not None and np.array_equal(got.world, want.world)
+    assert np.array_equal(got.mask, want.mask) and np.array_equal(got.keypoints, want.keypoints)
+    assert got.mask.dtype == want.mask.dtype and got.keypoints.dtype == want.keypoints.dtype
+
+
+def test_background_detection_refusals_fallback_and_cancel(monkeypatch):
+    from dlacli.io.detect import BackgroundDetection
+
+    grey = np.full((256, 256, 3), 0.5, np.float32)
+    with pytest.raises(DlaInputError, match="no person found") as info:
+        BackgroundDetection(grey).result()  # the child's refusal, raised here
+    assert info.value.where == "image"
+    bg = BackgroundDetection(grey)
+    bg.cancel()
+    assert bg._proc.poll() is not None and not bg._dir.exists()
+    monkeypatch.setattr(sys, "executable", "/bin/false")  # a child that runs nothing: detect in this process
+    bg = BackgroundDetection(grey)
+    with pytest.raises(DlaInputError, match="no person found"):
+        bg.result()
+    assert bg._proc.returncode != 0 and not bg._dir.exists()

@@ -35,6 +35,7 @@ import sys
 import types
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -190,3 +191,79 @@ def detect_person(image: np.ndarray, alpha: np.ndarray | None = None) -> Detecti
         if not np.all(np.isfinite(world)):  # pragma: no cover - defensive
             world = None
     return Detection(mask, kp, world)
+
+
+# ------------------------------------------------------------------------------- in a child process
+
+_CHILD = "import sys\nfrom dlacli.io.detect import _detect_in_folder\n_detect_in_folder(sys.argv[1])\n"
+
+
+def _detect_in_folder(folder: str) -> None:
+    """The child's side of `BackgroundDetection`: image.npy (+ alpha.npy) -> detection.npz, or
+    error.json {where, problem} when `detect_person` refuses."""
+    import json
+
+    d = Path(folder)
+    alpha = np.load(d / "alpha.npy") if (d / "alpha.npy").exists() else None
+    try:
+        det = detect_person(np.load(d / "image.npy"), alpha=alpha)
+    except DlaInputError as err:
+        (d / "error.json").write_text(json.dumps({"where": err.where, "problem": err.problem}))
+        return
+    extra = {} if det.world is None else {"world": det.world}
+    np.savez(d / "part.npz", mask=det.mask, keypoints=det.keypoints, **extra)
+    os.replace(d / "part.npz", d / "detection.npz")
+
+
+class BackgroundDetection:
+    """`detect_person(image, alpha)` in a child interpreter, started at construction, so that it
+    runs while this process imports torch and builds the body model (dla dream). `result()` waits
+    and returns the same `Detection` (or raises the same DlaInputError); when the child could not
+    run at all, it detects in this process instead."""
+
+    def __init__(self, image: np.ndarray, alpha: np.ndarray | None = None) -> None:
+        import subprocess
+        import tempfile
+
+        import dlacli
+
+        self._image, self._alpha = image, alpha
+        self._dir = Path(tempfile.mkdtemp(prefix="dla-detect-"))
+        np.save(self._dir / "image.npy", np.asarray(image))
+        if alpha is not None:
+            np.save(self._dir / "alpha.npy", np.asarray(alpha))
+        root = str(Path(dlacli.__file__).resolve().parent.parent)  # where this dlacli lives
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])]))
+        self._proc = subprocess.Popen(
+            [sys.executable, "-c", _CHILD, str(self._dir)],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=env,
+        )
+
+    def result(self) -> Detection:
+        import json
+        import shutil
+
+        try:
+            self._proc.wait()
+            if (self._dir / "error.json").exists():
+                err = json.loads((self._dir / "error.json").read_text())
+                raise DlaInputError(err["where"], err["problem"])
+            if not (self._dir / "detection.npz").exists():  # the child failed: detect here
+                return detect_person(self._image, alpha=self._alpha)
+            with np.load(self._dir / "detection.npz") as z:
+                world = z["world"] if "world" in z.files else None
+                return Detection(z["mask"], z["keypoints"], world)
+        finally:
+            shutil.rmtree(self._dir, ignore_errors=True)
+
+    def cancel(self) -> None:
+        """Stop the child (when its result is not wanted) and remove its folder."""
+        import shutil
+
+        if self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait()
+        shutil.rmtree(self._dir, ignore_errors=True)
