@@ -102,3 +102,46 @@ def test_cli_refusals(capsys, tmp_path):
             main(["bench", "speed", *argv])
         err = capsys.readouterr().err
         assert info.value.code == 2 and needle in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_a_tiny_dream_run(monkeypatch):
+    """The stages run for real at smoke size; the whole command's fresh interpreters (a warm-up
+    and one run per case, ~10 s each here) are replaced by a recorder of what would run."""
+    from dlacli.bench import speed_stages
+    from dlacli.bench.speed_config import quick_config
+    from dlacli.stages.dream import sample_keypoints, sample_photo
+
+    ran = []
+    monkeypatch.setattr(speed_stages, "cli_seconds", lambda argv: (ran.append(argv), (0.5 + len(ran), True))[1])
+    cfg = quick_config()
+    cfg.repeats = 1
+    rows = S.run(["dream"], cfg, log=lambda s: None)
+    assert len(ran) == 3 and ran[0] == ran[1] and ran[2][: len(ran[1])] == ran[1]
+    assert ran[1][:2] == ["dream", str(sample_photo())] and "--keypoints" not in ran[1]
+    assert ran[1][ran[1].index("--res") + 1] == "64" and ran[1][ran[1].index("--fit-steps") + 1] == "3"
+    assert ran[2][len(ran[1]) :] == ["--keypoints", str(sample_keypoints())]
+    assert all(check_row(dict(r)) == r for r in rows)
+    by_case = {r["case"]: r for r in rows}
+    assert list(by_case) == [
+        "command",
+        "command_keypoints",
+        "detect",
+        "fit",
+        "views_body",
+        "views_shell",
+        "plausibility",
+        "write",
+    ]
+    assert all(r["suite"] == "dream" and r["seconds"] > 0 and r["repeats"] == 1 for r in rows)
+    assert by_case["command"]["seconds"] == 2.5 and by_case["command_keypoints"]["seconds"] == 3.5
+    assert by_case["command"]["method"] == "cli" and by_case["command"]["config"] == {"res": 64, "fit_steps": 3}
+    assert by_case["fit"]["config"] == {"fit_steps": 3} and by_case["views_body"]["config"] == {"res": 64}
+    assert all(by_case[c]["first_seconds"] > 0 for c in ("detect", "fit", "write"))
+    assert len({r["run"] for r in rows}) == 1
+
+
+def test_cli_seconds_reports_a_failing_command(tmp_path):
+    from dlacli.bench.speed_config import cli_seconds
+
+    with pytest.raises(RuntimeError, match="dream"):
+        cli_seconds(["dream", str(tmp_path / "missing.png"), "-o", str(tmp_path / "out")])

@@ -203,3 +203,64 @@ def test_dream_without_mediapipe_names_the_missing_option(monkeypatch, tmp_path)
     with pytest.raises(DlaInputError, match=r"sample_photo\.png: mediapipe is not installed .*: pass --keypoints$"):
         dream(sample_photo(), tmp_path / "views", res=64, fit_steps=3)
     assert not (tmp_path / "views").exists()
+
+
+def test_a_deferred_module_runs_on_first_use_only(tmp_path, monkeypatch):
+    import sys
+
+    from dlacli.io.detect import _defer_module
+
+    pkg = tmp_path / "dla_deferred_pkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("RUNS = []\n")
+    (pkg / "heavy.py").write_text("import dla_deferred_pkg\ndla_deferred_pkg.RUNS.append(1)\nVALUE = 42\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    try:
+        _defer_module("dla_deferred_pkg.heavy")
+        import dla_deferred_pkg
+        import dla_deferred_pkg.heavy as heavy  # what mediapipe's `import matplotlib.pyplot as plt` does
+
+        assert dla_deferred_pkg.RUNS == []  # imported by name, not run
+        assert heavy.VALUE == 42 and heavy.VALUE == 42 and dla_deferred_pkg.RUNS == [1]  # run once, on first use
+        real = sys.modules["dla_deferred_pkg.heavy"]
+        assert real is not heavy and dla_deferred_pkg.heavy is real and real.VALUE == 42
+        _defer_module("dla_deferred_pkg.heavy")  # already imported: left alone
+        assert sys.modules["dla_deferred_pkg.heavy"] is real
+        _defer_module("dla_deferred_pkg.missing")  # not found: nothing registered
+        assert "dla_deferred_pkg.missing" not in sys.modules
+    finally:
+        for name in ("dla_deferred_pkg.heavy", "dla_deferred_pkg"):
+            sys.modules.pop(name, None)
+
+
+def test_background_detection_is_detect_person(third_party_data):
+    """The child interpreter's detection is exactly the in-process one (same arrays, bit for bit),
+    and its folder is gone afterwards."""
+    from dlacli.io.detect import BackgroundDetection, detect_person
+    from dlacli.io.photo import read_photo
+
+    image, alpha, _ = read_photo(third_party_data / "images" / f"{PHOTOS[2]}.png", notes=[])
+    bg = BackgroundDetection(image, alpha)
+    folder = bg._dir
+    got, want = bg.result(), detect_person(image, alpha=alpha)
+    assert not folder.exists()
+    assert want.world is not None and np.array_equal(got.world, want.world)
+    assert np.array_equal(got.mask, want.mask) and np.array_equal(got.keypoints, want.keypoints)
+    assert got.mask.dtype == want.mask.dtype and got.keypoints.dtype == want.keypoints.dtype
+
+
+def test_background_detection_refusals_fallback_and_cancel(monkeypatch):
+    from dlacli.io.detect import BackgroundDetection
+
+    grey = np.full((256, 256, 3), 0.5, np.float32)
+    with pytest.raises(DlaInputError, match="no person found") as info:
+        BackgroundDetection(grey).result()  # the child's refusal, raised here
+    assert info.value.where == "image"
+    bg = BackgroundDetection(grey)
+    bg.cancel()
+    assert bg._proc.poll() is not None and not bg._dir.exists()
+    monkeypatch.setattr(sys, "executable", "/bin/false")  # a child that runs nothing: detect in this process
+    bg = BackgroundDetection(grey)
+    with pytest.raises(DlaInputError, match="no person found"):
+        bg.result()
+    assert bg._proc.returncode != 0 and not bg._dir.exists()

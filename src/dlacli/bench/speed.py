@@ -20,7 +20,12 @@ Suites (SUITES):
 - animate: pose_avatar of a walk (per frame) and its USD write (animate's defaults);
 - usd: write_usd throughput on a synthetic walk-like motion, per schema and tolerance;
 - render: frames per second of an animated avatar (animate's preview renderer) and turntable
-  images of its own pose.
+  images of its own pose;
+- dream: the whole `dla dream` command on the bundled sample photo (with detection, and with its
+  stored keypoints), each run a fresh interpreter as a user runs it, and its stages in this
+  process: detection, the body fit, framing + the views of the body and the shell backends,
+  plausibility, and writing the folder (with the fit overlay); first_seconds is a stage's first
+  call in this process (detection: importing mediapipe; fit: building the body model).
 Times are medians over `repeats` calls after one warm-up call, unless a row says repeats = 1
 (stages too slow to repeat). Speed is measured here, never asserted in tests.
 """
@@ -39,20 +44,10 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from dlacli.bench.speed_config import DENSE_MAX_PAIRS, SUITES, SpeedConfig, median_min
-from dlacli.bench.speed_stages import animate_suite, lift_suite, render_suite, usd_suite
+from dlacli.bench.speed_config import DENSE_MAX_PAIRS, SUITES, SpeedConfig, cli_seconds, median_min
+from dlacli.bench.speed_stages import animate_suite, dream_suite, lift_suite, render_suite, usd_suite
 
 # ------------------------------------------------------------------------------------ startup
-
-_PROBE = (
-    "import sys\n"
-    "from dlacli.cli.app import main\n"
-    "try:\n"
-    "    main(sys.argv[1:])\n"
-    "except SystemExit:\n"
-    "    pass\n"
-    "print('torch-loaded=' + str('torch' in sys.modules), file=sys.stderr)\n"
-)
 
 
 def _startup(cfg: SpeedConfig, row) -> list[dict]:
@@ -64,17 +59,9 @@ def _startup(cfg: SpeedConfig, row) -> list[dict]:
     write_body(BodyParams(pose={"neck01": [0.1, 0.0, 0.0]}), body)
     commands = {"version": ["--version"], "info_body_json": ["info", str(body)]}
     out = []
-
-    def once(argv):
-        t0 = time.perf_counter()
-        done = subprocess.run([sys.executable, "-c", _PROBE, *argv], capture_output=True, text=True, check=False)
-        if "torch-loaded=" not in done.stderr:
-            raise RuntimeError(f"startup probe failed for {argv}: {done.stderr.strip()[-300:]}")
-        return time.perf_counter() - t0, "torch-loaded=True" in done.stderr
-
-    once(["--version"])  # warm the file-system cache and the .pyc files
+    cli_seconds(["--version"])  # warm the file-system cache and the .pyc files
     for case, argv in commands.items():
-        runs = [once(argv) for _ in range(max(1, cfg.startup_runs))]
+        runs = [cli_seconds(argv) for _ in range(max(1, cfg.startup_runs))]
         times = [t for t, _ in runs]
         out.append(
             row(
@@ -388,6 +375,7 @@ def run(
         "animate": lambda: animate_suite(cfg, row, log),
         "usd": lambda: usd_suite(cfg, row, log),
         "render": lambda: render_suite(cfg, row, log),
+        "dream": lambda: dream_suite(cfg, row, log),
     }
     rows: list[dict] = []
     try:

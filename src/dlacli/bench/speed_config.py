@@ -1,17 +1,20 @@
-"""The speed suites' settings and timer (`dla bench speed`, bench/speed.py): one SpeedConfig per
-run, its smoke-test size, and the one median-of-repeats timer every suite uses (also sent, as
-source, to the fresh interpreter of each splat case)."""
+"""The speed suites' settings and timers (`dla bench speed`, bench/speed.py): one SpeedConfig per
+run, its smoke-test size, the one median-of-repeats timer every suite uses (also sent, as
+source, to the fresh interpreter of each splat case), and the timer of one `dla` command in a
+fresh interpreter (the startup and dream suites)."""
 
 from __future__ import annotations
 
 import statistics
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from dlacli.limits import DEFAULT_GAUSSIANS
+from dlacli.limits import DEFAULT_GAUSSIANS, FIT_STEPS
 
-SUITES = ("startup", "splat", "body", "lift", "animate", "usd", "render")
+SUITES = ("startup", "splat", "body", "lift", "animate", "usd", "render", "dream")
 _N = DEFAULT_GAUSSIANS
 SPLAT_CASES = ((2_048, 128), (20_000, 256), (20_000, 512), (65_536, 256), (65_536, 512), (_N, 256), (_N, 512))
 DENSE_MAX_PAIRS = 2_048 * 128 * 128  # Gaussians x pixels up to which the dense path runs
@@ -37,6 +40,8 @@ class SpeedConfig:
     usd_gaussians: int = DEFAULT_GAUSSIANS
     usd_schemas: tuple[str, ...] = ("points", "instancer")
     usd_tolerances_mm: tuple[float, ...] = (0.0, 1.0)
+    dream_res: int = 512  # dream: the views' size
+    dream_fit_steps: int = FIT_STEPS  # dream: the body fit's steps (dream's default)
     _cache: dict = field(default_factory=dict, repr=False)
 
 
@@ -52,6 +57,8 @@ def quick_config() -> SpeedConfig:
         startup_runs=2,
         usd_gaussians=4_096,
         usd_tolerances_mm=(0.0,),
+        dream_res=64,
+        dream_fit_steps=3,
     )
 
 
@@ -66,3 +73,25 @@ def median_min(fn: Callable[[], object], repeats: int, sync: Callable[[], None] 
         sync()
         times.append(time.perf_counter() - t0)
     return statistics.median(times), min(times)
+
+
+_PROBE = (
+    "import sys\n"
+    "from dlacli.cli.app import main\n"
+    "try:\n"
+    "    main(sys.argv[1:])\n"
+    "except SystemExit:\n"
+    "    pass\n"
+    "print('torch-loaded=' + str('torch' in sys.modules), file=sys.stderr)\n"
+)
+
+
+def cli_seconds(argv: list[str]) -> tuple[float, bool]:
+    """(wall seconds, whether torch got imported) of `dla *argv` in a fresh interpreter, as a user
+    runs it (interpreter start, imports, the command, exit). Raises RuntimeError when it fails."""
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, "-c", _PROBE, *argv], capture_output=True, text=True, check=False)
+    sec = time.perf_counter() - t0
+    if "torch-loaded=" not in done.stderr or any(line.startswith("error:") for line in done.stderr.splitlines()):
+        raise RuntimeError(f"dla {' '.join(argv[:2])} failed: {done.stderr.strip()[-300:]}")
+    return sec, "torch-loaded=True" in done.stderr

@@ -1,5 +1,6 @@
 """Speed suites of whole stages (`dla bench speed`, bench/speed.py): lift, animate, the USD
-writer and the animation renderer, on one synthetic subject made once per run."""
+writer and the animation renderer, on one synthetic subject made once per run, and dream on the
+bundled sample photo."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from dlacli.bench.speed_config import USD_LIMBS, SpeedConfig, median_min
+from dlacli.bench.speed_config import USD_LIMBS, SpeedConfig, cli_seconds, median_min
 
 
 def _subject_and_avatar(cfg: SpeedConfig, log):
@@ -175,3 +176,64 @@ def render_suite(cfg: SpeedConfig, row, log) -> list[dict]:
         row("render", "animation_frame", "cpu", {**c, "frames": k}, per_frame, k, items=1),
         row("render", "turntable_image", "cpu", {**c, "cameras": 8}, per_image, 8, items=1),
     ]
+
+
+def dream_suite(cfg: SpeedConfig, row, log) -> list[dict]:
+    """`dla dream` on the sample photo: the whole command (fresh interpreters; one warm-up run
+    fills the on-disk caches) and its stages in this process (see bench/speed.py)."""
+    import statistics
+
+    import numpy as np
+
+    from dlacli.io.detect import detect_person
+    from dlacli.io.photo import read_photo
+    from dlacli.stages import dream as D
+    from dlacli.stages.fit import fit_body, overlay_png
+    from dlacli.stages.plausibility import plausibility
+    from dlacli.stages.texture import body_views
+
+    photo, res, steps = D.sample_photo(), cfg.dream_res, cfg.dream_fit_steps
+    c = {"res": res, "fit_steps": steps}  # the command rows
+    out = []
+    with tempfile.TemporaryDirectory(prefix="dla-speed-dream-") as tmp:
+        argv = ["dream", str(photo), "-o", str(Path(tmp) / "cli"), "--res", str(res), "--fit-steps", str(steps)]
+        cli_seconds(argv)  # warm-up: caches on disk, .pyc files, the file-system cache
+        for case, extra in (("command", []), ("command_keypoints", ["--keypoints", str(D.sample_keypoints())])):
+            times = [cli_seconds(argv + extra)[0] for _ in range(max(1, cfg.repeats))]
+            med = statistics.median(times)
+            out.append(row("dream", case, "cli", c, med, len(times), min_seconds=min(times)))
+            log(f"dream {case} at {res} px: {med:.1f} s (min {min(times):.1f} s)")
+
+        image, mask, _ = read_photo(photo, notes=[])  # the sample's alpha is the person mask
+        mask = np.asarray(mask, np.float32)
+        timed = {}
+
+        def stage(case, fn, config):
+            t0 = time.perf_counter()
+            timed[case] = fn()
+            first = time.perf_counter() - t0
+            med, lo = median_min(fn, cfg.repeats)
+            out.append(row("dream", case, "cpu", config, med, cfg.repeats, min_seconds=lo, first_seconds=first))
+            log(f"dream {case}: {med * 1e3:.0f} ms (first call {first * 1e3:.0f} ms)")
+
+        stage("detect", lambda: detect_person(image, alpha=mask), {})
+        det = timed["detect"]
+        kps = np.asarray(det.keypoints, np.float32)
+        stage("fit", lambda: fit_body(image, mask, kps, steps=steps, landmarks_3d=det.world), {"fit_steps": steps})
+        fit = timed["fit"]
+
+        def framed_views(make):
+            rgb, alpha, cam = D.frame_crop(image, mask, fit.camera, res)
+            return make(rgb, alpha, cam, fit.vertices)
+
+        stage("views_body", lambda: framed_views(body_views), {"res": res})
+        stage("views_shell", lambda: framed_views(D.template_views), {"res": res})
+        images, masks, cams, _ = timed["views_body"]
+        stage("plausibility", lambda: plausibility(images, masks, cams, fit.vertices), {"res": res})
+        folder = D.build_views(image, mask, fit, res=res)
+
+        def write():
+            return D.write_dream_folder(folder, overlay_png(image * mask[..., None], fit), Path(tmp) / "stage")
+
+        stage("write", write, {"res": res})
+    return out

@@ -63,35 +63,59 @@ def dream(
     from dlacli.cli.progress import status
     from dlacli.io.atomic import check_outputs
     from dlacli.io.views import LAYOUT
-    from dlacli.stages.dream import dream as run
 
     check_outputs(folders=[(output, (*LAYOUT, "fit_overlay.png"))], inputs=[photo, keypoints, mask])
+    detection = _start_detection(photo, mask, keypoints) if backend in ("body", "shell", "template") else None
+    from dlacli.stages.dream import dream as run  # imports torch: the detection runs meanwhile
+
     warnings: list[str] = []
 
-    with status("dla dream") as update:
+    try:
+        with status("dla dream") as update:
 
-        def report(message: str) -> None:  # warnings outlive the spinner: printed after it
-            if message.startswith("warning: "):
-                warnings.append(message)
-            update(message)
+            def report(message: str) -> None:  # warnings outlive the spinner: printed after it
+                if message.startswith("warning: "):
+                    warnings.append(message)
+                update(message)
 
-        path = run(
-            photo,
-            output,
-            backend=backend,
-            keypoints=keypoints,
-            mask=mask,
-            res=res,
-            model=model,
-            steps=steps,
-            frames=frames,
-            seed=seed,
-            fit_steps=fit_steps,
-            progress=report,
-        )
+            path = run(
+                photo,
+                output,
+                backend=backend,
+                keypoints=keypoints,
+                mask=mask,
+                res=res,
+                model=model,
+                steps=steps,
+                frames=frames,
+                seed=seed,
+                fit_steps=fit_steps,
+                progress=report,
+                detection=detection,
+            )
+    finally:
+        if detection is not None:
+            detection.cancel()  # a no-op once its result was taken
     for line in warnings:
         typer.echo(line, err=True)
     typer.echo(str(path))
+
+
+def _start_detection(photo: Path, mask: Optional[Path], keypoints: Optional[Path]):
+    """A `BackgroundDetection` of the photo when dream will need the detector (no --mask or no
+    --keypoints, and the photo has no alpha channel standing in for the mask), else None; None
+    too when the photo cannot be read (dream then reports that itself, in its own order)."""
+    from dlacli.errors import DlaInputError
+    from dlacli.io.detect import BackgroundDetection
+    from dlacli.io.photo import read_photo
+
+    try:
+        image, alpha, kps = read_photo(photo, mask_path=mask, keypoints_path=keypoints, notes=[])
+    except DlaInputError:
+        return None
+    if alpha is not None and kps is not None:
+        return None
+    return BackgroundDetection(image, alpha)
 
 
 def register(app: typer.Typer) -> None:

