@@ -51,12 +51,23 @@ def draw_chart(
     if not present:
         raise DlaInputError("chart", f"no rows for the splits {', '.join(splits)}")
     fig, axes = plt.subplots(1, len(present), figsize=(6 * len(present), 4.5), squeeze=False)
+    # one marker and colour per group (the method, or "photo/BACKEND METHOD") in every panel
+    groups = sorted({p["group"] for s in present for p in points(rows, s, metric)})
+    style = {g: (marker, f"C{k % 10}") for k, (g, marker) in enumerate(zip(groups, "osD^v<>ph*"))}
     for ax, split in zip(axes[0], present):
         pts = points(rows, split, metric)
-        methods = sorted({p["group"] for p in pts})  # the method, or "photo/BACKEND METHOD"
-        for m, marker in zip(methods, "osD^v<>ph*"):
+        for m in sorted({p["group"] for p in pts} & set(style)):
+            marker, colour = style[m]
             sel = [p for p in pts if p["group"] == m]
-            ax.scatter([p["seconds"] for p in sel], [p["value"] for p in sel], marker=marker, s=40, label=m, zorder=3)
+            ax.scatter(
+                [p["seconds"] for p in sel],
+                [p["value"] for p in sel],
+                marker=marker,
+                color=colour,
+                s=40,
+                label=m,
+                zorder=3,
+            )
             words = [p["label"][len(m) :].split() for p in sel]
             shared = set.intersection(*map(set, words)) if len(sel) > 1 else set()  # said once, in the legend's sense
             for k, (p, w) in enumerate(zip(sel, words)):
