@@ -161,6 +161,8 @@ def project_gaussians(
     _check_shape("scales", scales, (n, 3))
     _check_shape("viewmats", viewmats, (None, 4, 4))
     _check_shape("Ks", Ks, (viewmats.shape[0], 3, 3))
+    if _fused_projection(means, quats, scales, viewmats, Ks):
+        return _project_fused(means, quats, scales, viewmats, Ks, width, height, eps2d, near, far)
     M = quat_to_rotmat(quats) * scales[:, None, :]  # [N, 3, 3] columns R_i s_i
     R = viewmats[:, :3, :3]  # [C, 3, 3]
     t = viewmats[:, :3, 3]  # [C, 3]
@@ -198,6 +200,48 @@ def project_gaussians(
         keep &= (mx + radius > 0) & (mx - radius < width) & (my + radius > 0) & (my - radius < height)
         radii = torch.where(keep, radius.clamp(max=2.0**30), torch.zeros_like(radius)).to(torch.int32)
     return Projected(means2d, conics, z, radii)
+
+
+def _fused_projection(*tensors: torch.Tensor) -> bool:
+    """Whether `project_gaussians` may take the one-kernel CPU path: CPU tensors, no gradient asked for."""
+    if any(t.device.type != "cpu" for t in tensors):
+        return False
+    return not (torch.is_grad_enabled() and any(t.requires_grad for t in tensors))
+
+
+def _project_fused(means, quats, scales, viewmats, Ks, width, height, eps2d, near, far) -> Projected:
+    """`project_gaussians` without autograd: one numba kernel (`camera_kernels.project_fused`),
+    float64 inside, instead of ~60 torch operations on [C, N] tensors; the outputs agree with
+    the torch path's within the rounding of the input dtype (docs/rendering.md)."""
+    dtype = means.dtype
+    ncam, n = viewmats.shape[0], means.shape[0]
+
+    def arr(x):
+        return x.detach().contiguous().numpy()
+
+    intr = torch.stack([Ks[:, 0, 0], Ks[:, 1, 1], Ks[:, 0, 2], Ks[:, 1, 2]], dim=-1)
+    means2d = torch.empty((ncam, n, 2), dtype=dtype)
+    conics = torch.empty((ncam, n, 3), dtype=dtype)
+    depths = torch.empty((ncam, n), dtype=dtype)
+    radii = torch.empty((ncam, n), dtype=torch.int32)
+    camera_kernels.project_fused(
+        arr(means),
+        arr(quats),
+        arr(scales),
+        arr(viewmats[:, :3, :3]),
+        arr(viewmats[:, :3, 3]),
+        arr(intr),
+        float(width),
+        float(height),
+        float(eps2d),
+        float(near),
+        float(far),
+        means2d.numpy(),
+        conics.numpy(),
+        depths.numpy(),
+        radii.numpy(),
+    )
+    return Projected(means2d, conics, depths, radii)
 
 
 def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
