@@ -298,7 +298,7 @@ class _RasterizeCPU(torch.autograd.Function):
         rd = radii.detach().cpu().numpy().astype(np.int64, copy=False)
         dk = np.ascontiguousarray(depths.detach().cpu().numpy().astype(np.float32))
         dk = np.where(rd > 0, dk, np.float32(1.0)).astype(np.float32).view(np.uint32)
-        params, src, offsets, lists, trect = K.bin_gaussians(
+        params, _, offsets, lists, trect = K.bin_gaussians(
             np.ascontiguousarray(m2),
             np.ascontiguousarray(co),
             np.ascontiguousarray(op),
@@ -317,14 +317,14 @@ class _RasterizeCPU(torch.autograd.Function):
         last = np.empty((ncam, height, width), dtype=np.int64)
         work = np.zeros(cost.shape[0], dtype=np.float64)
         K.raster_forward(params, offsets, lists, wptr, wtiles, ncam, width, height, acc, tfin, last, work)
-        ctx.saved = (params, src, offsets, lists, trect, tfin, last, work)
+        ctx.saved = (params, offsets, lists, trect, tfin, last, work)
         ctx.meta = (width, height, means2d.shape, dtype, means2d.device)
         alpha = torch.from_numpy(1.0 - tfin).to(dtype=dtype, device=means2d.device)
         return torch.from_numpy(acc).to(means2d.device), alpha
 
     @staticmethod
     def backward(ctx, g_acc, g_alpha):
-        params, src, offsets, lists, trect, tfin, last, work = ctx.saved
+        params, offsets, lists, trect, tfin, last, work = ctx.saved
         width, height, shape, dtype, device = ctx.meta
         ncam, n = shape[0], shape[1]
         if g_acc is None:
@@ -359,8 +359,8 @@ class _RasterizeCPU(torch.autograd.Function):
             isect_grad,
             isect_hit,
         )
-        full = np.zeros((ncam * n, K.NGRAD), dtype=np.float32 if dtype != torch.float64 else np.float64)
-        K.reduce_grads(isect_grad, isect_hit, sptr, src, full)
+        full = np.empty((ncam * n, K.NGRAD), dtype=np.float32 if dtype != torch.float64 else np.float64)
+        K.reduce_grads(isect_grad, isect_hit, sptr, full)
         full_t = torch.from_numpy(full).to(dtype=dtype, device=device).reshape(ncam, n, K.NGRAD)
         return (full_t[..., 0:2], full_t[..., 2:5], full_t[..., 6:10], full_t[..., 5], None, None, None, None)
 
