@@ -258,6 +258,37 @@ def test_projection_culls():
     assert torch.allclose(p.means2d[0, 0], torch.tensor([16.0, 12.0]))
 
 
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_fused_projection_matches_torch_path(dtype):
+    """Without autograd, project_gaussians on CPU is one numba kernel (float64 inside); with a
+    gradient asked for it is the torch code. Same culling, same radii, and the same 2D means,
+    conics and depths within the rounding of the dtype, on a scene with Gaussians behind the
+    cameras, across the near plane, off screen and with zero scales."""
+    g = random_gaussians(400, 0, seed=5, extent=6.0, scale=(1e-3, 0.5))
+    g.scales[:10] = 0.0  # degenerate: only eps2d keeps the 2D covariance positive
+    cams = look_at_cameras([(3.0, -2.0, 1.0), (0.5, 2.5, 0.4), (-2.0, 0.1, 2.5)], 48, 32, 40.0, dtype=dtype)
+    args = (g.means.to(dtype), g.quats.to(dtype), g.scales.to(dtype), cams.viewmats, cams.Ks, 48, 32)
+    with torch.no_grad():
+        fused = project_gaussians(*args)
+    quats = args[1].clone().requires_grad_(True)
+    ref = project_gaussians(args[0], quats, *args[2:])
+    assert ref.conics.requires_grad and not fused.conics.requires_grad  # the two paths were taken
+    keep = ref.radii > 0
+    assert 0 < keep.sum() < keep.numel()  # some culled, some kept
+    if dtype == torch.float64:
+        assert torch.equal(fused.radii, ref.radii)
+    else:  # a radius is a ceil: float32 rounding may move one that sits on an integer by 1
+        assert (fused.radii != ref.radii).sum() <= 2 and (fused.radii - ref.radii).abs().max() <= 1
+    eps = torch.finfo(dtype).eps
+    z = ref.depths.detach()
+    assert ((fused.depths - z).abs() <= 8 * eps * z.abs()).all()
+    m = ref.means2d.detach()[keep]
+    assert ((fused.means2d[keep] - m).abs() <= 64 * eps * (m.abs() + 48)).all()
+    c = ref.conics.detach()[keep]  # error relative to the conic's size (b may cancel to ~0)
+    size = c[:, [0, 2]].abs().amax(-1, keepdim=True)
+    assert ((fused.conics[keep] - c).abs() <= 1e3 * eps * size).all()
+
+
 EDGE_CASES = {
     "behind_camera": dict(z=(-3.0, -0.5)),
     "zero_scales": dict(scale=0.0),
@@ -297,6 +328,10 @@ def test_edge_cases_finite(case, size):
     loss.backward()
     for p in PARAMS:
         assert torch.isfinite(getattr(g, p).grad).all(), p
+    with torch.no_grad():  # the fused projection (no autograd) culls the same Gaussians
+        plain = render_gaussians(g, _head_on_camera(w, h, 0.8 * w + 2, dtype=torch.float32), background=[0.2, 0.3, 0.4])
+    for t, u in zip(plain, out):
+        assert torch.isfinite(t).all() and (t - u.detach()).abs().max() <= 1e-4
 
 
 def test_empty_scene_renders_background():
