@@ -260,19 +260,29 @@ def test_projection_culls():
 
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
 def test_fused_projection_matches_torch_path(dtype):
-    """Without autograd, project_gaussians on CPU is one numba kernel (float64 inside); with a
-    gradient asked for it is the torch code. Same culling, same radii, and the same 2D means,
-    conics and depths within the rounding of the dtype, on a scene with Gaussians behind the
+    """On CPU with the cameras held fixed, project_gaussians is two numba kernels (float64
+    inside); with a gradient asked for the view matrices it is the torch code. Same culling,
+    same radii, the same 2D means, conics and depths within the rounding of the dtype, and the
+    same gradients w.r.t. means, quaternions and scales, on a scene with Gaussians behind the
     cameras, across the near plane, off screen and with zero scales."""
     g = random_gaussians(400, 0, seed=5, extent=6.0, scale=(1e-3, 0.5))
     g.scales[:10] = 0.0  # degenerate: only eps2d keeps the 2D covariance positive
     cams = look_at_cameras([(3.0, -2.0, 1.0), (0.5, 2.5, 0.4), (-2.0, 0.1, 2.5)], 48, 32, 40.0, dtype=dtype)
-    args = (g.means.to(dtype), g.quats.to(dtype), g.scales.to(dtype), cams.viewmats, cams.Ks, 48, 32)
-    with torch.no_grad():
-        fused = project_gaussians(*args)
-    quats = args[1].clone().requires_grad_(True)
-    ref = project_gaussians(args[0], quats, *args[2:])
-    assert ref.conics.requires_grad and not fused.conics.requires_grad  # the two paths were taken
+    gen = torch.Generator().manual_seed(2)
+    upstream = [torch.randn(3, 400, k, generator=gen, dtype=dtype) for k in (2, 3, 1)]
+    runs = []
+    for cameras_grad in (False, True):
+        ps = [t.to(dtype).clone().requires_grad_(True) for t in (g.means, g.quats, g.scales)]
+        viewmats = cams.viewmats.clone().requires_grad_(cameras_grad)
+        proj = project_gaussians(*ps, viewmats, cams.Ks, 48, 32)
+        assert (proj.conics.grad_fn is not None) and (
+            "ProjectCPU" in type(proj.conics.grad_fn).__name__
+        ) != cameras_grad
+        keep = (proj.radii > 0)[..., None]  # the rasteriser sends no gradient to culled pairs
+        loss = sum((u * keep * x).sum() for u, x in zip(upstream, (proj.means2d, proj.conics, proj.depths[..., None])))
+        loss.backward()
+        runs.append((proj, [p.grad for p in ps]))
+    (fused, fused_grads), (ref, ref_grads) = runs
     keep = ref.radii > 0
     assert 0 < keep.sum() < keep.numel()  # some culled, some kept
     if dtype == torch.float64:
@@ -283,10 +293,13 @@ def test_fused_projection_matches_torch_path(dtype):
     z = ref.depths.detach()
     assert ((fused.depths - z).abs() <= 8 * eps * z.abs()).all()
     m = ref.means2d.detach()[keep]
-    assert ((fused.means2d[keep] - m).abs() <= 64 * eps * (m.abs() + 48)).all()
+    assert ((fused.means2d.detach()[keep] - m).abs() <= 64 * eps * (m.abs() + 48)).all()
     c = ref.conics.detach()[keep]  # error relative to the conic's size (b may cancel to ~0)
     size = c[:, [0, 2]].abs().amax(-1, keepdim=True)
-    assert ((fused.conics[keep] - c).abs() <= 1e3 * eps * size).all()
+    assert ((fused.conics.detach()[keep] - c).abs() <= 1e3 * eps * size).all()
+    for name, a, b in zip(("means", "quats", "scales"), fused_grads, ref_grads):
+        scale = b.abs().amax(-1, keepdim=True) + b.abs().max() * 1e-6  # per Gaussian, floored
+        assert ((a - b).abs() <= 1e3 * eps * scale).all(), (name, ((a - b).abs() / scale).max())
 
 
 EDGE_CASES = {

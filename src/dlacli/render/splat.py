@@ -202,46 +202,75 @@ def project_gaussians(
     return Projected(means2d, conics, z, radii)
 
 
-def _fused_projection(*tensors: torch.Tensor) -> bool:
-    """Whether `project_gaussians` may take the one-kernel CPU path: CPU tensors, no gradient asked for."""
-    if any(t.device.type != "cpu" for t in tensors):
+def _fused_projection(means, quats, scales, viewmats, Ks) -> bool:
+    """Whether `project_gaussians` takes the numba path: CPU tensors and cameras held fixed (no
+    gradient asked for the view matrices or intrinsics; the torch code handles those)."""
+    if any(t.device.type != "cpu" for t in (means, quats, scales, viewmats, Ks)):
         return False
-    return not (torch.is_grad_enabled() and any(t.requires_grad for t in tensors))
+    return not (torch.is_grad_enabled() and (viewmats.requires_grad or Ks.requires_grad))
+
+
+class _ProjectCPU(torch.autograd.Function):
+    """`project_gaussians` on CPU tensors as two numba kernels (`camera_kernels.project_fused`
+    and `project_fused_grad`): one thread per Gaussian, float64 inside, instead of ~60 torch
+    operations on [C, N] tensors and their autograd graph. Outputs agree with the torch code
+    within the rounding of the input dtype (docs/rendering.md "Projection"); the results do not
+    depend on the thread count. Gradients w.r.t. means, quats and scales (cameras fixed)."""
+
+    @staticmethod
+    def forward(ctx, means, quats, scales, intr, rot, trans, width, height, eps2d, near, far):
+        dtype = means.dtype
+        ncam, n = rot.shape[0], means.shape[0]
+        means2d = torch.empty((ncam, n, 2), dtype=dtype)
+        conics = torch.empty((ncam, n, 3), dtype=dtype)
+        depths = torch.empty((ncam, n), dtype=dtype)
+        radii = torch.empty((ncam, n), dtype=torch.int32)
+        geo = (means, quats, scales, rot, trans, intr, float(width), float(height), float(eps2d))
+        ctx.save_for_backward(means, quats, scales, rot, trans, intr)
+        ctx.meta = geo[6:]
+        camera_kernels.project_fused(
+            *(_np(x) for x in geo[:6]),
+            *geo[6:],
+            float(near),
+            float(far),
+            means2d.numpy(),
+            conics.numpy(),
+            depths.numpy(),
+            radii.numpy(),
+        )
+        ctx.mark_non_differentiable(radii)
+        return means2d, conics, depths, radii
+
+    @staticmethod
+    def backward(ctx, g_m2, g_con, g_z, _g_radii):
+        means, quats, scales, rot, trans, intr = ctx.saved_tensors
+        ncam, n = rot.shape[0], means.shape[0]
+        dtype = means.dtype
+
+        def grad(g, shape):
+            return _np(torch.zeros(shape, dtype=dtype) if g is None else g.to(dtype))
+
+        out = [torch.empty((n, k), dtype=dtype) for k in (3, 4, 3)]
+        camera_kernels.project_fused_grad(
+            *(_np(x) for x in (means, quats, scales, rot, trans, intr)),
+            *ctx.meta,
+            grad(g_m2, (ncam, n, 2)),
+            grad(g_con, (ncam, n, 3)),
+            grad(g_z, (ncam, n)),
+            *(o.numpy() for o in out),
+        )
+        g_mu, g_q, g_s = (o.to(t.dtype) for o, t in zip(out, (means, quats, scales)))
+        return g_mu, g_q, g_s, None, None, None, None, None, None, None, None
+
+
+def _np(x: torch.Tensor) -> np.ndarray:
+    return x.detach().contiguous().numpy()
 
 
 def _project_fused(means, quats, scales, viewmats, Ks, width, height, eps2d, near, far) -> Projected:
-    """`project_gaussians` without autograd: one numba kernel (`camera_kernels.project_fused`),
-    float64 inside, instead of ~60 torch operations on [C, N] tensors; the outputs agree with
-    the torch path's within the rounding of the input dtype (docs/rendering.md)."""
-    dtype = means.dtype
-    ncam, n = viewmats.shape[0], means.shape[0]
-
-    def arr(x):
-        return x.detach().contiguous().numpy()
-
-    intr = torch.stack([Ks[:, 0, 0], Ks[:, 1, 1], Ks[:, 0, 2], Ks[:, 1, 2]], dim=-1)
-    means2d = torch.empty((ncam, n, 2), dtype=dtype)
-    conics = torch.empty((ncam, n, 3), dtype=dtype)
-    depths = torch.empty((ncam, n), dtype=dtype)
-    radii = torch.empty((ncam, n), dtype=torch.int32)
-    camera_kernels.project_fused(
-        arr(means),
-        arr(quats),
-        arr(scales),
-        arr(viewmats[:, :3, :3]),
-        arr(viewmats[:, :3, 3]),
-        arr(intr),
-        float(width),
-        float(height),
-        float(eps2d),
-        float(near),
-        float(far),
-        means2d.numpy(),
-        conics.numpy(),
-        depths.numpy(),
-        radii.numpy(),
-    )
-    return Projected(means2d, conics, depths, radii)
+    intr = torch.stack([Ks[:, 0, 0], Ks[:, 1, 1], Ks[:, 0, 2], Ks[:, 1, 2]], dim=-1).detach()
+    rot, trans = viewmats[:, :3, :3].detach(), viewmats[:, :3, 3].detach()
+    return Projected(*_ProjectCPU.apply(means, quats, scales, intr, rot, trans, width, height, eps2d, near, far))
 
 
 def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
