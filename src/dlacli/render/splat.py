@@ -5,9 +5,10 @@ depth [C, H, W]), differentiable w.r.t. means, quats, scales, opacities and SH c
 The conventions (gsplat "classic" mode, eps2d 0.3, tile size 16, ...) are written in
 docs/rendering.md. The pieces are plain functions:
 
-- `project_gaussians` (torch): EWA projection to 2D means, conics, depths and integer radii
-  (on CPU the world-to-camera transform is a numba kernel: bitwise the same for any thread
-  count, docs/rendering.md "Determinism");
+- `project_gaussians`: EWA projection to 2D means, conics, depths and integer radii; on CPU
+  with the cameras held fixed one numba kernel forward and one backward (`_ProjectCPU`), else
+  torch code (where, on CPU, the world-to-camera transform is a numba kernel); both bitwise the
+  same for any thread count (docs/rendering.md "Projection", "Determinism");
 - `eval_sh_colors` (torch): view-dependent colour from SH, + 0.5, clamped at 0 (as 3DGS);
 - `rasterize_projected` (torch.autograd.Function over the numba kernels in splat_kernels.py):
   tile binning, front-to-back compositing and its backward pass.
