@@ -258,6 +258,50 @@ def test_projection_culls():
     assert torch.allclose(p.means2d[0, 0], torch.tensor([16.0, 12.0]))
 
 
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_fused_projection_matches_torch_path(dtype):
+    """On CPU with the cameras held fixed, project_gaussians is two numba kernels (float64
+    inside); with a gradient asked for the view matrices it is the torch code. Same culling,
+    same radii, the same 2D means, conics and depths within the rounding of the dtype, and the
+    same gradients w.r.t. means, quaternions and scales, on a scene with Gaussians behind the
+    cameras, across the near plane, off screen and with zero scales."""
+    g = random_gaussians(400, 0, seed=5, extent=6.0, scale=(1e-3, 0.5))
+    g.scales[:10] = 0.0  # degenerate: only eps2d keeps the 2D covariance positive
+    cams = look_at_cameras([(3.0, -2.0, 1.0), (0.5, 2.5, 0.4), (-2.0, 0.1, 2.5)], 48, 32, 40.0, dtype=dtype)
+    gen = torch.Generator().manual_seed(2)
+    upstream = [torch.randn(3, 400, k, generator=gen, dtype=dtype) for k in (2, 3, 1)]
+    runs = []
+    for cameras_grad in (False, True):
+        ps = [t.to(dtype).clone().requires_grad_(True) for t in (g.means, g.quats, g.scales)]
+        viewmats = cams.viewmats.clone().requires_grad_(cameras_grad)
+        proj = project_gaussians(*ps, viewmats, cams.Ks, 48, 32)
+        assert (proj.conics.grad_fn is not None) and (
+            "ProjectCPU" in type(proj.conics.grad_fn).__name__
+        ) != cameras_grad
+        keep = (proj.radii > 0)[..., None]  # the rasteriser sends no gradient to culled pairs
+        loss = sum((u * keep * x).sum() for u, x in zip(upstream, (proj.means2d, proj.conics, proj.depths[..., None])))
+        loss.backward()
+        runs.append((proj, [p.grad for p in ps]))
+    (fused, fused_grads), (ref, ref_grads) = runs
+    keep = ref.radii > 0
+    assert 0 < keep.sum() < keep.numel()  # some culled, some kept
+    if dtype == torch.float64:
+        assert torch.equal(fused.radii, ref.radii)
+    else:  # a radius is a ceil: float32 rounding may move one that sits on an integer by 1
+        assert (fused.radii != ref.radii).sum() <= 2 and (fused.radii - ref.radii).abs().max() <= 1
+    eps = torch.finfo(dtype).eps
+    z = ref.depths.detach()
+    assert ((fused.depths - z).abs() <= 8 * eps * z.abs()).all()
+    m = ref.means2d.detach()[keep]
+    assert ((fused.means2d.detach()[keep] - m).abs() <= 64 * eps * (m.abs() + 48)).all()
+    c = ref.conics.detach()[keep]  # error relative to the conic's size (b may cancel to ~0)
+    size = c[:, [0, 2]].abs().amax(-1, keepdim=True)
+    assert ((fused.conics.detach()[keep] - c).abs() <= 1e3 * eps * size).all()
+    for name, a, b in zip(("means", "quats", "scales"), fused_grads, ref_grads):
+        scale = b.abs().amax(-1, keepdim=True) + b.abs().max() * 1e-6  # per Gaussian, floored
+        assert ((a - b).abs() <= 1e3 * eps * scale).all(), (name, ((a - b).abs() / scale).max())
+
+
 EDGE_CASES = {
     "behind_camera": dict(z=(-3.0, -0.5)),
     "zero_scales": dict(scale=0.0),
@@ -297,6 +341,10 @@ def test_edge_cases_finite(case, size):
     loss.backward()
     for p in PARAMS:
         assert torch.isfinite(getattr(g, p).grad).all(), p
+    with torch.no_grad():  # the fused projection (no autograd) culls the same Gaussians
+        plain = render_gaussians(g, _head_on_camera(w, h, 0.8 * w + 2, dtype=torch.float32), background=[0.2, 0.3, 0.4])
+    for t, u in zip(plain, out):
+        assert torch.isfinite(t).all() and (t - u.detach()).abs().max() <= 1e-4
 
 
 def test_empty_scene_renders_background():

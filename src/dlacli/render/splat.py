@@ -5,9 +5,10 @@ depth [C, H, W]), differentiable w.r.t. means, quats, scales, opacities and SH c
 The conventions (gsplat "classic" mode, eps2d 0.3, tile size 16, ...) are written in
 docs/rendering.md. The pieces are plain functions:
 
-- `project_gaussians` (torch): EWA projection to 2D means, conics, depths and integer radii
-  (on CPU the world-to-camera transform is a numba kernel: bitwise the same for any thread
-  count, docs/rendering.md "Determinism");
+- `project_gaussians`: EWA projection to 2D means, conics, depths and integer radii; on CPU
+  with the cameras held fixed one numba kernel forward and one backward (`_ProjectCPU`), else
+  torch code (where, on CPU, the world-to-camera transform is a numba kernel); both bitwise the
+  same for any thread count (docs/rendering.md "Projection", "Determinism");
 - `eval_sh_colors` (torch): view-dependent colour from SH, + 0.5, clamped at 0 (as 3DGS);
 - `rasterize_projected` (torch.autograd.Function over the numba kernels in splat_kernels.py):
   tile binning, front-to-back compositing and its backward pass.
@@ -161,6 +162,8 @@ def project_gaussians(
     _check_shape("scales", scales, (n, 3))
     _check_shape("viewmats", viewmats, (None, 4, 4))
     _check_shape("Ks", Ks, (viewmats.shape[0], 3, 3))
+    if _fused_projection(means, quats, scales, viewmats, Ks):
+        return _project_fused(means, quats, scales, viewmats, Ks, width, height, eps2d, near, far)
     M = quat_to_rotmat(quats) * scales[:, None, :]  # [N, 3, 3] columns R_i s_i
     R = viewmats[:, :3, :3]  # [C, 3, 3]
     t = viewmats[:, :3, 3]  # [C, 3]
@@ -198,6 +201,77 @@ def project_gaussians(
         keep &= (mx + radius > 0) & (mx - radius < width) & (my + radius > 0) & (my - radius < height)
         radii = torch.where(keep, radius.clamp(max=2.0**30), torch.zeros_like(radius)).to(torch.int32)
     return Projected(means2d, conics, z, radii)
+
+
+def _fused_projection(means, quats, scales, viewmats, Ks) -> bool:
+    """Whether `project_gaussians` takes the numba path: CPU tensors and cameras held fixed (no
+    gradient asked for the view matrices or intrinsics; the torch code handles those)."""
+    if any(t.device.type != "cpu" for t in (means, quats, scales, viewmats, Ks)):
+        return False
+    return not (torch.is_grad_enabled() and (viewmats.requires_grad or Ks.requires_grad))
+
+
+class _ProjectCPU(torch.autograd.Function):
+    """`project_gaussians` on CPU tensors as two numba kernels (`camera_kernels.project_fused`
+    and `project_fused_grad`): one thread per Gaussian, float64 inside, instead of ~60 torch
+    operations on [C, N] tensors and their autograd graph. Outputs agree with the torch code
+    within the rounding of the input dtype (docs/rendering.md "Projection"); the results do not
+    depend on the thread count. Gradients w.r.t. means, quats and scales (cameras fixed)."""
+
+    @staticmethod
+    def forward(ctx, means, quats, scales, intr, rot, trans, width, height, eps2d, near, far):
+        dtype = means.dtype
+        ncam, n = rot.shape[0], means.shape[0]
+        means2d = torch.empty((ncam, n, 2), dtype=dtype)
+        conics = torch.empty((ncam, n, 3), dtype=dtype)
+        depths = torch.empty((ncam, n), dtype=dtype)
+        radii = torch.empty((ncam, n), dtype=torch.int32)
+        geo = (means, quats, scales, rot, trans, intr, float(width), float(height), float(eps2d))
+        ctx.save_for_backward(means, quats, scales, rot, trans, intr)
+        ctx.meta = geo[6:]
+        camera_kernels.project_fused(
+            *(_np(x) for x in geo[:6]),
+            *geo[6:],
+            float(near),
+            float(far),
+            means2d.numpy(),
+            conics.numpy(),
+            depths.numpy(),
+            radii.numpy(),
+        )
+        ctx.mark_non_differentiable(radii)
+        return means2d, conics, depths, radii
+
+    @staticmethod
+    def backward(ctx, g_m2, g_con, g_z, _g_radii):
+        means, quats, scales, rot, trans, intr = ctx.saved_tensors
+        ncam, n = rot.shape[0], means.shape[0]
+        dtype = means.dtype
+
+        def grad(g, shape):
+            return _np(torch.zeros(shape, dtype=dtype) if g is None else g.to(dtype))
+
+        out = [torch.empty((n, k), dtype=dtype) for k in (3, 4, 3)]
+        camera_kernels.project_fused_grad(
+            *(_np(x) for x in (means, quats, scales, rot, trans, intr)),
+            *ctx.meta,
+            grad(g_m2, (ncam, n, 2)),
+            grad(g_con, (ncam, n, 3)),
+            grad(g_z, (ncam, n)),
+            *(o.numpy() for o in out),
+        )
+        g_mu, g_q, g_s = (o.to(t.dtype) for o, t in zip(out, (means, quats, scales)))
+        return g_mu, g_q, g_s, None, None, None, None, None, None, None, None
+
+
+def _np(x: torch.Tensor) -> np.ndarray:
+    return x.detach().contiguous().numpy()
+
+
+def _project_fused(means, quats, scales, viewmats, Ks, width, height, eps2d, near, far) -> Projected:
+    intr = torch.stack([Ks[:, 0, 0], Ks[:, 1, 1], Ks[:, 0, 2], Ks[:, 1, 2]], dim=-1).detach()
+    rot, trans = viewmats[:, :3, :3].detach(), viewmats[:, :3, 3].detach()
+    return Projected(*_ProjectCPU.apply(means, quats, scales, intr, rot, trans, width, height, eps2d, near, far))
 
 
 def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
@@ -254,7 +328,7 @@ class _RasterizeCPU(torch.autograd.Function):
         rd = radii.detach().cpu().numpy().astype(np.int64, copy=False)
         dk = np.ascontiguousarray(depths.detach().cpu().numpy().astype(np.float32))
         dk = np.where(rd > 0, dk, np.float32(1.0)).astype(np.float32).view(np.uint32)
-        params, src, offsets, lists, trect = K.bin_gaussians(
+        params, _, offsets, lists, trect = K.bin_gaussians(
             np.ascontiguousarray(m2),
             np.ascontiguousarray(co),
             np.ascontiguousarray(op),
@@ -273,14 +347,14 @@ class _RasterizeCPU(torch.autograd.Function):
         last = np.empty((ncam, height, width), dtype=np.int64)
         work = np.zeros(cost.shape[0], dtype=np.float64)
         K.raster_forward(params, offsets, lists, wptr, wtiles, ncam, width, height, acc, tfin, last, work)
-        ctx.saved = (params, src, offsets, lists, trect, tfin, last, work)
+        ctx.saved = (params, offsets, lists, trect, tfin, last, work)
         ctx.meta = (width, height, means2d.shape, dtype, means2d.device)
         alpha = torch.from_numpy(1.0 - tfin).to(dtype=dtype, device=means2d.device)
         return torch.from_numpy(acc).to(means2d.device), alpha
 
     @staticmethod
     def backward(ctx, g_acc, g_alpha):
-        params, src, offsets, lists, trect, tfin, last, work = ctx.saved
+        params, offsets, lists, trect, tfin, last, work = ctx.saved
         width, height, shape, dtype, device = ctx.meta
         ncam, n = shape[0], shape[1]
         if g_acc is None:
@@ -315,8 +389,8 @@ class _RasterizeCPU(torch.autograd.Function):
             isect_grad,
             isect_hit,
         )
-        full = np.zeros((ncam * n, K.NGRAD), dtype=np.float32 if dtype != torch.float64 else np.float64)
-        K.reduce_grads(isect_grad, isect_hit, sptr, src, full)
+        full = np.empty((ncam * n, K.NGRAD), dtype=np.float32 if dtype != torch.float64 else np.float64)
+        K.reduce_grads(isect_grad, isect_hit, sptr, full)
         full_t = torch.from_numpy(full).to(dtype=dtype, device=device).reshape(ncam, n, K.NGRAD)
         return (full_t[..., 0:2], full_t[..., 2:5], full_t[..., 6:10], full_t[..., 5], None, None, None, None)
 

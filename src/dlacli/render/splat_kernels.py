@@ -7,16 +7,17 @@ alpha < 1/255; a pixel stops *before* the Gaussian whose next transmittance T (1
 <= 1e-4 (gsplat's rule). Inside a tile Gaussians are walked front to back by camera depth, ties
 broken by index (a stable sort), exactly the order of gsplat's (tile, depth) radix sort.
 
-Layout used between the kernels (S = visible (camera, Gaussian) pairs over all cameras, sorted by
-camera then depth):
-- params [S, 16] (one 64-byte row in float32): mean x, mean y, conic a, b, c, opacity, sigma
-  cut-off log(255 opacity) + margin, pixel box x0, x1, y0, y1 (inclusive, stored as floats)
+Layout used between the kernels (pairs = (camera, Gaussian), row c * N + g, in input order: the
+rows are never moved; S = the visible pairs, radii > 0, sorted by camera then depth in `src`):
+- params [C * N, 16] (one 64-byte row in float32; rows of culled pairs are left unset): mean x,
+  mean y, conic a, b, c, opacity, sigma cut-off log(255 opacity) + margin, pixel box x0, x1, y0,
+  y1 (inclusive, stored as floats)
   outside of which alpha < 1/255 for certain (an optimisation only: it never changes which
   Gaussians count), unused, colour[4] (rgb + depth)
 - src [S] int64: flat index c * N + g of each sorted pair
-- tile_offsets [C * TH * TW + 1] int64, lists [n_isects] int64 (indices into S): the per-tile
-  lists, front to back; trect [S, 4] int32: each pair's tile rectangle (tx0, tx1, ty0, ty1, ends
-  exclusive), the tiles whose lists hold it.
+- tile_offsets [C * TH * TW + 1] int64, lists [n_isects] int64 (pair rows c * N + g): the
+  per-tile lists, front to back; trect [C * N, 4] int32: each pair's tile rectangle (tx0, tx1,
+  ty0, ty1, ends exclusive; empty for culled pairs), the tiles whose lists hold it.
 - backward: one gradient row per (pair, tile), pair s owning rows sptr[s] .. sptr[s + 1] - 1
   (`isect_rows`), so that every row has one writer and each pair's rows are summed in a fixed
   order: the gradients do not depend on the number of threads (docs/rendering.md "Determinism").
@@ -50,11 +51,17 @@ SIGMA_MARGIN = 0.05
 NPARAM = 16
 NGRAD = 10  # d mean2d (2), d conic (3), d opacity (1), d colour (4)
 BATCH = 32  # list entries copied at once into a small local buffer (many loads in flight)
+# A Gaussian's pixels in a row are narrowed to its ellipse (`_row_span`: a square root per row)
+# only when its box spans more than this many pixels of the tile's row; narrower boxes are walked
+# whole, each pixel rejected by its own sigma test (cheaper than the square root for the few
+# pixels the ellipse would cut). Which pixels are tested never changes which Gaussians count.
+SPAN_MIN_WIDTH = 10
 
 
 @njit(parallel=True, cache=True)
 def _prepare(means2d, conics, opacities, colors, radii, width, height, params, trect):
-    """Per (camera, Gaussian) in input order: packed parameters, pixel box, tile rectangle."""
+    """Per (camera, Gaussian) in input order: packed parameters, pixel box, tile rectangle (the
+    kernels read them in place through the tile lists: no gather into depth order)."""
     ncam, n = radii.shape[0], radii.shape[1]
     tw = (width + TILE - 1) // TILE
     th = (height + TILE - 1) // TILE
@@ -146,20 +153,6 @@ def _depth_order(radii, depth_keys):
     return out
 
 
-@njit(parallel=True, cache=True)
-def _gather(src, params, trect):
-    m = src.shape[0]
-    p2 = np.empty((m, NPARAM), dtype=params.dtype)
-    t2 = np.empty((m, 4), dtype=np.int32)
-    for s in prange(m):
-        i = src[s]
-        for k in range(NPARAM):
-            p2[s, k] = params[i, k]
-        for k in range(4):
-            t2[s, k] = trect[i, k]
-    return p2, t2
-
-
 @njit(cache=True, nogil=True)
 def _tile_lists(src, trect, n, ncam, width, height):
     tw = (width + TILE - 1) // TILE
@@ -168,20 +161,22 @@ def _tile_lists(src, trect, n, ncam, width, height):
     counts = np.zeros(ncam * ntiles + 1, dtype=np.int64)
     m = src.shape[0]
     for s in range(m):
-        base = (src[s] // n) * ntiles + 1
-        for ty in range(trect[s, 2], trect[s, 3]):
-            for tx in range(trect[s, 0], trect[s, 1]):
+        i = src[s]
+        base = (i // n) * ntiles + 1
+        for ty in range(trect[i, 2], trect[i, 3]):
+            for tx in range(trect[i, 0], trect[i, 1]):
                 counts[base + ty * tw + tx] += 1
     for t in range(ncam * ntiles):
         counts[t + 1] += counts[t]
     lists = np.empty(counts[ncam * ntiles], dtype=np.int64)
     fill = counts[:-1].copy()
-    for s in range(m):
-        base = (src[s] // n) * ntiles
-        for ty in range(trect[s, 2], trect[s, 3]):
-            for tx in range(trect[s, 0], trect[s, 1]):
+    for s in range(m):  # depth order: each tile's list front to back
+        i = src[s]
+        base = (i // n) * ntiles
+        for ty in range(trect[i, 2], trect[i, 3]):
+            for tx in range(trect[i, 0], trect[i, 1]):
                 t = base + ty * tw + tx
-                lists[fill[t]] = s
+                lists[fill[t]] = i
                 fill[t] += 1
     return counts, lists
 
@@ -203,15 +198,15 @@ def bin_gaussians(means2d, conics, opacities, colors, radii, depth_keys, width, 
 
     means2d [C, N, 2], conics [C, N, 3], opacities [C, N], colors [C, N, 4], radii [C, N] int,
     depth_keys [C, N] uint32 (float32 bits of positive depths, same order as the depths).
-    Returns params [S, 16], src [S], tile_offsets [C*TH*TW + 1], lists [n_isects] and the tile
-    rectangles trect [S, 4] int32 (tx0, tx1, ty0, ty1; ends exclusive) of the sorted pairs.
+    Returns params [C * N, 16], src [S], tile_offsets [C*TH*TW + 1], lists [n_isects] (rows
+    c * N + g) and the tile rectangles trect [C * N, 4] int32 (tx0, tx1, ty0, ty1; ends exclusive),
+    all rows in input order (module docstring).
     """
     ncam, n = radii.shape
     params = np.empty((ncam * n, NPARAM), dtype=means2d.dtype)
     trect = np.empty((ncam * n, 4), dtype=np.int32)
     _prepare(means2d, conics, opacities, colors, radii, width, height, params, trect)
     src = _depth_order(radii, depth_keys)
-    params, trect = _gather(src, params, trect)
     offsets, lists = _tile_lists(src, trect, n, ncam, width, height)
     return params, src, offsets, lists, trect
 
@@ -252,15 +247,18 @@ def _load_batch(params, lists, k0, nb, buf):
 
 
 @njit(cache=True, inline="always")
-def _row_span(ca, cb, cc, thr, mx, dy, xlo, xhi):
+def _row_span(inv_a, cb, det, thr2a, mx, dy, xlo, xhi):
     """Pixels x in [xlo, xhi] of one row (mean-to-row offset dy) where sigma <= thr, as an
-    inclusive range; sigma = 0.5 (a dx^2 + c dy^2) + b dx dy is a parabola in dx."""
-    disc = cb * cb * dy * dy - ca * (cc * dy * dy - 2.0 * thr)
+    inclusive range; sigma = 0.5 (a dx^2 + c dy^2) + b dx dy is a parabola in dx. Per Gaussian:
+    inv_a = 1 / a, det = a c - b^2, thr2a = 2 a thr. (Rounding here only moves the range's ends
+    where sigma is within rounding of thr, i.e. SIGMA_MARGIN above the 1/255 cut: no pixel there
+    counts, so the range is only a bound.)"""
+    disc = thr2a - det * dy * dy
     if not (disc >= 0.0):
         return 1, 0
     sq = math.sqrt(disc)
-    lo = mx - (sq - cb * dy) / ca - 0.5  # x + 0.5 = mx - dx, dx in [(-b dy - sq) / a, (-b dy + sq) / a]
-    hi = mx + (sq + cb * dy) / ca - 0.5
+    lo = mx - (sq - cb * dy) * inv_a - 0.5  # x + 0.5 = mx - dx, dx in [(-b dy - sq) / a, (-b dy + sq) / a]
+    hi = mx + (sq + cb * dy) * inv_a - 0.5
     x0 = xlo if not (lo > xlo) else (xhi + 1 if lo > xhi else int(np.ceil(lo)))
     x1 = xhi if not (hi < xhi) else (xlo - 1 if hi < xlo else int(np.floor(hi)))
     return x0, x1
@@ -332,12 +330,18 @@ def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, heigh
                     c1 = np.float64(buf[j, 13])
                     c2 = np.float64(buf[j, 14])
                     c3 = np.float64(buf[j, 15])
+                    narrow = bx1 - bx0 >= SPAN_MIN_WIDTH
+                    inv_a = 1.0 / ca
+                    det = ca * cc - cb * cb
+                    thr2a = 2.0 * ca * thr
                     for y in range(by0, by1 + 1):
                         if rowleft[y - y0] == 0:
                             continue
                         dy = my - (y + 0.5)
                         row = (y - y0) * TILE - x0
-                        rx0, rx1 = _row_span(ca, cb, cc, thr, mx, dy, bx0, bx1)
+                        rx0, rx1 = bx0, bx1
+                        if narrow:
+                            rx0, rx1 = _row_span(inv_a, cb, det, thr2a, mx, dy, bx0, bx1)
                         for x in range(rx0, rx1 + 1):
                             p = row + x
                             work += 1
@@ -471,6 +475,10 @@ def raster_backward(
                     c1 = np.float64(buf[j, 13])
                     c2 = np.float64(buf[j, 14])
                     c3 = np.float64(buf[j, 15])
+                    narrow = bx1 - bx0 >= SPAN_MIN_WIDTH
+                    inv_a = 1.0 / ca
+                    det = ca * cc - cb * cb
+                    thr2a = 2.0 * ca * thr
                     gmx = 0.0
                     gmy = 0.0
                     gca = 0.0
@@ -487,7 +495,9 @@ def raster_backward(
                             continue
                         dy = my - (y + 0.5)
                         row = (y - y0) * TILE - x0
-                        rx0, rx1 = _row_span(ca, cb, cc, thr, mx, dy, bx0, bx1)
+                        rx0, rx1 = bx0, bx1
+                        if narrow:
+                            rx0, rx1 = _row_span(inv_a, cb, det, thr2a, mx, dy, bx0, bx1)
                         for x in range(rx0, rx1 + 1):
                             p = row + x
                             if k > last[p]:
@@ -554,12 +564,11 @@ def raster_backward(
 
 
 @njit(parallel=True, cache=True)
-def reduce_grads(isect_grad, isect_hit, sptr, src, out):
-    """out [C * N, 10] at rows src[s] <- the float64 sum of pair s's per-tile rows sptr[s] ..
-    sptr[s + 1] - 1 of isect_grad [n_isects, 10] (where isect_hit), its tiles in row-major order:
-    a fixed order, so the gradients are bitwise the same for any number of threads. Rows of out
-    not in src are left as they are (the caller zeroes them)."""
-    m = src.shape[0]
+def reduce_grads(isect_grad, isect_hit, sptr, out):
+    """out [C * N, 10] row s <- the float64 sum of pair s's per-tile rows sptr[s] .. sptr[s + 1] - 1
+    of isect_grad [n_isects, 10] (where isect_hit), its tiles in row-major order: a fixed order,
+    so the gradients are bitwise the same for any number of threads (0 for pairs in no tile)."""
+    m = sptr.shape[0] - 1
     nblocks = (m + 255) // 256
     for blk in prange(nblocks):
         v = np.empty(NGRAD, dtype=np.float64)
@@ -570,7 +579,7 @@ def reduce_grads(isect_grad, isect_hit, sptr, src, out):
                     for c in range(NGRAD):
                         v[c] += isect_grad[q, c]
             for c in range(NGRAD):
-                out[src[s], c] = v[c]
+                out[s, c] = v[c]
 
 
 def num_threads() -> int:
