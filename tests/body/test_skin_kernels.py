@@ -101,3 +101,17 @@ def test_gradients_take_the_torch_path(bodies):
         assert gm.fast_skinning(fmap, verts)
         frame_w = gm.sample_frames(verts, samples)[3][..., 0]
         _close(gm.skinned_params_on_body(fmap, samples, verts), (means, quats, scales, opacity, rgb), frame_w)
+
+
+def test_texel_maps_without_gradients_match_the_torch_path(bodies):
+    """position_map and normal_map (what pose and view conditioning see) by the kernels."""
+    from dlacli.body import uv as U
+
+    assert U.fast_surface(bodies)
+    grad = bodies.clone().requires_grad_(True)
+    assert not U.fast_surface(grad)
+    for fn in (U.position_map, U.normal_map):
+        fast, ref = fn(bodies, R), fn(grad, R).detach()
+        assert fast.shape == ref.shape == (2, R, R, 3)
+        assert ((fast == 0) == (ref == 0)).all()  # the same empty texels
+        assert (fast - ref).abs().max() <= 8 * EPS * ref.abs().max()

@@ -138,3 +138,30 @@ def skin_samples(verts, faces, vn, dpdu, scale, face_id, bary, dxyz, dquat, ds, 
         scales[g, 0] = s * ds[g, 0]
         scales[g, 1] = s * ds[g, 1]
         scales[g, 2] = s * ds[g, 2]
+
+
+@njit(parallel=True, cache=True)
+def surface_points_normals(verts, faces, vn, face_id, bary, pos, nrm):
+    """Points pos [N, 3] and unit interpolated vertex normals nrm [N, 3] (float32) at the surface
+    samples face_id [N], bary [N, 3] of one body (verts [V, 3], `face_frames`' vn): body/uv.py
+    `surface_points` and `tangent_frames`' normal."""
+    for g in prange(face_id.shape[0]):
+        f = face_id[g]
+        p0 = p1 = p2 = 0.0
+        n0 = n1 = n2 = 0.0
+        for k in range(3):
+            v = faces[f, k]
+            w = np.float64(bary[g, k])
+            p0 += w * verts[v, 0]
+            p1 += w * verts[v, 1]
+            p2 += w * verts[v, 2]
+            n0 += w * vn[v, 0]
+            n1 += w * vn[v, 1]
+            n2 += w * vn[v, 2]
+        norm = max(np.sqrt(n0 * n0 + n1 * n1 + n2 * n2), 1e-12)
+        pos[g, 0] = p0
+        pos[g, 1] = p1
+        pos[g, 2] = p2
+        nrm[g, 0] = n0 / norm
+        nrm[g, 1] = n1 / norm
+        nrm[g, 2] = n2 / norm

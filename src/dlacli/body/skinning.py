@@ -15,8 +15,6 @@ Everything is vectorised over frames and differentiable (torch).
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 import torch
 
@@ -68,21 +66,6 @@ def skin_gaussians_on_body(
     return skin_gaussians(frames_T, frames_R, frames_S, dxyz, dquat, ds)
 
 
-@functools.lru_cache(maxsize=1)
-def _face_uv_terms() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The UV layout's per-face terms of dP/du and S (body/uv.py `_face_tangents_and_scale`),
-    float64: faces [F, 3], (d1u, d1v, d2u, d2v) [F, 4], 1 / det [F], 1 / |det| [F]."""
-    from dlacli.body.uv import _layout
-
-    faces, uv, face_uv = _layout()
-    t = np.asarray(uv, np.float64)[face_uv]  # [F, 3, 2]
-    d1, d2 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
-    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
-    safe = np.where(np.abs(det) < 1e-20, 1e-20, det)
-    uv_d = np.ascontiguousarray(np.concatenate([d1, d2], axis=1))
-    return np.ascontiguousarray(faces, np.int64), uv_d, 1.0 / safe, 1.0 / np.abs(safe)
-
-
 def skin_gaussians_on_body_fast(
     vertices: torch.Tensor,  # [P, V, 3] posed vertices, float32
     face_id: np.ndarray,  # [N] sample faces
@@ -96,9 +79,9 @@ def skin_gaussians_on_body_fast(
     tangent frames, their quaternions and the skinning fused, float64 inside -> means [P, N, 3],
     quats [P, N, 4], scales [P, N, 3], float32 CPU tensors."""
     from dlacli.body import skin_kernels as sk
-    from dlacli.body.uv import FRAME_RESOLUTION
+    from dlacli.body.uv import FRAME_RESOLUTION, face_uv_terms
 
-    faces, uv_d, inv_det, abs_inv_det = _face_uv_terms()
+    faces, uv_d, inv_det, abs_inv_det = face_uv_terms()
     verts = np.ascontiguousarray(vertices.detach().cpu().numpy(), np.float32)
     p, n = verts.shape[0], len(face_id)
     fid = np.ascontiguousarray(face_id, np.int64)
