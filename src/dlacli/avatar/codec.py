@@ -146,7 +146,9 @@ def shading(falloff, cosine):
 def view_cosine(normals: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:
     """cos of the angle between unit normals [3, ...] and the direction back along rays [6, ...]
     (Plücker, unit direction first) toward the camera, clamped to [0, 1] -> [...]."""
-    d = rays[:3] / rays[:3].norm(dim=0).clamp_min(1e-12)
+    from dlacli.geometry import vector_norm
+
+    d = rays[:3] / vector_norm(rays[:3], dim=0).clamp_min(1e-12)
     return (-(normals * d).sum(dim=0)).clamp(0.0, 1.0)
 
 
