@@ -452,13 +452,22 @@ def smooth_path(path: np.ndarray, fps: float, seconds: float = 0.5) -> np.ndarra
 # ------------------------------------------------------------------------------- Plucker rays
 
 
+def vector_norm(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
+    """The Euclidean norm of x along dim, keepdim. Without a gradient to keep, sqrt of the sum of
+    squares: torch 2.13's CPU `norm` over a short axis of 3 runs ~40x slower (measured: 12 ms vs
+    0.3 ms for [65536, 3]); with one, `norm` (its subgradient at a zero vector is 0, sqrt's is not)."""
+    if torch.is_grad_enabled() and x.requires_grad:
+        return x.norm(dim=dim, keepdim=True)
+    return (x * x).sum(dim=dim, keepdim=True).sqrt()
+
+
 @_numpy_in_numpy_out
 def plucker(origins: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
     """origins [..., 3], directions [..., 3] (any length; broadcast) -> [..., 6] (d, o x d) with d
     the unit direction. Every point p on the ray satisfies p x d = o x d (the moment). A zero
     direction gives zeros. numpy in, numpy out."""
     origins, directions = _promote(origins, directions)
-    d = directions / directions.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    d = directions / vector_norm(directions).clamp_min(1e-12)
     o, d = torch.broadcast_tensors(origins, d)
     return torch.cat([d, torch.linalg.cross(o, d, dim=-1)], dim=-1)
 

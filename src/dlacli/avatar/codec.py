@@ -146,7 +146,9 @@ def shading(falloff, cosine):
 def view_cosine(normals: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:
     """cos of the angle between unit normals [3, ...] and the direction back along rays [6, ...]
     (Plücker, unit direction first) toward the camera, clamped to [0, 1] -> [...]."""
-    d = rays[:3] / rays[:3].norm(dim=0).clamp_min(1e-12)
+    from dlacli.geometry import vector_norm
+
+    d = rays[:3] / vector_norm(rays[:3], dim=0).clamp_min(1e-12)
     return (-(normals * d).sum(dim=0)).clamp(0.0, 1.0)
 
 
@@ -252,6 +254,21 @@ class Decoded:
         self._rest: np.ndarray | None = None if rest is None else np.asarray(rest)
         self._prepared: tuple | None = None  # (decoder.prepare(z),) once asked for
         self.f_c = f_c if f_c is not None else decoder.canonical(z, **self._shared())
+        self._sampled: tuple | None = None  # (samples, F_c's version, gaussian_map.sampled_params)
+
+    def sampled_canonical(self, samples) -> tuple | None:
+        """`gaussian_map.sampled_params(f_c, samples)`, kept for the last samples asked for, or
+        None while F_c can change or carry gradients (a code being refined): F_c does not depend
+        on the pose, so posing an avatar frame after frame looks it up once."""
+        from dlacli.avatar.gaussian_map import sampled_params
+
+        if self.f_c.requires_grad or self.z.requires_grad:
+            return None
+        version = (self.f_c._version, self.z._version)
+        if self._sampled is None or self._sampled[0] is not samples or self._sampled[1] != version:
+            with torch.no_grad():
+                self._sampled = (samples, version, sampled_params(self.f_c, samples))
+        return self._sampled[2]
 
     def _shared(self) -> dict:
         """The keyword arguments `canonical` / `delta` take: what `prepare` shared, if anything."""

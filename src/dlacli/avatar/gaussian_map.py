@@ -96,10 +96,22 @@ class _Sigmoid(torch.autograd.Function):
         return torch.ops.aten.sigmoid_backward(g, y)
 
 
+def sampled_params(fmap: torch.Tensor, samples: Samples) -> tuple[torch.Tensor, ...]:
+    """F looked up at the samples and activated, in the tangent frame: dxyz [(P,) N, 3], unit
+    dquat [(P,) N, 4], ds [(P,) N, 3], opacity [(P,) N], rgb [(P,) N, 3] (what `skinned_params`
+    places; it depends on F and the samples alone, not on the pose)."""
+    params = lookup(fmap, samples.uv)  # [(P,) N, 14]
+    dquat = params[..., ROTATION]
+    dquat = dquat / dquat.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+    ds = params[..., LOG_SCALE].exp()
+    return params[..., OFFSET], dquat, ds, _Sigmoid.apply(params[..., 0]), params[..., RGB].clamp(0.0, 1.0)
+
+
 def skinned_params(
     fmap: torch.Tensor,  # [14, R, R] one map F for all frames, or [P, 14, R, R] one per frame
     samples: Samples,
     frames: tuple[torch.Tensor, ...],  # T [P,N,3], R [P,N,3,3], S [P,N], Q [P,N,4] (`sample_frames`)
+    sampled: tuple[torch.Tensor, ...] | None = None,  # `sampled_params(fmap, samples)`, when kept
 ):
     """Gaussian parameters for P posed frames (tangent frames precomputed at the samples):
     means [P, N, 3], quats [P, N, 4] (w, x, y, z), scales [P, N, 3], and opacities [N] /
@@ -111,12 +123,41 @@ def skinned_params(
     assert fmap.ndim == 3 or fmap.shape[0] == frames_T.shape[0], (
         f"a batch of {fmap.shape[0]} maps needs as many frames, got {frames_T.shape[0]}"
     )
-    params = lookup(fmap, samples.uv)  # [(P,) N, 14]
-    dquat = params[..., ROTATION]
-    dquat = dquat / dquat.norm(dim=-1, keepdim=True).clamp_min(1e-8)
-    ds = params[..., LOG_SCALE].exp()
-    means, quats, scales = skin_gaussians(frames_T, frames_R, frames_S, params[..., OFFSET], dquat, ds, frames_Q)
-    return means, quats, scales, _Sigmoid.apply(params[..., 0]), params[..., RGB].clamp(0.0, 1.0)
+    dxyz, dquat, ds, opacity, rgb = sampled_params(fmap, samples) if sampled is None else sampled
+    means, quats, scales = skin_gaussians(frames_T, frames_R, frames_S, dxyz, dquat, ds, frames_Q)
+    return means, quats, scales, opacity, rgb
+
+
+def fast_skinning(fmap: torch.Tensor, vertices: torch.Tensor) -> bool:
+    """Whether `skinned_params_on_body` takes the numba path (body/skinning.py
+    `skin_gaussians_on_body_fast`): float32 CPU tensors and no gradient asked for (the torch
+    path keeps the gradients of training and refinement)."""
+    if any(t.device.type != "cpu" or t.dtype != torch.float32 for t in (fmap, vertices)):
+        return False
+    return not (torch.is_grad_enabled() and (fmap.requires_grad or vertices.requires_grad))
+
+
+def skinned_params_on_body(
+    fmap: torch.Tensor,  # [14, R, R] or [P, 14, R, R]
+    samples: Samples,
+    vertices: torch.Tensor,  # [P, V, 3] posed bodies
+    frames=None,  # callable -> `sample_frames(vertices, samples)`, for the torch path
+    sampled: tuple[torch.Tensor, ...] | None = None,  # `sampled_params(fmap, samples)`, when kept
+):
+    """`skinned_params` on posed vertices: the numba kernels when `fast_skinning` allows (the
+    tangent frames are then never formed), else the torch path with `frames()` (or
+    `sample_frames`). Same outputs, to float32 rounding."""
+    from dlacli.body.skinning import skin_gaussians_on_body_fast
+
+    if not fast_skinning(fmap, vertices):
+        return skinned_params(fmap, samples, frames() if frames else sample_frames(vertices, samples), sampled)
+    assert fmap.ndim == 3 or fmap.shape[0] == vertices.shape[0], (
+        f"a batch of {fmap.shape[0]} maps needs as many bodies, got {vertices.shape[0]}"
+    )
+    with torch.no_grad():
+        dxyz, dquat, ds, opacity, rgb = sampled_params(fmap, samples) if sampled is None else sampled
+        means, quats, scales = skin_gaussians_on_body_fast(vertices, samples.face_id, samples.bary, dxyz, dquat, ds)
+    return means, quats, scales, opacity, rgb
 
 
 def posed_gaussians(fmap: torch.Tensor, samples: Samples, frames) -> Gaussians:

@@ -102,13 +102,30 @@ class PosedAvatar:
             f"eyes must be [{p}, C, 3], got {None if eyes is None else tuple(eyes.shape)}"
         )
         self.decoded, self.samples, self.vertices, self.eyes = decoded, samples, vertices, eyes
-        self.frames = gm.sample_frames(vertices, samples)  # tangent frames of all P bodies
+        self._frames: tuple | None = None  # tangent frames of all P bodies, once the torch path asks
         self.conditioned = decoded.conditioned and not canonical_only
         self._poses: dict[int, object] = {}  # pose conditioning per body
         self._all: Placed | None = None  # F_c on every body (unconditioned)
 
     def __len__(self) -> int:
         return self.vertices.shape[0]
+
+    @property
+    def frames(self) -> tuple[torch.Tensor, ...]:
+        """The tangent frames of all P bodies at the samples (`gaussian_map.sample_frames`),
+        computed once when first asked (the numba path of `skinned_params_on_body` needs none)."""
+        if self._frames is None:
+            self._frames = gm.sample_frames(self.vertices, self.samples)
+        return self._frames
+
+    def _skin(self, fmap: torch.Tensor, p: int | None = None) -> tuple[torch.Tensor, ...]:
+        """`gaussian_map.skinned_params_on_body` of fmap on body p (None: all bodies); F_c looked
+        up at the samples once per decoded avatar when no gradient is asked for."""
+        one = slice(None) if p is None else slice(p, p + 1)
+        sampled = self.decoded.sampled_canonical(self.samples) if fmap is self.decoded.f_c else None
+        return gm.skinned_params_on_body(
+            fmap, self.samples, self.vertices[one], lambda: tuple(f[one] for f in self.frames), sampled
+        )
 
     @property
     def cameras(self) -> int:
@@ -130,15 +147,14 @@ class PosedAvatar:
         rays = dec.rays(self.vertices[p], self.eyes[p, c]) if self.eyes is not None else None
         delta = dec.delta(self._poses[p], rays)
         fmap = dec.f_c if delta is None else dec.f_c + delta
-        one = tuple(f[p : p + 1] for f in self.frames)
-        means, quats, scales, opacities, rgb = gm.skinned_params(fmap, self.samples, one)
+        means, quats, scales, opacities, rgb = self._skin(fmap, p)
         return Placed(means, quats, scales, opacities[None], rgb[None], None if delta is None else delta[None])
 
     def all(self, c: int = 0) -> Placed:
         """Every body, seen from its camera c: Placed with P = len(self)."""
         if not self.conditioned:
             if self._all is None:
-                self._all = Placed(*gm.skinned_params(self.decoded.f_c, self.samples, self.frames))
+                self._all = Placed(*self._skin(self.decoded.f_c))
             return self._all
         return _stack([self.placed(p, c) for p in range(len(self))])
 

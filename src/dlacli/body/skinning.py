@@ -15,6 +15,7 @@ Everything is vectorised over frames and differentiable (torch).
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from dlacli.geometry import matrix_to_quat, quat_multiply, quat_normalize
@@ -63,3 +64,41 @@ def skin_gaussians_on_body(
 
     frames_T, frames_R, frames_S = tangent_frames(vertices, face_id, bary)
     return skin_gaussians(frames_T, frames_R, frames_S, dxyz, dquat, ds)
+
+
+def skin_gaussians_on_body_fast(
+    vertices: torch.Tensor,  # [P, V, 3] posed vertices, float32
+    face_id: np.ndarray,  # [N] sample faces
+    bary: np.ndarray,  # [N, 3] sample barycentrics
+    dxyz: torch.Tensor,  # [N, 3] or [P, N, 3]
+    dquat: torch.Tensor,  # [N, 4] or [P, N, 4], unit
+    ds: torch.Tensor,  # [N, 3] or [P, N, 3]
+    resolution: int | None = None,  # R_ref of the scale S; None: uv.FRAME_RESOLUTION
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """`skin_gaussians_on_body` without gradients, as numba kernels (body/skin_kernels.py):
+    tangent frames, their quaternions and the skinning fused, float64 inside -> means [P, N, 3],
+    quats [P, N, 4], scales [P, N, 3], float32 CPU tensors."""
+    from dlacli.body import skin_kernels as sk
+    from dlacli.body.uv import FRAME_RESOLUTION, face_uv_terms
+
+    faces, uv_d, inv_det, abs_inv_det = face_uv_terms()
+    verts = np.ascontiguousarray(vertices.detach().cpu().numpy(), np.float32)
+    p, n = verts.shape[0], len(face_id)
+    fid = np.ascontiguousarray(face_id, np.int64)
+    bar = np.ascontiguousarray(bary, np.float32)
+
+    def per_body(x: torch.Tensor, k: int) -> np.ndarray:
+        a = np.ascontiguousarray(x.detach().cpu().numpy(), np.float32)
+        return a.reshape(-1, n, k) if a.ndim == 3 else a[None]
+
+    dx, dq, dsc = per_body(dxyz, 3), per_body(dquat, 4), per_body(ds, 3)
+    means, quats, scales = (np.empty((p, n, k), np.float32) for k in (3, 4, 3))
+    vn = np.empty((verts.shape[1], 3), np.float64)
+    dpdu = np.empty((faces.shape[0], 3), np.float64)
+    scale = np.empty(faces.shape[0], np.float64)
+    res = float(FRAME_RESOLUTION if resolution is None else resolution)
+    for b in range(p):
+        sk.face_frames(verts[b], faces, uv_d, inv_det, abs_inv_det, res, vn, dpdu, scale)
+        m = b if dx.shape[0] > 1 else 0
+        sk.skin_samples(verts[b], faces, vn, dpdu, scale, fid, bar, dx[m], dq[m], dsc[m], means[b], quats[b], scales[b])
+    return torch.from_numpy(means), torch.from_numpy(quats), torch.from_numpy(scales)

@@ -120,6 +120,44 @@ def face_normals(vertices: torch.Tensor) -> torch.Tensor:
     return fn / fn.norm(dim=-1, keepdim=True).clamp_min(1e-20)
 
 
+@functools.lru_cache(maxsize=1)
+def face_uv_terms() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The UV layout's per-face terms of dP/du and S (body/uv.py `_face_tangents_and_scale`),
+    float64: faces [F, 3], (d1u, d1v, d2u, d2v) [F, 4], 1 / det [F], 1 / |det| [F]."""
+    faces, uv, face_uv = _layout()
+    t = np.asarray(uv, np.float64)[face_uv]  # [F, 3, 2]
+    d1, d2 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
+    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    safe = np.where(np.abs(det) < 1e-20, 1e-20, det)
+    uv_d = np.ascontiguousarray(np.concatenate([d1, d2], axis=1))
+    return np.ascontiguousarray(faces, np.int64), uv_d, 1.0 / safe, 1.0 / np.abs(safe)
+
+
+def fast_surface(vertices: torch.Tensor) -> bool:
+    """Whether `surface_points` / `position_map` / `normal_map` take the numba kernels
+    (body/skin_kernels.py): float32 CPU vertices and no gradient asked for."""
+    if vertices.device.type != "cpu" or vertices.dtype != torch.float32:
+        return False
+    return not (torch.is_grad_enabled() and vertices.requires_grad)
+
+
+def _surface_fast(v: torch.Tensor, f: np.ndarray, b: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    """Points and unit interpolated normals [T, N, 3] at samples f [N], b [N, 3] of bodies v
+    [T, V, 3], by `skin_kernels.surface_points_normals` (float64 inside, float32 out)."""
+    from dlacli.body import skin_kernels as sk
+
+    faces, uv_d, inv_det, abs_inv_det = face_uv_terms()
+    verts = np.ascontiguousarray(v.detach().numpy(), np.float32)
+    fid, bar = np.ascontiguousarray(f, np.int64), np.ascontiguousarray(b, np.float32)
+    pos, nrm = (np.empty((verts.shape[0], len(fid), 3), np.float32) for _ in range(2))
+    vn = np.empty((verts.shape[1], 3), np.float64)
+    dpdu, scale = np.empty((faces.shape[0], 3), np.float64), np.empty(faces.shape[0], np.float64)
+    for t in range(verts.shape[0]):
+        sk.face_frames(verts[t], faces, uv_d, inv_det, abs_inv_det, 1.0, vn, dpdu, scale)
+        sk.surface_points_normals(verts[t], faces, vn, fid, bar, pos[t], nrm[t])
+    return torch.from_numpy(pos), torch.from_numpy(nrm)
+
+
 def _check_samples(face_id, bary, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     faces, _, _ = _layout()
     f = torch.as_tensor(face_id, device=like.device).long().reshape(-1)
@@ -202,11 +240,15 @@ def _scatter_map(values: torch.Tensor, resolution: int, fill: float = 0.0) -> to
     return out
 
 
+@functools.lru_cache(maxsize=8)
 def _texel_samples(resolution: int) -> tuple[np.ndarray, np.ndarray]:
+    """(face_id [N], bary [N, 3]) of the covered texels of an R x R map, row-major (kept: the
+    layout's, not a body's; callers do not write to them)."""
     ras = uv_raster(resolution)
     rows, cols, face_id = valid_texels(resolution)
     bary = ras.bary[rows, cols].astype(np.float64)
-    return face_id, bary / bary.sum(axis=1, keepdims=True)  # exact partition of unity
+    bary = bary / bary.sum(axis=1, keepdims=True)  # exact partition of unity
+    return face_id, bary
 
 
 def position_map(vertices, resolution: int) -> torch.Tensor:
@@ -214,7 +256,8 @@ def position_map(vertices, resolution: int) -> torch.Tensor:
     [T, R, R, 3]; zero on empty texels."""
     v, single = _as_vertices(vertices)
     f, b = _texel_samples(resolution)
-    out = _scatter_map(surface_points(v, f, b), resolution)
+    points = _surface_fast(v, f, b)[0] if fast_surface(v) else surface_points(v, f, b)
+    out = _scatter_map(points, resolution)
     return out[0] if single else out
 
 
@@ -222,8 +265,8 @@ def normal_map(vertices, resolution: int) -> torch.Tensor:
     """Unit interpolated vertex normal per texel ([R, R, 3] or [T, R, R, 3]); zero when empty."""
     v, single = _as_vertices(vertices)
     f, b = _texel_samples(resolution)
-    _, rot, _ = tangent_frames(v, f, b, resolution)
-    out = _scatter_map(rot[..., 2], resolution)
+    normals = _surface_fast(v, f, b)[1] if fast_surface(v) else tangent_frames(v, f, b, resolution)[1][..., 2]
+    out = _scatter_map(normals, resolution)
     return out[0] if single else out
 
 

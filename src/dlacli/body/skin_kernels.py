@@ -1,0 +1,167 @@
+"""Numba kernels of Gaussian skinning without gradients (avatar/gaussian_map.py `skinned_params`
+takes them when nothing asks for a gradient): the tangent frames of the posed surface samples
+(body/uv.py `tangent_frames`), the frame's quaternion (geometry.py `matrix_to_quat`) and the
+skinning of body/skinning.py `skin_gaussians`, fused, in float64, stored as float32.
+
+Per body: the area-weighted vertex normals and each face's dP/du and metres-per-texel scale once
+(one thread, a fixed order), then one thread per Gaussian; so the results do not depend on the
+thread count (docs/rendering.md "Determinism"). The torch code stays the reference and the path
+for gradients; the two agree to float32 rounding (tests/body/test_skin_kernels.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+
+@njit(cache=True)
+def face_frames(verts, faces, uv_d, inv_det, abs_inv_det, resolution, vn, dpdu, scale):
+    """For one body: verts [V, 3], faces [F, 3], uv_d [F, 4] = (d1u, d1v, d2u, d2v) of each UV
+    triangle's edges, inv_det [F] = 1 / det (det clamped away from 0 as in uv.py), abs_inv_det [F]
+    = 1 / |det| -> vn [V, 3] unit area-weighted vertex normals, dpdu [F, 3], scale [F]."""
+    nv, nf = verts.shape[0], faces.shape[0]
+    for i in range(nv):
+        vn[i, 0] = 0.0
+        vn[i, 1] = 0.0
+        vn[i, 2] = 0.0
+    for f in range(nf):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        e10 = np.float64(verts[b, 0]) - np.float64(verts[a, 0])
+        e11 = np.float64(verts[b, 1]) - np.float64(verts[a, 1])
+        e12 = np.float64(verts[b, 2]) - np.float64(verts[a, 2])
+        e20 = np.float64(verts[c, 0]) - np.float64(verts[a, 0])
+        e21 = np.float64(verts[c, 1]) - np.float64(verts[a, 1])
+        e22 = np.float64(verts[c, 2]) - np.float64(verts[a, 2])
+        n0 = e11 * e22 - e12 * e21
+        n1 = e12 * e20 - e10 * e22
+        n2 = e10 * e21 - e11 * e20
+        for k in range(3):
+            v = faces[f, k]
+            vn[v, 0] += n0
+            vn[v, 1] += n1
+            vn[v, 2] += n2
+        d1v, d2v = uv_d[f, 1], uv_d[f, 3]
+        dpdu[f, 0] = (e10 * d2v - e20 * d1v) * inv_det[f]
+        dpdu[f, 1] = (e11 * d2v - e21 * d1v) * inv_det[f]
+        dpdu[f, 2] = (e12 * d2v - e22 * d1v) * inv_det[f]
+        scale[f] = np.sqrt(np.sqrt(n0 * n0 + n1 * n1 + n2 * n2) * abs_inv_det[f]) / resolution
+    for i in range(nv):
+        norm = max(np.sqrt(vn[i, 0] ** 2 + vn[i, 1] ** 2 + vn[i, 2] ** 2), 1e-12)
+        vn[i, 0] /= norm
+        vn[i, 1] /= norm
+        vn[i, 2] /= norm
+
+
+@njit(parallel=True, cache=True)
+def skin_samples(verts, faces, vn, dpdu, scale, face_id, bary, dxyz, dquat, ds, means, quats, scales):
+    """One body's Gaussians: verts [V, 3], faces [F, 3], `face_frames`' vn, dpdu, scale, the
+    samples face_id [N], bary [N, 3], the map's dxyz [N, 3], unit dquat [N, 4] (w, x, y, z),
+    ds [N, 3] -> means [N, 3], quats [N, 4], scales [N, 3] (float32): mean = T + R dxyz,
+    quat = normalise(q(R) dquat), scale = S ds, with (T, R, S) the sample's tangent frame."""
+    n = face_id.shape[0]
+    for g in prange(n):
+        f = face_id[g]
+        p0 = p1 = p2 = 0.0
+        n0 = n1 = n2 = 0.0
+        for k in range(3):
+            v = faces[f, k]
+            w = np.float64(bary[g, k])
+            p0 += w * verts[v, 0]
+            p1 += w * verts[v, 1]
+            p2 += w * verts[v, 2]
+            n0 += w * vn[v, 0]
+            n1 += w * vn[v, 1]
+            n2 += w * vn[v, 2]
+        norm = max(np.sqrt(n0 * n0 + n1 * n1 + n2 * n2), 1e-12)
+        n0, n1, n2 = n0 / norm, n1 / norm, n2 / norm
+        # tangent: dP/du orthonormalised against n; a unit vector orthogonal to n if degenerate
+        d = dpdu[f, 0] * n0 + dpdu[f, 1] * n1 + dpdu[f, 2] * n2
+        t0, t1, t2 = dpdu[f, 0] - d * n0, dpdu[f, 1] - d * n1, dpdu[f, 2] - d * n2
+        tn = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        if not tn > 1e-12:
+            if abs(n0) < 0.9:
+                t0, t1, t2 = 1.0 - n0 * n0, -n0 * n1, -n0 * n2
+            else:
+                t0, t1, t2 = -n1 * n0, 1.0 - n1 * n1, -n1 * n2
+            tn = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        t0, t1, t2 = t0 / tn, t1 / tn, t2 / tn
+        b0 = n1 * t2 - n2 * t1
+        b1 = n2 * t0 - n0 * t2
+        b2 = n0 * t1 - n1 * t0
+        # R = [t | b | n] (columns): m_ij = row i, column j
+        m00, m01, m02 = t0, b0, n0
+        m10, m11, m12 = t1, b1, n1
+        m20, m21, m22 = t2, b2, n2
+        # Shepperd's method, the pivot chosen as in geometry.matrix_to_quat (first largest)
+        s0 = 1.0 + m00 + m11 + m22
+        s1 = 1.0 + m00 - m11 - m22
+        s2 = 1.0 - m00 + m11 - m22
+        s3 = 1.0 - m00 - m11 + m22
+        best, top = 0, s0
+        if s1 > top:
+            best, top = 1, s1
+        if s2 > top:
+            best, top = 2, s2
+        if s3 > top:
+            best, top = 3, s3
+        piv = np.sqrt(max(top, 0.1))
+        if best == 0:
+            qw, qx, qy, qz = piv * piv, m21 - m12, m02 - m20, m10 - m01
+        elif best == 1:
+            qw, qx, qy, qz = m21 - m12, piv * piv, m10 + m01, m02 + m20
+        elif best == 2:
+            qw, qx, qy, qz = m02 - m20, m10 + m01, piv * piv, m12 + m21
+        else:
+            qw, qx, qy, qz = m10 - m01, m20 + m02, m21 + m12, piv * piv
+        qn = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        if qw < 0:
+            qn = -qn
+        qw, qx, qy, qz = qw / qn, qx / qn, qy / qn, qz / qn
+        # skinning
+        x0, x1, x2 = np.float64(dxyz[g, 0]), np.float64(dxyz[g, 1]), np.float64(dxyz[g, 2])
+        means[g, 0] = p0 + m00 * x0 + m01 * x1 + m02 * x2
+        means[g, 1] = p1 + m10 * x0 + m11 * x1 + m12 * x2
+        means[g, 2] = p2 + m20 * x0 + m21 * x1 + m22 * x2
+        bw, bx = np.float64(dquat[g, 0]), np.float64(dquat[g, 1])
+        by, bz = np.float64(dquat[g, 2]), np.float64(dquat[g, 3])
+        rw = qw * bw - qx * bx - qy * by - qz * bz
+        rx = qw * bx + qx * bw + qy * bz - qz * by
+        ry = qw * by - qx * bz + qy * bw + qz * bx
+        rz = qw * bz + qx * by - qy * bx + qz * bw
+        rn = max(np.sqrt(rw * rw + rx * rx + ry * ry + rz * rz), 1e-12)
+        quats[g, 0] = rw / rn
+        quats[g, 1] = rx / rn
+        quats[g, 2] = ry / rn
+        quats[g, 3] = rz / rn
+        s = scale[f]
+        scales[g, 0] = s * ds[g, 0]
+        scales[g, 1] = s * ds[g, 1]
+        scales[g, 2] = s * ds[g, 2]
+
+
+@njit(parallel=True, cache=True)
+def surface_points_normals(verts, faces, vn, face_id, bary, pos, nrm):
+    """Points pos [N, 3] and unit interpolated vertex normals nrm [N, 3] (float32) at the surface
+    samples face_id [N], bary [N, 3] of one body (verts [V, 3], `face_frames`' vn): body/uv.py
+    `surface_points` and `tangent_frames`' normal."""
+    for g in prange(face_id.shape[0]):
+        f = face_id[g]
+        p0 = p1 = p2 = 0.0
+        n0 = n1 = n2 = 0.0
+        for k in range(3):
+            v = faces[f, k]
+            w = np.float64(bary[g, k])
+            p0 += w * verts[v, 0]
+            p1 += w * verts[v, 1]
+            p2 += w * verts[v, 2]
+            n0 += w * vn[v, 0]
+            n1 += w * vn[v, 1]
+            n2 += w * vn[v, 2]
+        norm = max(np.sqrt(n0 * n0 + n1 * n1 + n2 * n2), 1e-12)
+        pos[g, 0] = p0
+        pos[g, 1] = p1
+        pos[g, 2] = p2
+        nrm[g, 0] = n0 / norm
+        nrm[g, 1] = n1 / norm
+        nrm[g, 2] = n2 / norm
