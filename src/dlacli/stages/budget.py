@@ -8,6 +8,9 @@ smallest n within `tolerance_db` (0.2 dB) of the best score (`choose_gaussians`)
   (`measure_budget`), and records the choice in the avatar: `extra.samples.count` (what render and
   animate draw by default) and `extra.budget` (the scores, and the size the person had in those
   views: `subject_px`, the median height in pixels of the body's projection).
+- `dla lift` does this by default (`--gaussians N` refines with and records N, no budget); `dla
+  render` and `dla animate` then draw the recorded budget by default (`budget_default`, the
+  "recorded" rule below), `dla view` and `dla export` (no cameras) its count as recorded.
 - `dla render` / `dla animate --gaussians auto` (`auto_gaussians`) have no ground truth. When the
   avatar records a budget, its count is carried to the target cameras by the area the person
   covers: n = recorded count x (target subject_px / recorded subject_px)^2, rounded up to the
@@ -207,6 +210,18 @@ def auto_cameras(cameras: Cameras, k: int = AUTO_VIEWS) -> Cameras:
     return cameras.select(idx)
 
 
+def budget_default(avatar: Avatar, cameras: Cameras, counts=LADDER) -> BudgetChoice | None:
+    """What render and animate draw when no --gaussians is given: the avatar's recorded budget
+    carried to the person's size in `cameras` (the "recorded" rule, no render), or None when the
+    avatar records no budget (an avatar lifted before budgets or with --gaussians N: then
+    `sample_settings`, its extra.samples.count, else DEFAULT_GAUSSIANS)."""
+    recorded = recorded_budget(avatar)
+    if recorded is None:
+        return None
+    px = subject_pixels(avatar, cameras)
+    return BudgetChoice(scaled_count(recorded["count"], recorded["subject_px"], px, counts), "recorded", subject_px=px)
+
+
 def auto_gaussians(
     avatar: Avatar,
     cameras: Cameras,
@@ -217,12 +232,10 @@ def auto_gaussians(
 ) -> BudgetChoice:
     """`--gaussians auto` for rendering at `cameras` (module doc): the recorded budget carried to
     the person's size in these cameras, else self-consistency by sampling noise."""
+    choice = budget_default(avatar, cameras, counts)
+    if choice is not None:
+        return choice
     px = subject_pixels(avatar, cameras)
-    recorded = recorded_budget(avatar)
-    if recorded is not None:
-        return BudgetChoice(
-            scaled_count(recorded["count"], recorded["subject_px"], px, counts), "recorded", subject_px=px
-        )
     noise = sampling_noise(avatar, cameras, counts, seed, checkpoint)
     scores = predicted_psnr(noise)
     return BudgetChoice(choose_gaussians(scores, tolerance_db), "self-consistency", scores, px, noise)
