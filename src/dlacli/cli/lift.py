@@ -133,7 +133,7 @@ def lift(
         from dlacli.stages.budget import choose_for_views
 
         with options.naming(views=views, pose=body, phenotype=body):
-            result.avatar, choice = choose_for_views(result.avatar, view_set)
+            result.avatar, choice = choose_for_views(result.avatar, view_set, checkpoint=ckpt)
         typer.echo(
             f"note: --gaussians auto: {choice.count:,} Gaussians (input views, masked PSNR "
             f"{choice.scores[choice.count]:.2f} dB, best {max(choice.scores.values()):.2f})",

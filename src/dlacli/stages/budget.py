@@ -242,16 +242,22 @@ def auto_gaussians(
 
 
 def choose_for_views(
-    avatar: Avatar, views: ViewSet, counts=LADDER, render_size: int | None = None, tolerance_db: float = TOLERANCE_DB
+    avatar: Avatar,
+    views: ViewSet,
+    counts=LADDER,
+    render_size: int | None = None,
+    tolerance_db: float = TOLERANCE_DB,
+    checkpoint: str | None = None,
 ) -> tuple[Avatar, BudgetChoice]:
     """`dla lift --gaussians auto`: measure on the (input) views at `render_size` (None: their own
     size), choose, and return the avatar recording the choice: `extra.samples.count` and
     `extra.budget` = {count, tolerance_db, render_size, subject_px, measured_on, psnr_masked:
-    {count: dB}} (non-finite scores as null), with the choice itself."""
+    {count: dB}} (non-finite scores as null), with the choice itself. `checkpoint`: a learned
+    avatar's network (folder or hash), before it is installed in the cache."""
     from dlacli.avatar.posed import sample_settings
 
     _, seed = sample_settings(avatar)
-    scores = measure_budget(avatar, views, counts, render_size, seed=seed)
+    scores = measure_budget(avatar, views, counts, render_size, seed=seed, checkpoint=checkpoint)
     count = choose_gaussians(scores, tolerance_db)
     _, _, cams = _scaled_views(views, render_size)
     px = subject_pixels(avatar, cams)
