@@ -213,3 +213,86 @@ def test_cli_gaussians_auto(lifted, tmp_path, capsys):
             ["render", tmp_path / "a.npz", "--turntable", 1, "--gaussians", bad, "-o", tmp_path / "x"], capsys
         )
         assert code == 2 and err.startswith("error: --gaussians:") and len(err.strip().splitlines()) == 1, err
+
+
+def test_default_lift_records_a_budget_and_the_commands_draw_it(subject, tmp_path, capsys):
+    """`dla lift` without --gaussians measures and records the budget; render and animate draw it
+    (carried to their cameras), view and export its count; an explicit --gaussians N wins."""
+    from dlacli.avatar.posed import sample_settings
+    from dlacli.io.avatar import read_avatar
+    from dlacli.io.views import read_views
+    from dlacli.stages.render import turntable_cameras
+
+    av = tmp_path / "a.npz"
+    code, _, err = _main(["lift", subject, "-o", av, "--steps", 0], capsys)
+    assert code == 0, err
+    back = read_avatar(av)
+    rec = recorded_budget(back)
+    assert rec is not None and rec["measured_on"] == "input views"
+    scores = {int(n): s for n, s in rec["psnr_masked"].items()}
+    assert sorted(scores) == list(LADDER) and rec["count"] == choose_gaussians(scores)
+    # the record is the measurement: the chosen count's re-render scores what it says (the file may
+    # hold z as float16, within 1e-3 of its largest value: formats/avatar.md; that moves it by < 0.01 dB)
+    views = read_views(subject)
+    assert measure_budget(back, views, (rec["count"],))[rec["count"]] == pytest.approx(scores[rec["count"]], abs=0.01)
+    assert sample_settings(back)[0] == rec["count"]
+    # render: the budget carried to the turntable's person size, announced on stderr
+    code, _, err = _main(["render", av, "--turntable", 1, "--size", 48, "-o", tmp_path / "r"], capsys)
+    assert code == 0, err
+    want = scaled_count(rec["count"], rec["subject_px"], subject_pixels(back, turntable_cameras(back, 1, 48)))
+    assert f"note: the avatar's budget: {want:,} Gaussians" in err
+    # an explicit count wins: no note
+    code, _, err = _main(
+        ["render", av, "--turntable", 1, "--size", 48, "--gaussians", 300, "-o", tmp_path / "s"], capsys
+    )
+    assert code == 0 and "budget" not in err, err
+    # animate: the budget at its preview cameras (AUTO_VIEWS turntable cameras of --preview-size)
+    from dlacli.stages.budget import AUTO_VIEWS
+
+    code, _, err = _main(["animate", av, "wave", "-o", tmp_path / "w.usda", "--preview-size", 32, "--fps", 2], capsys)
+    assert code == 0, err
+    px = subject_pixels(back, turntable_cameras(back, AUTO_VIEWS, 32))
+    assert f"note: the avatar's budget: {scaled_count(rec['count'], rec['subject_px'], px):,} Gaussians" in err
+    # view and export (no cameras): the recorded count
+    code, _, err = _main(["view", av, "-o", tmp_path / "v.html"], capsys)
+    assert code == 0, err
+    html = (tmp_path / "v.html").read_text()
+    assert f'"gaussians": {rec["count"]}' in html or f'"gaussians":{rec["count"]}' in html
+    code, _, err = _main(["export", av, "-o", tmp_path / "a.ply"], capsys)
+    assert code == 0, err
+    head = (tmp_path / "a.ply").read_bytes()[:400].decode("ascii", "replace")
+    assert f"element vertex {rec['count']}\n" in head
+    code, _, err = _main(["export", av, "-o", tmp_path / "b.ply", "--gaussians", 300], capsys)
+    assert code == 0 and "element vertex 300\n" in (tmp_path / "b.ply").read_bytes()[:400].decode("ascii", "replace")
+
+
+def test_an_avatar_without_a_budget_keeps_its_lifted_count(lifted, tmp_path, capsys):
+    """An avatar lifted with --gaussians N (or before budgets): render draws extra.samples.count,
+    no budget note; with no samples record either, DEFAULT_GAUSSIANS."""
+    from dataclasses import replace
+
+    from dlacli.avatar.posed import sample_settings
+    from dlacli.io.avatar import write_avatar
+    from dlacli.limits import DEFAULT_GAUSSIANS
+    from dlacli.stages.budget import budget_default
+
+    avatar, views = lifted
+    assert recorded_budget(avatar) is None and budget_default(avatar, views.cameras) is None
+    assert sample_settings(avatar)[0] == N
+    old = replace(avatar, extra={k: v for k, v in avatar.extra.items() if k != "samples"})
+    assert sample_settings(old)[0] == DEFAULT_GAUSSIANS
+    write_avatar(avatar, tmp_path / "a.npz")
+    code, _, err = _main(["render", tmp_path / "a.npz", "--turntable", 1, "--size", 32, "-o", tmp_path / "r"], capsys)
+    assert code == 0 and "budget" not in err, err
+    # the image is the render with the lifted count (and differs from one with another count)
+    from PIL import Image
+
+    from dlacli.io.avatar import read_avatar
+    from dlacli.stages.render import render_avatar, turntable_cameras
+
+    back = read_avatar(tmp_path / "a.npz")  # as the command read it (z may be float16 in the file)
+    png = np.asarray(Image.open(tmp_path / "r" / "f0000_c000.png"), np.float64) / 255
+    cams = turntable_cameras(back, 1, 32)
+    for n, same in ((N, True), (N // 4, False)):
+        (shot,) = render_avatar(back, cams, [None], None, n_gaussians=n)
+        assert (np.abs(np.clip(shot.rgba, 0, 1) - png).max() <= 0.5 / 255 + 1e-6) == same

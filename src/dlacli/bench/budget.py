@@ -24,7 +24,7 @@ import numpy as np
 from dlacli.limits import DEFAULT_GAUSSIANS
 from dlacli.stages.methods import MethodSpec
 
-DEFAULT_COUNT = DEFAULT_GAUSSIANS  # the count render and animate draw without --gaussians (the saving's baseline)
+DEFAULT_COUNT = DEFAULT_GAUSSIANS  # the count lift refines at and an avatar without a budget draws (the baseline)
 
 
 def _timed_split(avatar, views, n: int, motion=None) -> tuple[np.ndarray, np.ndarray, float]:

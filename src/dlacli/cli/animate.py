@@ -63,14 +63,19 @@ def animate(
     ckpt = None if checkpoint is None else str(checkpoint)
     av = read_avatar(avatar)
     mot = load_motion(motion, fps=fps, phenotype=av.body.phenotype, allow_missing_joints=allow_missing_joints)
-    if gaussians == "auto":
-        from dlacli.stages.budget import AUTO_VIEWS, auto_gaussians
+    if gaussians is None or gaussians == "auto":  # by default the recorded budget, when there is one
+        from dlacli.stages.budget import AUTO_VIEWS, auto_gaussians, budget_default
         from dlacli.stages.render import turntable_cameras
 
         with naming_avatar(avatar):
-            choice = auto_gaussians(av, turntable_cameras(av, AUTO_VIEWS, preview_size), seed=seed, checkpoint=ckpt)
-        gaussians = choice.count
-        typer.echo(auto_note(choice), err=True)
+            cams = turntable_cameras(av, AUTO_VIEWS, preview_size)
+            if gaussians is None:
+                choice = budget_default(av, cams)
+            else:
+                choice = auto_gaussians(av, cams, seed=seed, checkpoint=ckpt)
+        if choice is not None:
+            typer.echo(auto_note(choice, default=gaussians is None), err=True)
+            gaussians = choice.count
     with naming_avatar(avatar), progress_bar("posing", mot.num_frames) as update:
         anim = pose_avatar(av, mot, gaussians, seed, where=str(avatar), progress=update, checkpoint=ckpt)
     with output_group():  # the USD and its preview land together or not at all

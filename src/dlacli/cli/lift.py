@@ -47,10 +47,10 @@ _CHECKPOINT_HELP = (
     "in the checkpoints cache."
 )
 _GAUSSIANS_HELP = (
-    f"Gaussians sampled from Z while refining (default {_DEFAULTS.gaussians:,}); 'auto': refine with "
-    f"{_DEFAULTS.gaussians:,}, then record the fewest ({BUDGET_LADDER[0]:,} ... {BUDGET_LADDER[-1]:,}) whose "
-    f"re-renders of the input views score within {BUDGET_TOLERANCE_DB:g} dB masked PSNR of the best "
-    "(docs/benchmarks.md, 'The Gaussian budget')."
+    f"'auto' (default): refine with {_DEFAULTS.gaussians:,} Gaussians sampled from Z, then record the fewest "
+    f"({BUDGET_LADDER[0]:,} ... {BUDGET_LADDER[-1]:,}) whose re-renders of the input views score within "
+    f"{BUDGET_TOLERANCE_DB:g} dB masked PSNR of the best, the budget render, animate, view and export draw "
+    "by default (docs/lift.md); N: refine with and record N, no budget."
 )
 _VIEW_COLOUR_HELP = (
     f"Measure how the views' colours fall off with the viewing angle and, where they do (|k| >= {MIN_VIEW_FALLOFF:g}), "
@@ -97,7 +97,7 @@ def lift(
     from dlacli.io.views import read_transforms, read_views, view_files
     from dlacli.limits import MAX_VIEWS
 
-    auto = gaussians == "auto"
+    auto = gaussians in (None, "auto")  # the default: measure and record the budget
     ckpt = None if checkpoint is None else str(checkpoint)
     flags = dict(
         steps=steps,
@@ -108,6 +108,7 @@ def lift(
         view_colour=view_colour,
     )
     spec = _spec(method, {k: v for k, v in flags.items() if v is not None and _on_command_line(ctx, k)})
+    auto = auto and "gaussians" not in spec.given  # a count in the method spec wins too
     steps = getattr(spec.config, "steps", 0)  # the progress bar's length: a method without refinement has none
     sheet = output.with_name(output.stem + "_contact.png")
     novel_dir = views / "novel_views" if views.is_dir() else None  # synth's ground truth, when present
@@ -132,7 +133,7 @@ def lift(
         from dlacli.stages.budget import choose_for_views
 
         with options.naming(views=views, pose=body, phenotype=body):
-            result.avatar, choice = choose_for_views(result.avatar, view_set)
+            result.avatar, choice = choose_for_views(result.avatar, view_set, checkpoint=ckpt)
         typer.echo(
             f"note: --gaussians auto: {choice.count:,} Gaussians (input views, masked PSNR "
             f"{choice.scores[choice.count]:.2f} dB, best {max(choice.scores.values()):.2f})",

@@ -122,11 +122,13 @@ def naming_avatar(path: Path, **files) -> contextlib.AbstractContextManager[None
     return naming(avatar=path, pose=path, phenotype=path, **files)
 
 
-def auto_note(choice) -> str:
-    """The line `--gaussians auto` prints on stderr (a `dlacli.stages.budget.BudgetChoice`)."""
+def auto_note(choice, default: bool = False) -> str:
+    """The line `--gaussians auto` (or, `default`, no --gaussians on an avatar with a budget) prints
+    on stderr (a `dlacli.stages.budget.BudgetChoice`)."""
     recorded = choice.rule == "recorded"
     how = "from the avatar's lift-time budget" if recorded else "by sampling noise (no budget recorded)"
-    return f"note: --gaussians auto: {choice.count:,} Gaussians for a person {choice.subject_px:.0f} px tall, {how}"
+    what = "the avatar's budget" if default else "--gaussians auto"
+    return f"note: {what}: {choice.count:,} Gaussians for a person {choice.subject_px:.0f} px tall, {how}"
 
 
 # ------------------------------------------------------------------------------------------------
@@ -157,7 +159,13 @@ def gaussians(
     auto = auto_cameras is not None
     if help is None:
         help = f"{what}, half uniformly in UV, half on the surface "
-        help += f"(default: the count the avatar was lifted with, else {DEFAULT_GAUSSIANS:,})"
+        if auto:
+            help += (
+                f"(default: the avatar's recorded budget scaled to the person's size in {auto_cameras}, else the "
+                f"count it was lifted with, else {DEFAULT_GAUSSIANS:,})"
+            )
+        else:
+            help += f"(default: the count the avatar was lifted with, its budget, else {DEFAULT_GAUSSIANS:,})"
         if auto:
             help += (
                 f"; 'auto': the count lift --gaussians auto recorded, scaled to the person's size in {auto_cameras}, "

@@ -83,6 +83,14 @@ def render(
             choice = auto_gaussians(av, auto_cameras(cams), seed=seed, checkpoint=ckpt)
         gaussians = choice.count
         typer.echo(auto_note(choice), err=True)
+    elif gaussians is None:
+        from dlacli.stages.budget import auto_cameras, budget_default
+
+        with naming_avatar(avatar):
+            choice = budget_default(av, auto_cameras(cams))
+        if choice is not None:
+            gaussians = choice.count
+            typer.echo(auto_note(choice, default=True), err=True)
     frames = []
     with (
         naming_avatar(avatar),

@@ -8,6 +8,9 @@ smallest n within `tolerance_db` (0.2 dB) of the best score (`choose_gaussians`)
   (`measure_budget`), and records the choice in the avatar: `extra.samples.count` (what render and
   animate draw by default) and `extra.budget` (the scores, and the size the person had in those
   views: `subject_px`, the median height in pixels of the body's projection).
+- `dla lift` does this by default (`--gaussians N` refines with and records N, no budget); `dla
+  render` and `dla animate` then draw the recorded budget by default (`budget_default`, the
+  "recorded" rule below), `dla view` and `dla export` (no cameras) its count as recorded.
 - `dla render` / `dla animate --gaussians auto` (`auto_gaussians`) have no ground truth. When the
   avatar records a budget, its count is carried to the target cameras by the area the person
   covers: n = recorded count x (target subject_px / recorded subject_px)^2, rounded up to the
@@ -207,6 +210,18 @@ def auto_cameras(cameras: Cameras, k: int = AUTO_VIEWS) -> Cameras:
     return cameras.select(idx)
 
 
+def budget_default(avatar: Avatar, cameras: Cameras, counts=LADDER) -> BudgetChoice | None:
+    """What render and animate draw when no --gaussians is given: the avatar's recorded budget
+    carried to the person's size in `cameras` (the "recorded" rule, no render), or None when the
+    avatar records no budget (an avatar lifted before budgets or with --gaussians N: then
+    `sample_settings`, its extra.samples.count, else DEFAULT_GAUSSIANS)."""
+    recorded = recorded_budget(avatar)
+    if recorded is None:
+        return None
+    px = subject_pixels(avatar, cameras)
+    return BudgetChoice(scaled_count(recorded["count"], recorded["subject_px"], px, counts), "recorded", subject_px=px)
+
+
 def auto_gaussians(
     avatar: Avatar,
     cameras: Cameras,
@@ -217,28 +232,32 @@ def auto_gaussians(
 ) -> BudgetChoice:
     """`--gaussians auto` for rendering at `cameras` (module doc): the recorded budget carried to
     the person's size in these cameras, else self-consistency by sampling noise."""
+    choice = budget_default(avatar, cameras, counts)
+    if choice is not None:
+        return choice
     px = subject_pixels(avatar, cameras)
-    recorded = recorded_budget(avatar)
-    if recorded is not None:
-        return BudgetChoice(
-            scaled_count(recorded["count"], recorded["subject_px"], px, counts), "recorded", subject_px=px
-        )
     noise = sampling_noise(avatar, cameras, counts, seed, checkpoint)
     scores = predicted_psnr(noise)
     return BudgetChoice(choose_gaussians(scores, tolerance_db), "self-consistency", scores, px, noise)
 
 
 def choose_for_views(
-    avatar: Avatar, views: ViewSet, counts=LADDER, render_size: int | None = None, tolerance_db: float = TOLERANCE_DB
+    avatar: Avatar,
+    views: ViewSet,
+    counts=LADDER,
+    render_size: int | None = None,
+    tolerance_db: float = TOLERANCE_DB,
+    checkpoint: str | None = None,
 ) -> tuple[Avatar, BudgetChoice]:
     """`dla lift --gaussians auto`: measure on the (input) views at `render_size` (None: their own
     size), choose, and return the avatar recording the choice: `extra.samples.count` and
     `extra.budget` = {count, tolerance_db, render_size, subject_px, measured_on, psnr_masked:
-    {count: dB}} (non-finite scores as null), with the choice itself."""
+    {count: dB}} (non-finite scores as null), with the choice itself. `checkpoint`: a learned
+    avatar's network (folder or hash), before it is installed in the cache."""
     from dlacli.avatar.posed import sample_settings
 
     _, seed = sample_settings(avatar)
-    scores = measure_budget(avatar, views, counts, render_size, seed=seed)
+    scores = measure_budget(avatar, views, counts, render_size, seed=seed, checkpoint=checkpoint)
     count = choose_gaussians(scores, tolerance_db)
     _, _, cams = _scaled_views(views, render_size)
     px = subject_pixels(avatar, cams)
