@@ -20,7 +20,8 @@ from scipy.spatial.transform import Rotation
 from dlacli.body.keypoints import COCO_NAMES, coco_keypoints
 from dlacli.body.model import get_body_model
 from dlacli.render.raster import render_mesh
-from dlacli.stages.fit import _limb_targets, fit_body, fit_info, fit_warning, limb_loss, overlay_png
+from dlacli.stages.fit import _limb_targets, fit_body, limb_loss
+from dlacli.stages.fit_report import fit_info, fit_warning, overlay_png
 from dlacli.types import Cameras
 
 W, H = 256, 320  # person ~190 px tall: 3 % of the height is ~6 px

@@ -188,7 +188,8 @@ def dream_suite(cfg: SpeedConfig, row, log) -> list[dict]:
     from dlacli.io.detect import detect_person
     from dlacli.io.photo import read_photo
     from dlacli.stages import dream as D
-    from dlacli.stages.fit import fit_body, overlay_png
+    from dlacli.stages.fit import fit_body
+    from dlacli.stages.fit_report import overlay_png
     from dlacli.stages.plausibility import plausibility
     from dlacli.stages.texture import body_views
 

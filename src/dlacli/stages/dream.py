@@ -507,7 +507,7 @@ def build_views(
 ) -> ViewSet:
     """Photo [H, W, 3] + person mask [H, W] + body fit (`dlacli.stages.fit.FitResult`) -> the
     4 views (azimuths 0, 90, 180, 270) as a ViewSet with the fitted body."""
-    from dlacli.stages.fit import fit_info
+    from dlacli.stages.fit_report import fit_info
 
     say = progress or (lambda msg: None)
     rgb, alpha, cam = frame_crop(image, mask, fit.camera, res)
@@ -559,7 +559,8 @@ def dream(
 ) -> Path:
     """One photo -> a view folder at `output` (written atomically; see the module docstring).
     `detection`: see `_read_inputs`."""
-    from dlacli.stages.fit import fit_body, fit_warning, overlay_png
+    from dlacli.stages.fit import fit_body
+    from dlacli.stages.fit_report import fit_warning, overlay_png
 
     say = progress or (lambda msg: None)
     chosen = _backend(backend)

@@ -11,7 +11,7 @@ Method (docs/fit.md):
 - losses: Geman-McClure robust keypoint reprojection (residuals in units of the person's height
   in pixels, weighted by confidence), a silhouette loss (projected surface samples vs the mask:
   distance transform outside the mask + distance from mask pixels to the nearest sample; see
-  `_SilhouetteTargets` and docs/fit.md for why not the splatter), pose priors (rotations near the
+  `fit_silhouette.SilhouetteTargets` and docs/fit.md for why not the splatter), pose priors (rotations near the
   zero pose; generous joint limits for spine, neck, hips and knees), phenotype prior to 0.5.
 - coarse to fine (Adam): A) root only, torso keypoints (20 % of the steps); B) + joint rotations,
   all keypoints, the thighs started flexed when foreshortened (`_init_thighs`), the silhouette
@@ -20,7 +20,7 @@ Method (docs/fit.md):
   (`limb_loss`) and three starts optimised together (default; inverse kinematics from the
   landmarks; the most ambiguous limb's depth flipped), the best by the stage-B loss at the
   silhouette switch continuing alone.
-- per-joint report: `FitResult.joint_error` / `worst_joint`, `fit_info`, `fit_warning`.
+- per-joint report: `FitResult.joint_error` / `worst_joint`; `fit_report.fit_info`, `fit_warning`, `overlay_png`.
 The posed points come from `dlacli.body.keypoints.PointRig` (a few ms a step); the result is
 recomputed exactly with the body model.
 """
@@ -34,12 +34,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from dlacli.body.keypoints import COCO_NAMES, COCO_SKELETON, NUM_KEYPOINTS, PointRig, coco_keypoints
+from dlacli.body.keypoints import COCO_NAMES, NUM_KEYPOINTS, PointRig, coco_keypoints
 from dlacli.body.model import get_body_model, rotations_to_pose
 from dlacli.body.uv import sample_surface
 from dlacli.errors import DlaInputError
 from dlacli.geometry import project_points, project_to_cameras
 from dlacli.limits import FIT_STEPS
+from dlacli.stages.fit_silhouette import SilhouetteTargets, silhouette_iou
 from dlacli.types import BodyParams, Cameras
 
 FOV_Y_DEG = 50.0
@@ -79,9 +80,8 @@ _TORSO = (5, 6, 11, 12)  # COCO shoulders and hips
 # narrows; stage C, with the silhouette on, is narrow so that a wrong keypoint loses to the mask.
 SIGMA_B = (0.3, 0.05)
 SIGMA_C = 0.03
-COVER_WEIGHT = 1.0  # weight of "every mask pixel is covered" relative to "no body outside the mask"
 SIL_FROM_B = 0.5  # the silhouette term starts this fraction of the way into stage B
-_MIN_CONF = 0.3  # keypoints with confidence >= this count as "confident"
+MIN_CONF = 0.3  # keypoints with confidence >= this count as "confident"
 # world -> camera rotation of the photo camera (OpenCV axes): x_cam = X, y_cam = -Z, z_cam = Y
 _R_W2C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 # [4, 4] world-to-camera of the fitting world (camera at the origin); its entries are 0 and +-1,
@@ -96,7 +96,6 @@ LIMB_WEIGHT = 0.05  # weight of the limb-direction prior next to the keypoint lo
 LIMB_SIGMA = 0.5  # Geman-McClure scale on the squared chord |u - v|^2 of the unit directions (~41 deg)
 # the limbs (root, middle, end) whose depth a flipped start may reverse: arms, legs
 _LIMB_CHAINS = ((5, 7, 9), (6, 8, 10), (11, 13, 15), (12, 14, 16))
-WORST_JOINT_WARN = 0.03  # dream warns when a confident keypoint is farther than this x the person's height
 
 
 @dataclass
@@ -170,7 +169,7 @@ def _check_inputs(image, mask, keypoints) -> tuple[np.ndarray, np.ndarray, np.nd
         raise DlaInputError("keypoints", "contains NaN or infinite values")
     kp = kp.copy()
     kp[:, 2] = np.clip(kp[:, 2], 0.0, 1.0)
-    conf = kp[:, 2] >= _MIN_CONF
+    conf = kp[:, 2] >= MIN_CONF
     if conf.sum() < 4 or not (conf[[5, 6]].any() and conf[[11, 12]].any()):
         raise DlaInputError(
             "keypoints",
@@ -185,7 +184,7 @@ def _check_inputs(image, mask, keypoints) -> tuple[np.ndarray, np.ndarray, np.nd
 
 def _initial_root(kp: np.ndarray, K: np.ndarray, rest_kp: np.ndarray, mask: np.ndarray):
     """Root translation [3] and rotation [3] from the torso keypoints (camera at the origin)."""
-    conf = kp[:, 2] >= _MIN_CONF
+    conf = kp[:, 2] >= MIN_CONF
 
     def mid(a, b, pts):  # the mean of the confident ones of two keypoints
         sel = [i for i in (a, b) if conf[i]]
@@ -213,57 +212,6 @@ def _initial_root(kp: np.ndarray, K: np.ndarray, rest_kp: np.ndarray, mask: np.n
 
 # ---------------------------------------------------------------------------------------------
 # the fit
-
-
-class _SilhouetteTargets:
-    """A differentiable silhouette loss between projected surface samples and the mask.
-
-    Two one-sided distances, in units of the person's height in pixels: (1) every projected body
-    sample should lie in the mask: its distance to the nearest mask pixel (a distance transform,
-    read bilinearly); (2) every mask pixel should be covered: the distance from each of a fixed
-    random set of mask pixels to the nearest projected sample. Both are means of sqrt(d^2 + e^2)
-    (robust to clothing and hair the body cannot cover).
-    """
-
-    def __init__(self, mask: np.ndarray, scale_px: float, samples: int, seed: int = 0) -> None:
-        from scipy.ndimage import distance_transform_edt
-
-        inside = mask > 0.5
-        h, w = mask.shape
-        self.scale = float(scale_px)
-        dt = distance_transform_edt(~inside).astype(np.float32)  # [H, W] px to the mask, 0 inside
-        self.dt = torch.from_numpy(dt)[None, None]  # [1, 1, H, W]
-        self.size = (w, h)
-        ys, xs = np.nonzero(inside)
-        rng = np.random.default_rng(seed)
-        pick = rng.choice(ys.size, size=min(samples, ys.size), replace=False)
-        self.pix = torch.from_numpy(
-            np.stack([xs[pick] + 0.5, ys[pick] + 0.5], axis=1).astype(np.float32)
-        )  # [M, 2] pixel centres
-        self.pix_np = self.pix.numpy().astype(np.float64)
-
-    def __call__(self, uv: torch.Tensor) -> torch.Tensor:  # uv [P, 2] projected samples, pixels
-        from scipy.spatial import cKDTree
-
-        w, h = self.size
-        grid = torch.stack([uv[:, 0] / w * 2 - 1, uv[:, 1] / h * 2 - 1], dim=-1)[None, None]
-        d_out = torch.nn.functional.grid_sample(
-            self.dt, grid, mode="bilinear", padding_mode="border", align_corners=False
-        )[0, 0, 0]  # [P]
-        # outside the image the border value underestimates: add the distance to the image
-        d_out = d_out + (
-            torch.relu(-uv[:, 0]) + torch.relu(uv[:, 0] - w) + torch.relu(-uv[:, 1]) + torch.relu(uv[:, 1] - h)
-        )
-        # the nearest sample of each mask pixel, found with a k-d tree outside autograd; the distance
-        # to it is then computed differentiably: the same value and gradient as min over cdist,
-        # without the dense [M, P] distance matrix and its backward (measured: 34 -> 9 ms backward
-        # per step, and 23 -> ~2 ms for the search)
-        tree = cKDTree(uv.detach().numpy().astype(np.float64))
-        nearest = torch.from_numpy(tree.query(self.pix_np, k=1)[1])  # [M]
-        d_cov = (self.pix - uv[nearest]).norm(dim=-1)  # [M]
-        e = 0.5
-        out = torch.sqrt(d_out**2 + e * e).mean() + COVER_WEIGHT * torch.sqrt(d_cov**2 + e * e).mean()
-        return out / self.scale
 
 
 def fit_body(
@@ -445,7 +393,7 @@ def _fit(image, mask, keypoints, landmarks_3d, steps, progress, surface_samples,
     scale_px = float(max(ys.max() - ys.min() + 1, 16))  # person height in pixels
     torso_w = torch.zeros(NUM_KEYPOINTS)
     torso_w[list(_TORSO)] = 1.0
-    sil = _SilhouetteTargets(msk, scale_px, samples=silhouette_samples)
+    sil = SilhouetteTargets(msk, scale_px, samples=silhouette_samples)
     dirs, dir_w = (None, None) if lm is None else _limb_targets(lm)
 
     n_a = max(1, int(0.2 * steps))
@@ -585,7 +533,7 @@ def _init_thighs(rig, kp, K, pose, root_r, root_t, bone_ids) -> None:
     pts, _ = rig(None, rot, root_r, root_t, keypoints_only=True)
     kp3 = pts.numpy()  # [17, 3], camera at the origin looking along +Y
     for side, hip, knee in (("L", 11, 13), ("R", 12, 14)):
-        if kp[hip, 2] < _MIN_CONF or kp[knee, 2] < _MIN_CONF:
+        if kp[hip, 2] < MIN_CONF or kp[knee, 2] < MIN_CONF:
             continue
         depth = max(float(kp3[hip, 1]), 1e-3)
         rest_px = float(K[1, 1]) * float(np.linalg.norm(kp3[knee] - kp3[hip])) / depth
@@ -611,7 +559,7 @@ def _finish(img, msk, kp, phenotype, rot, root_r, root_t) -> FitResult:
     camera = photo_camera(w, h, center=-t)
     kp3 = coco_keypoints(verts)  # [17, 3]
     uv = _project_world(kp3, camera)
-    conf = kp[:, 2] >= _MIN_CONF
+    conf = kp[:, 2] >= MIN_CONF
     err = np.linalg.norm(uv - kp[:, :2], axis=1)
     body = BodyParams(
         phenotype={k: float(v) for k, v in phenotype.items()},
@@ -629,102 +577,3 @@ def _finish(img, msk, kp, phenotype, rot, root_r, root_t) -> FitResult:
 def _project_world(points: np.ndarray, camera: Cameras) -> np.ndarray:
     """World points [N, 3] -> pixels [N, 2] with camera 0 (float64)."""
     return project_to_cameras(points, camera)[0][0]
-
-
-def silhouette(vertices: np.ndarray, camera: Cameras) -> np.ndarray:
-    """[H, W] float32 coverage of the body mesh (vertices [V, 3]) seen by camera 0."""
-    from dlacli.render.raster import render_mesh
-
-    model = get_body_model()
-    col = np.ones((vertices.shape[0], 3), np.float32)
-    cam = Cameras(camera.viewmats[:1], camera.Ks[:1], camera.width, camera.height)
-    return render_mesh(vertices, model.faces, col, cam, antialias=1, shading=False)[0, ..., 3]
-
-
-def silhouette_iou(vertices: np.ndarray, camera: Cameras, mask: np.ndarray) -> float:
-    """IoU of the mesh silhouette and mask > 0.5."""
-    a = silhouette(vertices, camera) > 0.5
-    b = np.asarray(mask) > 0.5
-    union = np.logical_or(a, b).sum()
-    return float(np.logical_and(a, b).sum() / union) if union else 0.0
-
-
-# ---------------------------------------------------------------------------------------------
-# report
-
-
-def fit_info(result: FitResult) -> dict:
-    """The fit's record in transforms.json (`dream.fit`): reprojection_px, mask_iou and, when the
-    per-joint errors are known, joint_error_pct (per COCO name, confident keypoints only, % of the
-    person's height), worst_joint {name, pct} and the winning start."""
-    info = {"reprojection_px": float(result.reprojection_px), "mask_iou": float(result.mask_iou)}
-    if result.joint_error is not None:
-        info["joint_error_pct"] = {
-            COCO_NAMES[k]: round(100.0 * float(e), 2) for k, e in enumerate(result.joint_error) if np.isfinite(e)
-        }
-        name, err = result.worst_joint
-        info["worst_joint"] = {"name": name, "pct": round(100.0 * err, 2)}
-        info["start"] = result.start
-    return info
-
-
-def fit_warning(result: FitResult, threshold: float = WORST_JOINT_WARN) -> str | None:
-    """A one-line warning when the worst confident keypoint is farther than `threshold` x the
-    person's height from its fitted keypoint, else None."""
-    name, err = result.worst_joint
-    if not name or err <= threshold:
-        return None
-    return (
-        f"warning: fit: {name} is {100.0 * err:.1f} % of the person's height from the detected keypoint; "
-        "see fit_overlay.png"
-    )
-
-
-# ---------------------------------------------------------------------------------------------
-# overlay
-
-
-def overlay_png(image: np.ndarray, result: FitResult) -> np.ndarray:
-    """[H, W, 3] uint8: the fitted silhouette tinted over the photo (with its outline), the given
-    keypoints as dots, the fitted ones as crosses and a line from each given to its fitted one."""
-    from PIL import Image, ImageDraw
-
-    img = np.asarray(image, dtype=np.float32)
-    if img.ndim != 3 or img.shape[2] != 3:
-        raise DlaInputError("image", f"expected [H, W, 3], got {list(img.shape)}")
-    if img.max() > 1.5:
-        img = img / 255.0
-    h, w = img.shape[:2]
-    if (w, h) != (result.camera.width, result.camera.height):
-        raise DlaInputError(
-            "image", f"size {w}x{h} differs from the fit's {result.camera.width}x{result.camera.height}"
-        )
-    sil = silhouette(result.vertices, result.camera)  # [H, W]
-    tint = np.array([0.2, 0.45, 1.0], np.float32)
-    out = img * (1.0 - 0.45 * sil[..., None]) + 0.45 * sil[..., None] * tint
-    inside = sil > 0.5
-    edge = inside & ~(np.roll(inside, 1, 0) & np.roll(inside, -1, 0) & np.roll(inside, 1, 1) & np.roll(inside, -1, 1))
-    out[edge] = (0.1, 0.2, 1.0)
-    pil = Image.fromarray(np.clip(out * 255.0 + 0.5, 0, 255).astype(np.uint8))
-    draw = ImageDraw.Draw(pil)
-    r = max(2, round(max(h, w) / 250))
-    given = result.keypoints_2d
-    fitted = _project_world(coco_keypoints(result.vertices), result.camera)
-    for a, b in COCO_SKELETON:
-        draw.line([tuple(fitted[a]), tuple(fitted[b])], fill=(255, 80, 80), width=max(1, r // 2))
-    for k in range(NUM_KEYPOINTS):
-        fx, fy = fitted[k]
-        if given[k, 2] >= _MIN_CONF:
-            gx, gy = given[k, :2]
-            draw.line([(gx, gy), (fx, fy)], fill=(255, 255, 0), width=1)
-            draw.ellipse([gx - r, gy - r, gx + r, gy + r], fill=(0, 220, 0), outline=(0, 0, 0))
-        draw.line([(fx - r, fy - r), (fx + r, fy + r)], fill=(255, 0, 0), width=max(1, r // 2))
-        draw.line([(fx - r, fy + r), (fx + r, fy - r)], fill=(255, 0, 0), width=max(1, r // 2))
-    name, err = result.worst_joint
-    if name:  # a red ring around the worst detected keypoint, labelled with its name and error
-        k = COCO_NAMES.index(name)
-        gx, gy = given[k, :2]
-        rr = 4 * r
-        draw.ellipse([gx - rr, gy - rr, gx + rr, gy + rr], outline=(255, 0, 0), width=max(2, r // 2))
-        draw.text((gx + rr + 2, gy - rr), f"{name} {100.0 * err:.1f} %", fill=(255, 0, 0))
-    return np.asarray(pil, dtype=np.uint8)
