@@ -109,6 +109,26 @@ def score_avatar(avatar, folder: Path) -> dict[str, dict[str, float]]:
     return out
 
 
+def subjects(seeds, folder: Path, res: int, novel_views: int, novel_poses: int, appearance: str, wardrobe: str):
+    """(seed, subject folder) per seed: each synthetic subject written under `folder` as the
+    accuracy benchmarks score it (its views, novel views and novel poses)."""
+    from dlacli.data.synth import synth
+
+    for seed in seeds:
+        yield (
+            seed,
+            synth(
+                seed,
+                folder / f"s{seed}",
+                res=res,
+                novel_views=novel_views,
+                novel_poses=novel_poses,
+                appearance=appearance,
+                wardrobe=wardrobe,
+            ),
+        )
+
+
 def run(
     seeds: list[int],
     methods: list[MethodSpec],
@@ -122,23 +142,13 @@ def run(
     """dla.bench/1 rows: one per seed, method and split (the 4 true views as the input; one photo
     through `dla dream`: bench/single_photo.run_photo)."""
     from dlacli.bench.rows import make_row
-    from dlacli.data.synth import synth
     from dlacli.io.avatar import read_avatar
 
     for spec in methods:  # the renders find a learned avatar's decoder by its hash, as after `dla lift`
         spec.install()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for seed in seeds:
-            folder = synth(
-                seed,
-                Path(tmp) / f"s{seed}",
-                res=res,
-                novel_views=novel_views,
-                novel_poses=novel_poses,
-                appearance=appearance,
-                wardrobe=wardrobe,
-            )
+        for seed, folder in subjects(seeds, Path(tmp), res, novel_views, novel_poses, appearance, wardrobe):
             for spec in methods:
                 path = Path(tmp) / f"s{seed}_{len(rows)}.npz"
                 seconds, peak = timed_lift(spec, folder, path)

@@ -216,9 +216,8 @@ def run_photo(
     """dla.bench/1 rows, one per seed, backend, method and split (PHOTO_SPLITS), the subjects
     as `dla bench accuracy` makes them (bench/accuracy.run); a subject whose dream fails (e.g. no
     person detected) gives one row per split with status "error"."""
-    from dlacli.bench.accuracy import timed_lift
+    from dlacli.bench.accuracy import subjects, timed_lift
     from dlacli.bench.rows import make_row
-    from dlacli.data.synth import synth
     from dlacli.io.avatar import read_avatar
     from dlacli.io.views import read_views
     from dlacli.stages.dream import dream
@@ -228,16 +227,7 @@ def run_photo(
         spec.install()
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
-        for seed in seeds:
-            subject = synth(
-                seed,
-                Path(tmp) / f"s{seed}",
-                res=res,
-                novel_views=novel_views,
-                novel_poses=novel_poses,
-                appearance=appearance,
-                wardrobe=wardrobe,
-            )
+        for seed, subject in subjects(seeds, Path(tmp), res, novel_views, novel_poses, appearance, wardrobe):
             photo = write_photo(subject, Path(tmp) / f"s{seed}_photo.png")
             for backend in backends:
                 base = {
