@@ -53,6 +53,24 @@ def face_frames(verts, faces, uv_d, inv_det, abs_inv_det, resolution, vn, dpdu, 
         vn[i, 2] /= norm
 
 
+@njit(cache=True, inline="always")
+def _point_and_normal(verts, faces, vn, f, bary, g):
+    """Sample g's point (p0, p1, p2) on face f and its interpolated vertex normal (n0, n1, n2),
+    not normalised, with that normal's length floored at 1e-12 (float64)."""
+    p0 = p1 = p2 = 0.0
+    n0 = n1 = n2 = 0.0
+    for k in range(3):
+        v = faces[f, k]
+        w = np.float64(bary[g, k])
+        p0 += w * verts[v, 0]
+        p1 += w * verts[v, 1]
+        p2 += w * verts[v, 2]
+        n0 += w * vn[v, 0]
+        n1 += w * vn[v, 1]
+        n2 += w * vn[v, 2]
+    return p0, p1, p2, n0, n1, n2, max(np.sqrt(n0 * n0 + n1 * n1 + n2 * n2), 1e-12)
+
+
 @njit(parallel=True, cache=True)
 def skin_samples(verts, faces, vn, dpdu, scale, face_id, bary, dxyz, dquat, ds, means, quats, scales):
     """One body's Gaussians: verts [V, 3], faces [F, 3], `face_frames`' vn, dpdu, scale, the
@@ -62,18 +80,7 @@ def skin_samples(verts, faces, vn, dpdu, scale, face_id, bary, dxyz, dquat, ds, 
     n = face_id.shape[0]
     for g in prange(n):
         f = face_id[g]
-        p0 = p1 = p2 = 0.0
-        n0 = n1 = n2 = 0.0
-        for k in range(3):
-            v = faces[f, k]
-            w = np.float64(bary[g, k])
-            p0 += w * verts[v, 0]
-            p1 += w * verts[v, 1]
-            p2 += w * verts[v, 2]
-            n0 += w * vn[v, 0]
-            n1 += w * vn[v, 1]
-            n2 += w * vn[v, 2]
-        norm = max(np.sqrt(n0 * n0 + n1 * n1 + n2 * n2), 1e-12)
+        p0, p1, p2, n0, n1, n2, norm = _point_and_normal(verts, faces, vn, f, bary, g)
         n0, n1, n2 = n0 / norm, n1 / norm, n2 / norm
         # tangent: dP/du orthonormalised against n; a unit vector orthogonal to n if degenerate
         d = dpdu[f, 0] * n0 + dpdu[f, 1] * n1 + dpdu[f, 2] * n2
@@ -147,18 +154,7 @@ def surface_points_normals(verts, faces, vn, face_id, bary, pos, nrm):
     `surface_points` and `tangent_frames`' normal."""
     for g in prange(face_id.shape[0]):
         f = face_id[g]
-        p0 = p1 = p2 = 0.0
-        n0 = n1 = n2 = 0.0
-        for k in range(3):
-            v = faces[f, k]
-            w = np.float64(bary[g, k])
-            p0 += w * verts[v, 0]
-            p1 += w * verts[v, 1]
-            p2 += w * verts[v, 2]
-            n0 += w * vn[v, 0]
-            n1 += w * vn[v, 1]
-            n2 += w * vn[v, 2]
-        norm = max(np.sqrt(n0 * n0 + n1 * n1 + n2 * n2), 1e-12)
+        p0, p1, p2, n0, n1, n2, norm = _point_and_normal(verts, faces, vn, f, bary, g)
         pos[g, 0] = p0
         pos[g, 1] = p1
         pos[g, 2] = p2
