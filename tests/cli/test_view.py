@@ -10,12 +10,8 @@ from __future__ import annotations
 
 import base64
 import gzip
-import io
 import json
-import os
-import shutil
 import subprocess
-import time
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -23,13 +19,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from dlacli.bench.browser import DevToolsPage, chromium, chromium_command, time_page
 from dlacli.cli.app import main
 
 N = 4096
 FRAME = 40  # a walk frame well into the stride (the built-in walk has more frames)
 WIDTH, HEIGHT = 256, 192
 INTRINSICS = (240.0, 250.0, 121.5, 101.0)  # fx, fy, cx, cy: non-square pixels, off-centre principal point
-CHROMIUM = shutil.which("chromium")
+CHROMIUM = chromium()
 needs_chromium = pytest.mark.skipif(
     CHROMIUM is None, reason="headless Chromium not installed (Debian: apt-get install chromium)"
 )
@@ -218,27 +215,7 @@ def _camera(positions: np.ndarray):
 def _chromium(url: str, tmp: Path, *action: str, budget_ms: int = 30000) -> subprocess.CompletedProcess:
     """One headless Chromium run (software WebGL2 through SwiftShader), e.g. --dump-dom or
     --screenshot=PNG, after `budget_ms` of virtual time."""
-    cmd = [
-        CHROMIUM,
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--use-angle=swiftshader",
-        "--enable-unsafe-swiftshader",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--disable-extensions",
-        "--no-first-run",
-        "--force-device-scale-factor=1",
-        "--force-color-profile=srgb",
-        "--hide-scrollbars",
-        f"--user-data-dir={tmp / 'profile'}",
-        f"--window-size={WIDTH},{HEIGHT}",
-        f"--virtual-time-budget={budget_ms}",
-        *action,
-        url,
-    ]
+    cmd = chromium_command(url, tmp / "profile", WIDTH, HEIGHT, *action, budget_ms=budget_ms)
     result = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr[-2000:]
     return result
@@ -329,94 +306,6 @@ def test_browser_render_matches_the_cpu_splatter(page, reference, tmp_path):
     assert iou > IOU_FLOOR, iou
 
 
-class _DevTools:
-    """Headless Chromium driven over the DevTools protocol on a pipe (--remote-debugging-pipe:
-    the browser reads NUL-terminated JSON commands on fd 3 and answers on fd 4), in real time,
-    for what a one-shot --screenshot cannot do: call the page's JS API while it plays."""
-
-    def __init__(self, tmp: Path):
-        to_chrome, self._out = os.pipe()
-        self._in, from_chrome = os.pipe()
-
-        def fds():  # in the child: the pipe ends on fds 3 and 4
-            a, b = os.dup(to_chrome), os.dup(from_chrome)
-            os.dup2(a, 3)
-            os.dup2(b, 4)
-
-        cmd = [
-            CHROMIUM,
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--use-angle=swiftshader",
-            "--enable-unsafe-swiftshader",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-            "--disable-extensions",
-            "--no-first-run",
-            "--force-device-scale-factor=1",
-            "--force-color-profile=srgb",
-            "--hide-scrollbars",
-            f"--user-data-dir={tmp / 'devtools-profile'}",
-            f"--window-size={WIDTH},{HEIGHT}",
-            "--remote-debugging-pipe",
-            "about:blank",
-        ]
-        self.proc = subprocess.Popen(
-            cmd, pass_fds=(3, 4), preexec_fn=fds, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-        )
-        os.close(to_chrome)
-        os.close(from_chrome)
-        self._buf, self._id, self.session = b"", 0, None
-        page = next(t for t in self.send("Target.getTargets")["targetInfos"] if t["type"] == "page")
-        self.session = self.send("Target.attachToTarget", {"targetId": page["targetId"], "flatten": True})["sessionId"]
-        self.send(
-            "Emulation.setDeviceMetricsOverride",
-            {"width": WIDTH, "height": HEIGHT, "deviceScaleFactor": 1, "mobile": False},
-        )
-
-    def send(self, method: str, params: dict | None = None) -> dict:
-        self._id += 1
-        message = {"id": self._id, "method": method, "params": params or {}}
-        if self.session is not None:
-            message["sessionId"] = self.session
-        os.write(self._out, json.dumps(message).encode() + b"\0")
-        while True:
-            while b"\0" not in self._buf:
-                chunk = os.read(self._in, 1 << 16)
-                assert chunk, "Chromium closed the DevTools pipe"
-                self._buf += chunk
-            raw, self._buf = self._buf.split(b"\0", 1)
-            reply = json.loads(raw)
-            if reply.get("id") == self._id:
-                assert "error" not in reply, reply["error"]
-                return reply["result"]
-
-    def js(self, expression: str):
-        result = self.send("Runtime.evaluate", {"expression": expression, "awaitPromise": True, "returnByValue": True})
-        assert "exceptionDetails" not in result, result["exceptionDetails"]
-        return result["result"].get("value")
-
-    def wait_for(self, expression: str, seconds: float = 60.0):
-        """Poll until `expression` is truthy (a liveness bound, not a speed check)."""
-        deadline = time.monotonic() + seconds
-        while not (value := self.js(expression)):
-            assert time.monotonic() < deadline, f"timed out waiting for {expression}"
-            time.sleep(0.05)
-        return value
-
-    def screenshot(self) -> np.ndarray:
-        data = base64.b64decode(self.send("Page.captureScreenshot", {"format": "png"})["data"])
-        return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
-
-    def close(self) -> None:
-        self.proc.kill()
-        self.proc.wait(30)
-        os.close(self._out)
-        os.close(self._in)
-
-
 @needs_chromium
 def test_page_plays_and_the_js_hook_places_the_camera(page, reference, tmp_path):
     """window.dlaView: play() steps through frames by itself, pause() holds one, setView() puts
@@ -424,7 +313,7 @@ def test_page_plays_and_the_js_hook_places_the_camera(page, reference, tmp_path)
     from dlacli.stages.rig import skin
 
     rig, mats, motion = reference
-    chrome = _DevTools(tmp_path)
+    chrome = DevToolsPage(tmp_path / "devtools-profile", WIDTH, HEIGHT)
     try:
         chrome.send("Page.navigate", {"url": f"file://{page}#ui=0&background=0,0,0&frame=0"})
         chrome.wait_for("window.dlaReady === true")
@@ -455,3 +344,15 @@ def test_page_plays_and_the_js_hook_places_the_camera(page, reference, tmp_path)
     psnr = _psnr(shot, ref, covered)
     print(f"paused at frame {frame}: PSNR {psnr:.2f} dB against the CPU splatter")
     assert psnr > PSNR_FLOOR
+
+
+@needs_chromium
+def test_page_times_its_frames_and_keeps_its_frame(page, reference, tmp_path):
+    """dlaView.timeFrames(N) (what `dla bench speed --suite view` reads): the page draws N
+    successive frames, reports its frames per second and the JS / GL split, and comes back to the
+    frame it showed."""
+    frames = 12
+    t = time_page(page, WIDTH, HEIGHT, frames, tmp_path / "profile")
+    assert np.isfinite(t["fps"]) and t["fps"] > 0
+    assert t["js_ms"] >= 0 and t["gl_ms"] >= 0
+    assert t["frame"] == 0  # the page shows frame 0 again

@@ -21,6 +21,9 @@ Suites (SUITES):
 - usd: write_usd throughput on a synthetic walk-like motion, per schema and tolerance;
 - render: frames per second of an animated avatar (animate's preview renderer) and turntable
   images of its own pose;
+- view: the `dla view` page of a walk in headless Chromium (software WebGL2 through SwiftShader):
+  the page's own timing of successive frames (frames per second, and per frame the JS part,
+  skinning the centres + the depth sort, and the GL part); skipped with a note without Chromium;
 - dream: the whole `dla dream` command on the bundled sample photo (with detection, and with its
   stored keypoints), each run a fresh interpreter as a user runs it, and its stages in this
   process: detection, the body fit, framing + the views of the body and the shell backends,
@@ -45,7 +48,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from dlacli.bench.speed_config import DENSE_MAX_PAIRS, SUITES, SpeedConfig, cli_seconds, median_min
-from dlacli.bench.speed_stages import animate_suite, dream_suite, lift_suite, render_suite, usd_suite
+from dlacli.bench.speed_stages import animate_suite, dream_suite, lift_suite, render_suite, usd_suite, view_suite
 
 # ------------------------------------------------------------------------------------ startup
 
@@ -375,6 +378,7 @@ def run(
         "animate": lambda: animate_suite(cfg, row, log),
         "usd": lambda: usd_suite(cfg, row, log),
         "render": lambda: render_suite(cfg, row, log),
+        "view": lambda: view_suite(cfg, row, log),
         "dream": lambda: dream_suite(cfg, row, log),
     }
     rows: list[dict] = []

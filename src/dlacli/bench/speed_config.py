@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 from dlacli.limits import DEFAULT_GAUSSIANS, FIT_STEPS
 
-SUITES = ("startup", "splat", "body", "lift", "animate", "usd", "render", "dream")
+SUITES = ("startup", "splat", "body", "lift", "animate", "usd", "render", "view", "dream")
 _N = DEFAULT_GAUSSIANS
 SPLAT_CASES = ((2_048, 128), (20_000, 256), (20_000, 512), (65_536, 256), (65_536, 512), (_N, 256), (_N, 512))
 DENSE_MAX_PAIRS = 2_048 * 128 * 128  # Gaussians x pixels up to which the dense path runs

@@ -178,6 +178,32 @@ def render_suite(cfg: SpeedConfig, row, log) -> list[dict]:
     ]
 
 
+def view_suite(cfg: SpeedConfig, row, log) -> list[dict]:
+    """The `dla view` page of the walk in headless Chromium (software WebGL2): its own timing of
+    cfg.frames successive frames at cfg.res x cfg.res (bench/browser.py `time_page`)."""
+    from dlacli.bench.browser import chromium, time_page
+    from dlacli.stages.view import view_page, write_page
+
+    c = {"gaussians": cfg.gaussians, "size": cfg.res, "frames": cfg.frames, "browser": "chromium-swiftshader"}
+    if chromium() is None:
+        log("view: skipped (headless Chromium not installed)")
+        return [row("view", "page_frame", "cpu", c, None, 0, skipped="headless Chromium not installed")]
+    _, avatar = _subject_and_avatar(cfg, log)
+    tmp = Path(cfg._cache["tmp"])
+    page = tmp / "walk.html"
+    write_page(view_page(avatar, _walk(cfg.frames), cfg.gaussians), page)
+    t = time_page(page, cfg.res, cfg.res, cfg.frames, tmp / "chromium-profile")
+    log(
+        f"view page {cfg.gaussians} Gaussians at {cfg.res} px: {t['fps']:.1f} fps "
+        f"(JS {t['js_ms']:.0f} ms, GL {t['gl_ms']:.0f} ms per frame)"
+    )
+    return [
+        row("view", "page_frame", "cpu", c, 1.0 / t["fps"], cfg.frames, items=1),
+        row("view", "page_js", "cpu", c, t["js_ms"] / 1e3, cfg.frames, items=1),
+        row("view", "page_gl", "cpu", c, t["gl_ms"] / 1e3, cfg.frames, items=1),
+    ]
+
+
 def dream_suite(cfg: SpeedConfig, row, log) -> list[dict]:
     """`dla dream` on the sample photo: the whole command (fresh interpreters; one warm-up run
     fills the on-disk caches) and its stages in this process (see bench/speed.py)."""

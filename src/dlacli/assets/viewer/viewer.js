@@ -35,6 +35,7 @@
     play: () => setPlaying(true),
     pause: () => setPlaying(false),
     state: () => ({ frame: S.frame, playing: S.playing, camera: currentCamera(), orbit: { ...S.orbit } }),
+    timeFrames,
   };
   window.dlaView = api;
   window.dlaReady = false;
@@ -515,6 +516,39 @@ void main() { frag = vec4(texelFetch(u_src, ivec2(gl_FragCoord.xy), 0).rgb, 1.0)
       window.dlaReady = true;
       html.dataset.dlaReady = String(S.frame);
       return api.state();
+    });
+  }
+
+  // timeFrames(count): draw `count` successive motion frames as fast as the browser can (each one
+  // skinned + sorted in JS, drawn and finished on the GL side) and return {fps, js_ms, gl_ms}: the
+  // frames per second of playback when nothing waits for the display, and the median milliseconds
+  // per frame of the JS part (skinning the centres + the depth sort) and of the rest (draw +
+  // gl.finish); the page then shows the frame it showed before (`dla bench speed --suite view`).
+  function timeFrames(count) {
+    return api.ready.then(() => {
+      const was = S.playing, from = S.frame, frames = S.data.frames;
+      const median = (x) => x.slice().sort((p, q) => p - q)[x.length >> 1];
+      setPlaying(false);
+      const whole = [], js = [];
+      const t0 = performance.now();
+      for (let i = 1; i <= count; i++) {
+        showFrame((from + i) % frames);
+        const a = performance.now();
+        draw();
+        gl.finish();
+        whole.push(performance.now() - a);
+      }
+      const fps = (count * 1000) / (performance.now() - t0);
+      for (let i = 1; i <= count; i++) {
+        S.skinnedFrame = -1;
+        S.frame = (from + i) % frames;
+        const a = performance.now();
+        sortGaussians(currentCamera());
+        js.push(performance.now() - a);
+      }
+      showFrame(from);
+      setPlaying(was);
+      return { fps, js_ms: median(js), gl_ms: Math.max(0, median(whole) - median(js)) };
     });
   }
 
