@@ -170,6 +170,15 @@ class Cameras:
             index = slice(int(index), int(index) + 1)
         return Cameras(self.viewmats[index], self.Ks[index], self.width, self.height)
 
+    def cropped(self, x0, y0, width: int, height: int) -> Cameras:
+        """The same cameras seeing only the width x height window whose top-left pixel is (x0[c],
+        y0[c]) in camera c's image (integers, per camera or one for all): the principal point moves
+        by the offset, the focal lengths stay."""
+        ks = self.Ks.clone()
+        ks[:, 0, 2] -= ks.new_tensor(np.asarray(x0, dtype=np.float64))
+        ks[:, 1, 2] -= ks.new_tensor(np.asarray(y0, dtype=np.float64))
+        return Cameras(self.viewmats.clone(), ks, int(width), int(height))
+
     def resized(self, width: int, height: int, scale: float | None = None) -> Cameras:
         """The same cameras for images of width x height pixels: the intrinsics' first row (fx, cx)
         times width / self.width and the second (fy, cy) times height / self.height (the same field

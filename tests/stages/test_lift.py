@@ -174,3 +174,37 @@ def test_refinement_improves_novel_views(subject):
     after = _score(lift(views, LiftConfig(steps=20, gaussians=32768)).avatar, novel)
     assert after["psnr_masked"] >= before["psnr_masked"] + 0.3, (before, after)
     assert after["iou"] >= before["iou"] + 0.04, (before, after)
+
+
+def test_refinement_compares_a_window_that_loses_nothing(subject):
+    """refine compares the views only in a window around the subject (stages/lift.subject_crops);
+    its first loss equals the whole-image loss computed here from a whole-image render
+    (L1 + mask L1 + 0.2 (1 - SSIM)), to float32 summation error, and every window holds its
+    view's whole mask."""
+    import torch
+
+    from dlacli.avatar import gaussian_map as gm
+    from dlacli.body.model import get_body_model
+    from dlacli.nn.losses import ssim_map
+    from dlacli.stages import lift as stage
+
+    views = read_views(subject)
+    cfg = LiftConfig(steps=1, gaussians=N)
+    vertices = get_body_model().forward_body(views.body).vertices[0].numpy()
+    unstructured, _, eyes = stage.unstructured_gaussians(views, vertices, cfg.grid)
+    fmap = stage.unproject_to_uv(unstructured, eyes, vertices, cfg.resolution)
+    samples = gm.make_samples(N, 0)
+    _, history = stage.refine(fmap, views, vertices, cfg, None, samples)
+
+    frames = gm.sample_frames(torch.from_numpy(vertices)[None], samples)
+    (g,) = gm.gaussians_at_frames(torch.from_numpy(fmap).float(), samples, frames)
+    rgb_t, mask_t, cams = stage._resized_targets(views, cfg.render_size)
+    rgb, alpha = stage._render(g, cams, None)
+    whole = (rgb - rgb_t).abs().mean() + (alpha - mask_t).abs().mean() + 0.2 * (1 - ssim_map(rgb, rgb_t).mean())
+    assert history[0] == pytest.approx(float(whole), rel=1e-5)
+
+    x0, y0, w, h = stage.subject_crops(mask_t, g.means.numpy().astype(np.float64), cams)
+    assert w * h < cams.width * cams.height  # a real saving on this subject
+    for i in range(len(views)):
+        inside = mask_t[i, y0[i] : y0[i] + h, x0[i] : x0[i] + w].sum()
+        assert float(inside) == pytest.approx(float(mask_t[i].sum()), rel=1e-6)

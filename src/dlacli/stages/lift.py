@@ -384,6 +384,48 @@ def _resized_targets(views: ViewSet, max_size: int):
     return x[..., :3].contiguous(), x[..., 3].contiguous(), views.cameras.resized(rw, rh)
 
 
+CROP_MARGIN = 0.05  # of the long side: the refinement's crops reach this far beyond the subject
+
+
+def subject_crops(target_mask: torch.Tensor, points: np.ndarray, cameras: Cameras, margin: float = CROP_MARGIN):
+    """One window size for all views that holds, in each view, every pixel of its target mask
+    [V, h, w] and the projection of every point [N, 3] in front of it, plus `margin` x the long
+    side on every side (clipped to the image): (x0 [V], y0 [V], width, height) for
+    `Cameras.cropped`. What lies outside a view's window is background in the target and, while
+    the Gaussians stay within the margin of where they started, in the render too."""
+    from dlacli.nn.losses import SSIM_WINDOW
+
+    v, h, w = target_mask.shape
+    pad = max(int(np.ceil(margin * max(h, w))), SSIM_WINDOW)  # SSIM's windows at the edge see only black
+    boxes = []
+    for i in range(v):
+        rows, cols = np.nonzero(target_mask[i].numpy() > 0)
+        px, z = _project(
+            points, cameras.viewmats[i].numpy().astype(np.float64), cameras.Ks[i].numpy().astype(np.float64)
+        )
+        px = px[z > 0]
+        xs = np.concatenate([cols + 0.5, px[:, 0]]) if px.size else cols + 0.5
+        ys = np.concatenate([rows + 0.5, px[:, 1]]) if px.size else rows + 0.5
+        if xs.size == 0:
+            boxes.append((0, 0, w, h))
+            continue
+        x0, x1 = int(np.floor(xs.min())) - pad, int(np.ceil(xs.max())) + pad
+        y0, y1 = int(np.floor(ys.min())) - pad, int(np.ceil(ys.max())) + pad
+        boxes.append((max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)))
+    cw = min(w, max(2 * SSIM_WINDOW, *(b[2] - b[0] for b in boxes)))
+    ch = min(h, max(2 * SSIM_WINDOW, *(b[3] - b[1] for b in boxes)))
+    x0s = [int(np.clip((b[0] + b[2] - cw) // 2, 0, w - cw)) for b in boxes]
+    y0s = [int(np.clip((b[1] + b[3] - ch) // 2, 0, h - ch)) for b in boxes]
+    return np.array(x0s), np.array(y0s), cw, ch
+
+
+def _crop(images: torch.Tensor, x0s, y0s, width: int, height: int) -> torch.Tensor:
+    """[V, h, w, ...] -> [V, height, width, ...]: view i's window at (x0s[i], y0s[i])."""
+    return torch.stack(
+        [images[i, y : y + height, x : x + width] for i, (x, y) in enumerate(zip(x0s, y0s))]
+    ).contiguous()
+
+
 def _mean(x: torch.Tensor, rows: int = 1024) -> torch.Tensor:
     """Mean whose value does not depend on the thread count: torch splits a reduction to one
     number of more than 32,768 elements over its threads, but sums each row of a [rows, -1]
@@ -454,7 +496,7 @@ def refine(
     each view sees them (view falloff `falloff`, `view_colours`), re-render the input views:
     L1 + w_mask * mask L1 + w_ssim * (1 - SSIM), Adam for cfg.steps steps.
     `progress(step, loss)` is called per step. Returns the refined map and the loss of every step."""
-    from dlacli.nn.losses import ssim_map
+    from dlacli.nn.losses import SSIM_WINDOW, ssim_map
     from dlacli.stages.refine import adam_refine
 
     samples = samples or gm.make_samples(cfg.gaussians, cfg.seed)
@@ -462,18 +504,30 @@ def refine(
     # gaussian_map (as avatar/posed.py places any F), the body's frames computed once
     frames = gm.sample_frames(torch.from_numpy(np.asarray(vertices, dtype=np.float32))[None], samples)
     target_rgb, target_mask, cams = _resized_targets(views, cfg.render_size)
-    colours = view_colours(fmap, falloff, vertices, cams, samples)  # colours are held: once
     base = torch.from_numpy(fmap).float()
+    # the views are compared only in a window around the subject (subject_crops): outside it
+    # target and render are black, so every term below equals its whole-image value
+    full = (len(cams), cams.height, cams.width)
+    with torch.no_grad():
+        (start,) = gm.gaussians_at_frames(base, samples, frames)
+    x0s, y0s, cw, ch = subject_crops(target_mask, start.means.numpy().astype(np.float64), cams)
+    target_rgb, target_mask = _crop(target_rgb, x0s, y0s, cw, ch), _crop(target_mask, x0s, y0s, cw, ch)
+    cams = cams.cropped(x0s, y0s, cw, ch)
+    colours = view_colours(fmap, falloff, vertices, cams, samples)  # colours are held: once
     delta = torch.zeros_like(base, requires_grad=True)
     step_scale = _CHANNEL_STEP.to(base)[:, None, None]
+    n_pixels = full[0] * full[1] * full[2]
+    win = min(SSIM_WINDOW, full[1], full[2]) | 1  # as ssim_map sizes its window
+    n_ssim = full[0] * (full[1] - win + 1) * (full[2] - win + 1) * 3  # ssim_map's 'valid' values
 
     def loss() -> torch.Tensor:
         (g,) = gm.gaussians_at_frames(base + delta * step_scale, samples, frames)
         rgb, alpha = _render(g, cams, colours)
-        value = _mean((rgb - target_rgb).abs())
-        value = value + cfg.w_mask * _mean((alpha - target_mask).abs())
+        value = _mean((rgb - target_rgb).abs()) * (rgb.numel() / (3 * n_pixels))
+        value = value + cfg.w_mask * _mean((alpha - target_mask).abs()) * (alpha.numel() / n_pixels)
         if cfg.w_ssim:
-            value = value + cfg.w_ssim * (1.0 - _mean(ssim_map(rgb, target_rgb)))
+            s = ssim_map(rgb, target_rgb)  # 1 - SSIM is 0 on the black outside the windows
+            value = value + cfg.w_ssim * _mean(1.0 - s) * (s.numel() / n_ssim)
         return value
 
     history = adam_refine([delta], loss, cfg.steps, cfg.lr, progress)
