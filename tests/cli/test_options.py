@@ -165,7 +165,7 @@ def test_lift_and_bench_quote_the_limits():
 
     commands = typer.main.get_command(app).commands
     lift = {p.name: p for p in commands["lift"].params}
-    assert f"{limits.DEFAULT_GAUSSIANS:,}" in lift["gaussians"].help
+    assert f"{limits.LIFT_GAUSSIANS:,}" in lift["gaussians"].help
     assert f"({limits.BUDGET_LADDER[0]:,} ... {limits.BUDGET_LADDER[-1]:,})" in lift["gaussians"].help
     assert f"default {limits.LIFT_STEPS}," in lift["steps"].help and lift["steps"].max == limits.MAX_LIFT_STEPS
     assert (lift["resolution"].min, lift["resolution"].max) == (

@@ -266,6 +266,25 @@ def test_default_lift_records_a_budget_and_the_commands_draw_it(subject, tmp_pat
     assert code == 0 and "element vertex 300\n" in (tmp_path / "b.ply").read_bytes()[:400].decode("ascii", "replace")
 
 
+def test_a_refined_lift_records_the_count_it_was_refined_at(subject, tmp_path, capsys):
+    """A refined avatar is fitted to its sample points: `dla lift` (auto) refines with
+    LIFT_GAUSSIANS points and records that count as its budget, scored on the input views."""
+    from dlacli.io.avatar import read_avatar
+    from dlacli.io.views import read_views
+    from dlacli.limits import LIFT_GAUSSIANS
+
+    av = tmp_path / "a.npz"
+    code, _, err = _main(["lift", subject, "-o", av, "--steps", 2], capsys)
+    assert code == 0, err
+    back = read_avatar(av)
+    rec = recorded_budget(back)
+    assert rec is not None and rec["count"] == LIFT_GAUSSIANS
+    assert back.extra["lift"]["gaussians"] == LIFT_GAUSSIANS and back.extra["samples"]["count"] == LIFT_GAUSSIANS
+    assert list(rec["psnr_masked"]) == [str(LIFT_GAUSSIANS)]
+    score = measure_budget(back, read_views(subject), (LIFT_GAUSSIANS,))[LIFT_GAUSSIANS]
+    assert score == pytest.approx(rec["psnr_masked"][str(LIFT_GAUSSIANS)], abs=0.01)
+
+
 def test_an_avatar_without_a_budget_keeps_its_lifted_count(lifted, tmp_path, capsys):
     """An avatar lifted with --gaussians N (or before budgets): render draws extra.samples.count,
     no budget note; with no samples record either, DEFAULT_GAUSSIANS."""

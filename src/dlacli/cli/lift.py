@@ -12,8 +12,8 @@ from dlacli.cli import options
 from dlacli.limits import (
     BUDGET_LADDER,
     BUDGET_TOLERANCE_DB,
-    DEFAULT_GAUSSIANS,
     DEFAULT_SAMPLE_SEED,
+    LIFT_GAUSSIANS,
     LIFT_RESOLUTION,
     LIFT_STEPS,
     MAX_LIFT_RESOLUTION,
@@ -25,7 +25,7 @@ from dlacli.stages.methods import METHODS
 # `dlacli.stages.lift.LiftConfig`'s defaults, from the torch-free limits module (loading the CLI for
 # `dla --version` or `dla info` does not import the stage and torch).
 _DEFAULTS = SimpleNamespace(
-    steps=LIFT_STEPS, resolution=LIFT_RESOLUTION, gaussians=DEFAULT_GAUSSIANS, seed=DEFAULT_SAMPLE_SEED
+    steps=LIFT_STEPS, resolution=LIFT_RESOLUTION, gaussians=LIFT_GAUSSIANS, seed=DEFAULT_SAMPLE_SEED
 )
 # the options that set a field of the method's config, by field name
 _FIELDS = {
@@ -47,10 +47,10 @@ _CHECKPOINT_HELP = (
     "in the checkpoints cache."
 )
 _GAUSSIANS_HELP = (
-    f"'auto' (default): refine with {_DEFAULTS.gaussians:,} Gaussians sampled from Z, then record the fewest "
+    f"'auto' (default): refine with {_DEFAULTS.gaussians:,} Gaussians sampled from Z and record them as the "
+    "budget render, animate, view and export draw by default; with --steps 0, record the fewest "
     f"({BUDGET_LADDER[0]:,} ... {BUDGET_LADDER[-1]:,}) whose re-renders of the input views score within "
-    f"{BUDGET_TOLERANCE_DB:g} dB masked PSNR of the best, the budget render, animate, view and export draw "
-    "by default (docs/lift.md); N: refine with and record N, no budget."
+    f"{BUDGET_TOLERANCE_DB:g} dB masked PSNR of the best (docs/lift.md); N: refine with and record N, no budget."
 )
 _VIEW_COLOUR_HELP = (
     f"Measure how the views' colours fall off with the viewing angle and, where they do (|k| >= {MIN_VIEW_FALLOFF:g}), "
@@ -132,8 +132,13 @@ def lift(
     if auto:
         from dlacli.stages.budget import choose_for_views
 
+        # a refined avatar is fitted to the points it was refined at: other counts read Z where the
+        # loss never looked and score lower, so its budget is that count (docs/lift.md step 5)
+        refined = result.avatar.extra.get("samples", {}).get("count") if steps else None
         with options.naming(views=views, pose=body, phenotype=body):
-            result.avatar, choice = choose_for_views(result.avatar, view_set, checkpoint=ckpt)
+            result.avatar, choice = choose_for_views(
+                result.avatar, view_set, checkpoint=ckpt, **({"counts": (refined,)} if refined else {})
+            )
         typer.echo(
             f"note: --gaussians auto: {choice.count:,} Gaussians (input views, masked PSNR "
             f"{choice.scores[choice.count]:.2f} dB, best {max(choice.scores.values()):.2f})",

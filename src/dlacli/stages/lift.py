@@ -30,7 +30,7 @@ from dlacli.avatar import gaussian_map as gm
 from dlacli.avatar.codec import shading
 from dlacli.errors import DlaInputError
 from dlacli.geometry import project_points as _project  # points [..., 3] -> (pixels [..., 2], z [...])
-from dlacli.limits import LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS, MIN_VIEW_FALLOFF
+from dlacli.limits import LIFT_GAUSSIANS, LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS, MIN_VIEW_FALLOFF
 from dlacli.types import Avatar, Cameras, Gaussians, ViewSet, rgb_to_sh0
 
 ENCODER = "unproject"
@@ -51,7 +51,7 @@ class LiftConfig:
     resolution: int = LIFT_RESOLUTION  # the Gaussian map F is resolution x resolution
     grid: int = 128  # unstructured Gaussians: one per pixel of a grid x grid downsampled view
     steps: int = LIFT_STEPS  # refinement steps (0: unprojection only); see `dla bench pipeline`
-    gaussians: int = gm.DEFAULT_GAUSSIANS  # sampled during refinement
+    gaussians: int = LIFT_GAUSSIANS  # sampled during refinement, and recorded
     render_size: int = 512  # refinement renders views at most this many pixels on the long side
     lr: float = 0.01
     w_mask: float = 1.0
