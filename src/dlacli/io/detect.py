@@ -92,6 +92,38 @@ def quiet_fd2() -> Iterator[None]:
         os.close(saved)
 
 
+@contextlib.contextmanager
+def native_stderr_quiet() -> Iterator[None]:
+    """Inside the block, file descriptor 2 goes to the null device (what MediaPipe's C++ threads
+    log, also after a call returned) while Python's `sys.stderr` writes to the original stderr
+    (so progress bars and warnings still show). Restored afterwards, also when the block raises."""
+    import io
+
+    with contextlib.suppress(Exception):
+        sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:
+        yield
+        return
+    old = sys.stderr
+    stream = io.TextIOWrapper(os.fdopen(os.dup(saved), "wb", buffering=0), write_through=True)
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, 2)
+        finally:
+            os.close(null)
+        sys.stderr = stream
+        yield
+    finally:
+        sys.stderr = old
+        with contextlib.suppress(Exception):
+            stream.close()
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 class _Deferred(types.ModuleType):
     """A stand-in for a module that is not imported yet: the first attribute it lacks imports the
     real module, which then replaces it in sys.modules and on its parent package, and is what
@@ -192,25 +224,32 @@ class PoseTracker:
 
     def __init__(self) -> None:
         self._pose = None
+        self._quiet = None
 
     def __enter__(self) -> PoseTracker:
-        with quiet_fd2():
+        self._quiet = native_stderr_quiet()  # for the tracker's whole life: its threads log late
+        self._quiet.__enter__()
+        try:
             mp = _import_mediapipe()
             self._pose = mp.solutions.pose.Pose(
                 static_image_mode=False, model_complexity=1, enable_segmentation=True, smooth_landmarks=False
             )
+        except BaseException:
+            self._quiet.__exit__(None, None, None)
+            raise
         return self
 
     def __exit__(self, *exc) -> None:
-        if self._pose is not None:
-            with quiet_fd2():
+        try:
+            if self._pose is not None:
                 self._pose.close()
-            self._pose = None
+                self._pose = None
+        finally:
+            self._quiet.__exit__(None, None, None)
 
     def __call__(self, frame: np.ndarray) -> Detection | None:
         img = to_uint8(frame)
-        with quiet_fd2():
-            result = self._pose.process(img)
+        result = self._pose.process(img)
         return _detection(result, *img.shape[:2])
 
 

@@ -77,6 +77,8 @@ _VIDEO_LIMITS = {
     "neck02": ((-0.6, 0.8), (-0.6, 0.6), (-0.8, 0.8)),
 }
 ANKLES = (15, 16)  # COCO left, right ankle
+LR = (0.02, 0.03, 0.03, 0.05)  # Adam: root translation (x depth / 3 m), root rotation, bones, phenotype
+IK_ITERS = 30
 OVERLAP = 24  # frames two neighbouring windows share (cross-faded)
 
 
@@ -289,11 +291,11 @@ class _Window:
 
     def optimise(self, steps: int, progress: Callable[[int], None] | None = None) -> None:
         n_root = max(1, int(ROOT_STAGE * steps))
-        self.initial_ik()
-        lr_t = 0.02 * max(1.0, float(self.root_t[:, 1].detach().abs().mean()) / 3.0)
-        groups = [{"params": [self.root_t], "lr": lr_t}, {"params": [self.root_r], "lr": 0.03}]
+        self.initial_ik(IK_ITERS)
+        lr_t = LR[0] * max(1.0, float(self.root_t[:, 1].detach().abs().mean()) / 3.0)
+        groups = [{"params": [self.root_t], "lr": lr_t}, {"params": [self.root_r], "lr": LR[1]}]
         opt = torch.optim.Adam(groups)
-        for step in range(n_root):
+        for _ in range(n_root):
             opt.zero_grad()
             self.loss(True, 0.5, False).backward()
             opt.step()
@@ -301,8 +303,8 @@ class _Window:
                 progress(1)
         params = [
             {"params": [self.root_t], "lr": lr_t},
-            {"params": [self.root_r], "lr": 0.03},
-            {"params": [self.pose], "lr": 0.03},
+            {"params": [self.root_r], "lr": LR[1]},
+            {"params": [self.pose], "lr": LR[2]},
         ]
         if self.fit_shape:
             params.append({"params": [self.phen_logit], "lr": 0.0})
@@ -311,7 +313,7 @@ class _Window:
         for step in range(rest):
             half = step >= rest // 2
             if self.fit_shape and half:
-                opt.param_groups[3]["lr"] = 0.05
+                opt.param_groups[3]["lr"] = LR[3]
             opt.zero_grad()
             self.loss(False, SIGMA[1] if half else SIGMA[0], self.fit_shape and half).backward()
             opt.step()

@@ -202,8 +202,7 @@ def video_to_motion(
     from dlacli.body.keypoints import coco_keypoints
     from dlacli.body.model import get_body_model
     from dlacli.limits import VIDEO_FIT_STEPS
-    from dlacli.stages.motion_fit import VIDEO_BONES
-    from dlacli.stages.motion_fit import ANKLES, fit_motion
+    from dlacli.stages.motion_fit import ANKLES, VIDEO_BONES, fit_motion
 
     t0 = time.perf_counter()
     det = detect_clip(clip, detect_progress)
