@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from dlacli.errors import DlaInputError
 from dlacli.stages.motion_fit import foot_contacts
@@ -71,35 +70,6 @@ def test_foot_contacts():
     assert c[:5, 0].all() and not c[5:7, 0].any()
 
 
-def _render_clip(path, motion, gap):
-    """The default-wardrobe synthetic subject 0 doing `motion`, seen by a level static camera with
-    the fit's 50 degree field of view, 3.6 m in front; frames of `gap` blank."""
-    from dlacli.body.model import get_body_model
-    from dlacli.data.garments import DressedBody
-    from dlacli.data.images import render
-    from dlacli.data.subject import sample_subject
-    from dlacli.geometry import look_at_c2w, pinhole_cameras
-    from dlacli.io.video import write_video
-
-    model = get_body_model()
-    body = DressedBody(sample_subject(0, "default"))
-    rot = model.motion_rotations(motion)
-    centre = motion.root_translation.mean(0).astype(np.float64)
-    cams = pinhole_cameras(look_at_c2w((centre + [0.0, -3.6, 0.0])[None], centre[None]), 50.0, RES)
-    frames = []
-    for s in range(0, motion.num_frames, 8):
-        sel = slice(s, s + 8)
-        verts = body.vertices(
-            rot[sel], torch.from_numpy(motion.root_rotation[sel]), torch.from_numpy(motion.root_translation[sel])
-        )
-        for v in verts:
-            rgba = render(body, v, cams, 0)[0]
-            frames.append(rgba[..., :3] * rgba[..., 3:] + 0.45 * (1.0 - rgba[..., 3:]))
-    for k in range(gap[0], gap[1] + 1):
-        frames[k] = np.full_like(frames[k], 0.45)
-    write_video(frames, path, FPS)
-
-
 def _major_joints(motion):
     from dlacli.body.model import get_body_model
 
@@ -125,15 +95,17 @@ def _jitter(j):
 @pytest.mark.slow
 def test_from_video_on_a_synthetic_clip(third_party_data, tmp_path):
     pytest.importorskip("mediapipe")
+    from dlacli.data.video import render_motion_video
     from dlacli.io.motion import read_motion, write_motion
     from dlacli.io.video import open_video
     from dlacli.stages.motion_source import load_motion
+    from dlacli.stages.motion_video import video_to_motion
     from dlacli.types import Motion
 
     truth = load_motion(third_party_data / "motion" / "131_01.bvh", fps=FPS)  # 75 frames, 2.5 s
     video = tmp_path / "clip.mp4"
-    _render_clip(video, truth, GAP)
-    result = __import__("dlacli.stages.motion_video", fromlist=["x"]).video_to_motion(open_video(video))
+    render_motion_video(truth, video, res=RES, blank=GAP)
+    result = video_to_motion(open_video(video))
     motion = result.motion
     assert motion.num_frames == truth.num_frames and motion.fps == FPS
     assert result.missing == [GAP]  # the blank frames, reported, and only they

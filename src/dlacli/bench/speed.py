@@ -25,7 +25,10 @@ Suites (SUITES):
   stored keypoints), each run a fresh interpreter as a user runs it, and its stages in this
   process: detection, the body fit, framing + the views of the body and the shell backends,
   plausibility, and writing the folder (with the fit overlay); first_seconds is a stage's first
-  call in this process (detection: importing mediapipe; fit: building the body model).
+  call in this process (detection: importing mediapipe; fit: building the body model);
+- motion: `dla motion from-video` on a synthetic video of a CMU clip (data/video.py; 2.5 s,
+  320 px): the whole command in a fresh interpreter (rows carry the frame count as `items`, so
+  video frames per second = items / seconds), and its detection and fit in this process.
 Times are medians over `repeats` calls after one warm-up call, unless a row says repeats = 1
 (stages too slow to repeat). Speed is measured here, never asserted in tests.
 """
@@ -45,7 +48,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from dlacli.bench.speed_config import DENSE_MAX_PAIRS, SUITES, SpeedConfig, cli_seconds, median_min
-from dlacli.bench.speed_stages import animate_suite, dream_suite, lift_suite, render_suite, usd_suite
+from dlacli.bench.speed_stages import animate_suite, dream_suite, lift_suite, motion_suite, render_suite, usd_suite
 
 # ------------------------------------------------------------------------------------ startup
 
@@ -376,6 +379,7 @@ def run(
         "usd": lambda: usd_suite(cfg, row, log),
         "render": lambda: render_suite(cfg, row, log),
         "dream": lambda: dream_suite(cfg, row, log),
+        "motion": lambda: motion_suite(cfg, row, log),
     }
     rows: list[dict] = []
     try:

@@ -238,3 +238,48 @@ def dream_suite(cfg: SpeedConfig, row, log) -> list[dict]:
 
         stage("write", write, {"res": res})
     return out
+
+
+def _motion_clip(name: str):
+    """A CMU clip vendored with the tests (tests/data/third_party/motion) or, in an installed
+    package without the tests, the built-in walk."""
+    from dlacli.stages.motion_source import load_motion
+
+    path = Path(__file__).resolve().parents[3] / "tests" / "data" / "third_party" / "motion" / f"{name}.bvh"
+    return load_motion(path if path.exists() else "walk", fps=30.0)
+
+
+def motion_suite(cfg: SpeedConfig, row, log) -> list[dict]:
+    """`dla motion from-video` on a synthetic video of a known motion (data/video.py): the whole
+    command in a fresh interpreter (one warm-up run), as video frames per second, and its detection
+    and fit in this process (`VideoMotion.seconds`)."""
+    import statistics
+
+    import numpy as np
+
+    from dlacli.data.video import render_motion_video
+    from dlacli.io.video import open_video
+    from dlacli.stages.motion_video import video_to_motion
+    from dlacli.types import Motion
+
+    clip = _motion_clip(cfg.motion_clip)
+    n = max(3, min(clip.num_frames, int(round(cfg.motion_seconds * clip.fps)) + 1))
+    sel = np.arange(n)
+    clip = Motion(clip.bone_labels, clip.rotations[sel], clip.root_rotation[sel], clip.root_translation[sel], clip.fps)
+    c = {"res": cfg.motion_res, "frames": n, "clip": cfg.motion_clip}
+    out = []
+    with tempfile.TemporaryDirectory(prefix="dla-speed-motion-") as tmp:
+        video = Path(tmp) / "clip.mp4"
+        render_motion_video(clip, video, res=cfg.motion_res)
+        argv = ["motion", "from-video", str(video), "-o", str(Path(tmp) / "m.npz")]
+        cli_seconds(argv)  # warm-up
+        times = [cli_seconds(argv)[0] for _ in range(max(1, min(cfg.repeats, 3)))]
+        med = statistics.median(times)
+        out.append(row("motion", "from_video_command", "cli", c, med, len(times), min_seconds=min(times), items=n))
+        log(f"motion from-video, {n} frames at {cfg.motion_res} px: {med:.1f} s = {n / med:.1f} video frames/s")
+        parts = [video_to_motion(open_video(video)).seconds for _ in range(max(1, min(cfg.repeats, 3)))]
+        for stage in ("detect", "fit"):
+            sec = statistics.median(p[stage] for p in parts)
+            out.append(row("motion", f"from_video_{stage}", "cpu", c, sec, len(parts), items=n))
+            log(f"motion from-video {stage}: {sec:.2f} s = {n / sec:.1f} frames/s")
+    return out
