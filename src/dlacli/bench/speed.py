@@ -26,9 +26,10 @@ Suites (SUITES):
   process: detection, the body fit, framing + the views of the body and the shell backends,
   plausibility, and writing the folder (with the fit overlay); first_seconds is a stage's first
   call in this process (detection: importing mediapipe; fit: building the body model);
-- motion: `dla motion from-video` on a synthetic video of a CMU clip (data/video.py; 2.5 s,
-  320 px): the whole command in a fresh interpreter (rows carry the frame count as `items`, so
-  video frames per second = items / seconds), and its detection and fit in this process.
+- motion: `dla motion from-video` on a synthetic video of a CMU clip (data/video.py; 10 s at
+  30 fps, 320 px): the whole command in a fresh interpreter (rows carry the frame count as
+  `items`, so video frames per second = items / seconds), and in this process its detection, its
+  fit and the process's CPU seconds.
 Times are medians over `repeats` calls after one warm-up call, unless a row says repeats = 1
 (stages too slow to repeat). Speed is measured here, never asserted in tests.
 """

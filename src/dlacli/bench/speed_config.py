@@ -42,9 +42,9 @@ class SpeedConfig:
     usd_tolerances_mm: tuple[float, ...] = (0.0, 1.0)
     dream_res: int = 512  # dream: the views' size
     dream_fit_steps: int = FIT_STEPS  # dream: the body fit's steps (dream's default)
-    motion_clip: str = "131_01"  # motion: the CMU clip (tests/data) the synthetic video shows, 2.5 s at 30 fps
+    motion_clip: str = "131_01"  # motion: the CMU clip (tests/data) the synthetic video shows (2.5 s)
     motion_res: int = 320  # motion: the synthetic video's size
-    motion_seconds: float = 2.5  # motion: its length (the clip's first seconds)
+    motion_seconds: float = 10.0  # motion: its length (the clip forward and backward, at 30 fps)
     _cache: dict = field(default_factory=dict, repr=False)
 
 

@@ -388,6 +388,7 @@ def _fit_motion(keypoints, landmarks, frames, width, height, fps, steps, window,
         win.optimise(steps, tick)
         if w == 0:
             phen_logit = win.phen_logit.detach().clone()
+        if w == 0 and len(spans) > 1:  # later windows: the shape fixed, the rigs linearised at it
             rig.linearise(rig.phenotype_dict(torch.sigmoid(phen_logit)))
             moving.linearise(rig.phenotype0)
             phen_logit = torch.logit(torch.tensor([rig.phenotype0[k] for k in FREE_PHENOTYPE]).clamp(1e-4, 1 - 1e-4))
@@ -401,16 +402,15 @@ def _fit_motion(keypoints, landmarks, frames, width, height, fps, steps, window,
             shape = (-1,) + (1,) * (src.ndim - 1)
             dst[lo:hi] = dst[lo:hi] * (1 - fade.reshape(shape)) + src * fade.reshape(shape)
     phenotype = rig.phenotype_dict(torch.sigmoid(phen_logit))
-    return MotionFit(phenotype, rot, rr, rt, _reprojection(rig, kp, rot, rr, rt, K), contacts)
+    reprojection = _reprojection(moving, torch.sigmoid(phen_logit), kp, rot, rr, rt, K)
+    return MotionFit(phenotype, rot, rr, rt, reprojection, contacts)
 
 
 @torch.no_grad()
-def _reprojection(rig: PointRig, kp, rot, rr, rt, K) -> np.ndarray:
+def _reprojection(rig: MovingRig, phen: torch.Tensor, kp, rot, rr, rt, K) -> np.ndarray:
     """[N] median pixel error of each frame's confident keypoints (NaN where none)."""
-    model = rig.model
-    full = torch.zeros(rot.shape[0], model.num_bones, 3)
-    full[:, [model.bone_index(b) for b in VIDEO_BONES]] = torch.from_numpy(rot).float()
-    pts = rig(None, full, torch.from_numpy(rr).float(), torch.from_numpy(rt).float(), keypoints_only=True)[0]
+    as_t = lambda x: torch.from_numpy(np.asarray(x, np.float32))  # noqa: E731
+    pts = rig(phen, as_t(rot), as_t(rr), as_t(rt))
     uv = _project_fit(pts, torch.from_numpy(K).float()).numpy()
     err = np.linalg.norm(uv - kp[..., :2], axis=-1)
     err = np.where(kp[..., 2] >= MIN_CONF, err, np.nan)
