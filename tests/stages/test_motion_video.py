@@ -13,7 +13,7 @@ import pytest
 
 from dlacli.errors import DlaInputError
 from dlacli.stages.motion_fit import foot_contacts
-from dlacli.stages.motion_video import clean_keypoints, fill_missing, missing_ranges
+from dlacli.stages.motion_video import clean_keypoints, fill_missing, keep_tracked, missing_ranges
 
 MAJOR = (
     "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R", "foot.L", "foot.R", "upperarm01.L",
@@ -54,6 +54,24 @@ def test_clean_keypoints_out_of_frame():
     assert ok and out[15, 2] == 0.0 and out[3, 2] == 0.0 and (out[[0, 5, 6, 11, 12], 2] > 0).all()
     kp[11:, 2] = 0.0  # no hips: not enough of a person
     assert not clean_keypoints(kp, 100, 120)[1]
+
+
+def test_keep_tracked_drops_another_person():
+    """A person walking right 2 px a frame; frames 10-12 show someone 150 px away (the tracker
+    picked up a second person): dropped; after a gap of more than a second, whoever is seen is
+    tracked again."""
+    t = 80
+    kp = np.zeros((t, 17, 3), np.float32)
+    kp[..., 2] = 0.9
+    kp[:, :, 1] = np.linspace(100, 300, 17)  # 200 px tall
+    kp[:, :, 0] = (50.0 + 2.0 * np.arange(t))[:, None]
+    kp[10:13, :, 0] += 150.0
+    found = np.ones(t, bool)
+    found[20:55] = False  # 35 frames (> 1 s at 30 fps) without anyone
+    kp[55:, :, 0] += 300.0  # then the other person: tracked from there on
+    keep, switched = keep_tracked(kp, found, FPS)
+    assert switched == [10, 11, 12]
+    np.testing.assert_array_equal(keep, found & ~np.isin(np.arange(t), [10, 11, 12]))
 
 
 def test_foot_contacts():

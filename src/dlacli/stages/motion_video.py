@@ -4,7 +4,7 @@
    through MediaPipe Pose in video mode (`io.detect.PoseTracker`); per frame it keeps the COCO-17
    keypoints and 3D landmarks only. Keypoints outside the image or below the confidence floor
    count as unseen; a frame with too few confident keypoints (no shoulder or no hip) has no
-   person; so has a frame whose person jumped away from the tracked one (`TRACK_JUMP`: another
+   person; so has a frame whose person jumped away from the tracked one (`keep_tracked`: another
    person was picked up), until the tracked one is back or `TRACK_RESET_S` passed.
 2. `stages.motion_fit.fit_motion`: one temporal fit over the detected frames.
 3. `fill_missing`: frames with no person are interpolated (rotations slerped, translations
@@ -28,7 +28,8 @@ from dlacli.types import Motion
 
 MIN_KEYPOINTS = 6  # confident keypoints a frame needs (with a shoulder and a hip) to count as seen
 KEYPOINT_CONF = 0.3  # = fit.MIN_CONF: below it a keypoint is unseen
-TRACK_JUMP = 0.5  # a torso centre this far (person heights) from the last tracked one: another person
+TRACK_JUMP = 0.3  # a torso centre this far (person heights) from the last tracked one ...
+TRACK_SPEED = 3.0  # ... plus this many person heights per second since then: another person
 TRACK_RESET_S = 1.0  # after this long without the tracked person, whoever is found is tracked
 PREVIEW_ALPHA = 0.6  # opacity of the body drawn over the clip
 PREVIEW_FILLED = (0.6, 0.6, 0.6)  # colour of the body in frames with no person (interpolated)
@@ -71,13 +72,35 @@ def clean_keypoints(kp: np.ndarray, width: int, height: int) -> tuple[np.ndarray
     return kp, bool(c.sum() >= MIN_KEYPOINTS and c[[5, 6]].any() and c[[11, 12]].any())
 
 
+def keep_tracked(keypoints: np.ndarray, found: np.ndarray, fps: float) -> tuple[np.ndarray, list[int]]:
+    """Which frames keep their person (module doc, step 1): keypoints [T, 17, 3] (cleaned), found
+    [T] -> (found [T] without the frames whose torso centre is further than `TRACK_JUMP` + `TRACK_SPEED`
+    x the time since the last kept frame (person heights) from that frame's, within
+    `TRACK_RESET_S`; those frames' indices)."""
+    keep = np.asarray(found, bool).copy()
+    switched = []
+    last_centre, last_frame, scale = None, -(10**9), 16.0
+    reset = max(1, int(round(TRACK_RESET_S * fps)))
+    for k in np.nonzero(keep)[0]:
+        kp = keypoints[k]
+        centre = _torso_centre(kp)
+        ys = kp[kp[:, 2] > 0, 1]
+        size = max(float(ys.max() - ys.min()), 16.0)
+        gap = k - last_frame
+        if last_centre is not None and gap <= reset:
+            if np.linalg.norm(centre - last_centre) > max(scale, size) * (TRACK_JUMP + TRACK_SPEED * gap / fps):
+                keep[k] = False
+                switched.append(int(k))
+                continue
+        last_centre, last_frame, scale = centre, k, size
+    return keep, switched
+
+
 def detect_clip(clip: VideoClip, progress: Callable[[int, int | None], None] | None = None) -> ClipDetections:
     """Stream the clip through the tracker (module doc, step 1)."""
     from dlacli.io.detect import PoseTracker
 
-    kps, lms, found, times, switched = [], [], [], [], []
-    last_centre, last_frame, scale = None, -(10**9), None
-    reset = max(1, int(round(TRACK_RESET_S * clip.fps)))
+    kps, lms, found, times = [], [], [], []
     with PoseTracker() as tracker:
         for k, t, frame in clip:
             det = tracker(frame)
@@ -89,34 +112,19 @@ def detect_clip(clip: VideoClip, progress: Callable[[int, int | None], None] | N
                 if det.world is not None:
                     lm = det.world.copy()
                     lm[:, 3] = kp[:, 2]
-            if ok:
-                centre = _torso_centre(kp)
-                ys = kp[kp[:, 2] > 0, 1]
-                size = max(float(ys.max() - ys.min()), 16.0)
-                if last_centre is not None and k - last_frame <= reset:
-                    if np.linalg.norm(centre - last_centre) > TRACK_JUMP * max(scale, size) * max(1, k - last_frame):
-                        ok = False
-                        switched.append(k)
-                if ok:
-                    last_centre, last_frame, scale = centre, k, size
-            kps.append(kp if ok else np.zeros_like(kp))
-            lms.append(lm if ok else np.zeros_like(lm))
+            kps.append(kp)
+            lms.append(lm)
             found.append(ok)
             times.append(t)
             if progress is not None:
                 progress(k + 1, clip.expected_frames)
     if not found:
         raise DlaInputError(clip.path, "holds no frames in the chosen span (--start/--end)")
-    return ClipDetections(
-        np.stack(kps),
-        np.stack(lms),
-        np.array(found),
-        clip.width,
-        clip.height,
-        clip.fps,
-        np.array(times),
-        switched,
-    )
+    kps, lms = np.stack(kps), np.stack(lms)
+    keep, switched = keep_tracked(kps, np.array(found), clip.fps)
+    kps[~keep] = 0.0
+    lms[~keep] = 0.0
+    return ClipDetections(kps, lms, keep, clip.width, clip.height, clip.fps, np.array(times), switched)
 
 
 def missing_ranges(found: np.ndarray) -> list[tuple[int, int]]:
