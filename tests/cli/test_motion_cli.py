@@ -153,3 +153,39 @@ def test_preview_writes_a_readable_mp4(tmp_path):
     centre = np.stack(frames)[:, 8:56, 20:44].astype(float)
     assert centre.mean() > 1.5 * np.stack(frames)[:, :8, :8].astype(float).mean()
     assert not list(tmp_path.glob(".*tmp*"))  # the atomic writer left nothing behind
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--start", "2", "--end", "1"], "error: --end: must be after --start"),
+        (["--start", "5"], "error: --start: 5 s is at or after the video's end"),
+        (["--fps", "50"], "error: --fps: 50 is above the video's own rate"),
+    ],
+)
+def test_from_video_bad_options(tmp_path, monkeypatch, capsys, args, message):
+    from dlacli.io.video import write_video
+
+    clip = tmp_path / "clip.mp4"
+    write_video([np.zeros((32, 32, 3), np.uint8)] * 10, clip, 10)
+    out = tmp_path / "m.npz"
+    code, err = _main(monkeypatch, capsys, "motion", "from-video", str(clip), "-o", str(out), *args)
+    assert code == 2 and err.startswith(message) and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_from_video_not_a_video_and_no_person(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("mediapipe")
+    from dlacli.io.video import write_video
+
+    bad, out, preview = tmp_path / "clip.mp4", tmp_path / "m.npz", tmp_path / "p.mp4"
+    bad.write_bytes(b"\x00" * 100)
+    code, err = _main(monkeypatch, capsys, "motion", "from-video", str(bad), "-o", str(out))
+    assert code == 2 and "cannot read it as a video" in err and len(err.strip().splitlines()) == 1, err
+    empty = tmp_path / "empty.mp4"
+    write_video([np.full((32, 32, 3), 90, np.uint8)] * 4, empty, 10)
+    code, err = _main(
+        monkeypatch, capsys, "motion", "from-video", str(empty), "-o", str(out), "--preview", str(preview)
+    )
+    assert code == 2 and "no person found in any frame" in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists() and not preview.exists() and bad.read_bytes() == b"\x00" * 100
