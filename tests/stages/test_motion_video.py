@@ -136,12 +136,12 @@ def test_from_video_on_a_synthetic_clip(third_party_data, tmp_path):
     err = _pa_mpjpe(jf, jt)
     rest = Motion([], np.zeros((truth.num_frames, 0, 3)), truth.root_rotation, truth.root_translation, FPS)
     baseline = _pa_mpjpe(_major_joints(rest), jt)
-    # the target is 50 mm; this fit measures ~60 mm on this clip (~30 mm when it is given
-    # the true keypoints and 3D directions: MediaPipe's 3D landmarks are what it lacks), the rest
-    # pose ~140 mm (docs/motion.md, "from a video")
-    assert err[seen].mean() < 0.080, err[seen].mean()
-    assert err[seen].mean() < 0.6 * baseline[seen].mean(), (err[seen].mean(), baseline[seen].mean())
-    assert err[~seen].mean() < 0.150  # interpolated across the blank frames
+    # the target is 50 mm; this fit measures ~54 mm on this clip (~21 mm when it is given
+    # the true keypoints and 3D directions: MediaPipe's 3D landmarks are what it lacks), the
+    # filled frames ~52 mm, the rest pose ~140 mm (docs/motion.md, "from a video")
+    assert err[seen].mean() < 0.070, err[seen].mean()
+    assert err[seen].mean() < 0.5 * baseline[seen].mean(), (err[seen].mean(), baseline[seen].mean())
+    assert err[~seen].mean() < 0.100, err[~seen].mean()  # interpolated across the blank frames
     assert _jitter(jf) <= 1.5 * _jitter(jt), (_jitter(jf), _jitter(jt))
     # foot skating: horizontal speed of each foot while the truth's foot is planted (low and slow)
     ft, ff = jt[:, [4, 5]], jf[:, [4, 5]]
