@@ -107,8 +107,10 @@ def from_video(
         spans = ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in result.missing[:10])
         more = f" and {len(result.missing) - 10} more ranges" if len(result.missing) > 10 else ""
         count = sum(b - a + 1 for a, b in result.missing)
+        other = len(result.detections.switched)
+        note = f", {other} of them showing another person than the tracked one" if other else ""
         typer.echo(
-            f"warning: no person in {count} of {motion.num_frames} frames ({spans}{more}): interpolated", err=True
+            f"warning: no person in {count} of {motion.num_frames} frames ({spans}{more}{note}): interpolated", err=True
         )
     det, sec = result.detections, result.seconds
     typer.echo(

@@ -19,12 +19,16 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dlacli.errors import DlaInputError
 from dlacli.io.video import VideoClip
 from dlacli.types import Motion
+
+if TYPE_CHECKING:
+    from dlacli.stages.motion_fit import MotionFit
 
 MIN_KEYPOINTS = 6  # confident keypoints a frame needs (with a shoulder and a hip) to count as seen
 KEYPOINT_CONF = 0.3  # = fit.MIN_CONF: below it a keypoint is unseen
@@ -47,7 +51,7 @@ class ClipDetections:
     height: int
     fps: float
     times: np.ndarray  # [T] seconds in the file
-    switched: list[int] = field(default_factory=list)  # frames dropped as another person (TRACK_JUMP)
+    switched: list[int] = field(default_factory=list)  # frames dropped as another person (keep_tracked)
 
     @property
     def num_frames(self) -> int:
@@ -190,7 +194,7 @@ class VideoMotion:
 
     motion: Motion
     detections: ClipDetections
-    fit: object  # stages.motion_fit.MotionFit (detected frames only)
+    fit: MotionFit  # the detected frames only
     missing: list[tuple[int, int]]  # inclusive frame ranges with no person (filled)
     seconds: dict[str, float]  # wall time of "detect" and "fit"
 
