@@ -46,6 +46,11 @@ MAX_RENDER_PIXELS = 1 << 30  # all images of one render together (--video keeps 
 MAX_FPS = 1000.0  # frame rates above this are refused (by every motion reader, native ones too)
 MIN_RESAMPLE_FPS = 0.1  # the slowest rate --fps resamples a motion to
 MIN_VIDEO_FPS = 1.0  # the slowest frame rate of a video dla writes
+# dla motion from-video: the most frames one run reads (after --fps/--start/--end); its per-frame
+# results are a few hundred bytes, and the fit works on windows of VIDEO_FIT_WINDOW frames
+MAX_VIDEO_FRAMES = 36_000  # 20 minutes at 30 fps
+VIDEO_FIT_WINDOW = 240  # frames optimised together (memory of one window: ~0.2 GB)
+VIDEO_FIT_STEPS = 400  # optimisation steps per window (synthetic CMU clip 131_01: 300 56 mm, 400 54 mm, 500 52 mm)
 
 # --- animate: pose_avatar holds positions, rotations and scales of every frame (40 bytes a
 # Gaussian-frame): 2^27 of them is ~5 GB, e.g. DEFAULT_GAUSSIANS x 1,024 frames

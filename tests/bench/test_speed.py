@@ -145,3 +145,24 @@ def test_cli_seconds_reports_a_failing_command(tmp_path):
 
     with pytest.raises(RuntimeError, match="dream"):
         cli_seconds(["dream", str(tmp_path / "missing.png"), "-o", str(tmp_path / "out")])
+
+
+def test_a_tiny_motion_run(monkeypatch):
+    """The motion suite at smoke size: a synthetic clip is made and fitted in this process; the
+    command's fresh interpreters are replaced by a recorder."""
+    pytest.importorskip("mediapipe")
+    from dlacli.bench import speed_stages
+    from dlacli.bench.speed_config import quick_config
+
+    ran = []
+    monkeypatch.setattr(speed_stages, "cli_seconds", lambda argv: (ran.append(argv), (2.0, True))[1])
+    cfg = quick_config()
+    cfg.repeats = 1
+    rows = S.run(["motion"], cfg, log=lambda s: None)
+    assert len(ran) == 2 and ran[0] == ran[1] and ran[1][:2] == ["motion", "from-video"]
+    assert all(check_row(dict(r)) == r for r in rows)
+    by_case = {r["case"]: r for r in rows}
+    assert list(by_case) == ["from_video_command", "from_video_detect", "from_video_fit", "from_video_process_cpu"]
+    frames = int(round(cfg.motion_seconds * 30)) + 1
+    assert all(r["items"] == frames and r["config"]["frames"] == frames and r["seconds"] > 0 for r in rows)
+    assert by_case["from_video_command"]["seconds"] == 2.0

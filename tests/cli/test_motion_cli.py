@@ -153,3 +153,62 @@ def test_preview_writes_a_readable_mp4(tmp_path):
     centre = np.stack(frames)[:, 8:56, 20:44].astype(float)
     assert centre.mean() > 1.5 * np.stack(frames)[:, :8, :8].astype(float).mean()
     assert not list(tmp_path.glob(".*tmp*"))  # the atomic writer left nothing behind
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--start", "2", "--end", "1"], "error: --end: must be after --start"),
+        (["--start", "5"], "error: --start: 5 s is at or after the video's end"),
+        (["--fps", "50"], "error: --fps: 50 is above the video's own rate"),
+    ],
+)
+def test_from_video_bad_options(tmp_path, monkeypatch, capsys, args, message):
+    from dlacli.io.video import write_video
+
+    clip = tmp_path / "clip.mp4"
+    write_video([np.zeros((32, 32, 3), np.uint8)] * 10, clip, 10)
+    out = tmp_path / "m.npz"
+    code, err = _main(monkeypatch, capsys, "motion", "from-video", str(clip), "-o", str(out), *args)
+    assert code == 2 and err.startswith(message) and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_from_video_not_a_video_and_no_person(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("mediapipe")
+    from dlacli.io.video import write_video
+
+    bad, out, preview = tmp_path / "clip.mp4", tmp_path / "m.npz", tmp_path / "p.mp4"
+    bad.write_bytes(b"\x00" * 100)
+    code, err = _main(monkeypatch, capsys, "motion", "from-video", str(bad), "-o", str(out))
+    assert code == 2 and "cannot read it as a video" in err and len(err.strip().splitlines()) == 1, err
+    empty = tmp_path / "empty.mp4"
+    write_video([np.full((32, 32, 3), 90, np.uint8)] * 4, empty, 10)
+    code, err = _main(
+        monkeypatch, capsys, "motion", "from-video", str(empty), "-o", str(out), "--preview", str(preview)
+    )
+    assert code == 2 and "no person found in any frame" in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists() and not preview.exists() and bad.read_bytes() == b"\x00" * 100
+
+
+def test_from_video_reports_filled_frames(tmp_path, monkeypatch, capsys):
+    """The command's thin layer: the stage's result (stubbed: no detector here) is written as a
+    motion and the frames with no person are reported on stderr, as ranges."""
+    from dlacli.io.video import write_video
+    from dlacli.stages import motion_video
+    from dlacli.stages.motion_video import ClipDetections, VideoMotion
+    from dlacli.types import Motion
+
+    clip = tmp_path / "clip.mp4"
+    write_video([np.zeros((32, 32, 3), np.uint8)] * 10, clip, 10)
+    found = np.ones(10, bool)
+    found[[0, 4, 5, 6]] = False
+    det = ClipDetections(np.zeros((10, 17, 3)), np.zeros((10, 17, 4)), found, 32, 32, 10.0, np.arange(10) / 10, [6])
+    motion = Motion(["head"], np.zeros((10, 1, 3)), np.zeros((10, 3)), np.zeros((10, 3)), 10.0)
+    stub = VideoMotion(motion, det, None, [(0, 0), (4, 6)], {"detect": 0.0, "fit": 0.0})
+    monkeypatch.setattr(motion_video, "video_to_motion", lambda clip, **kw: stub)
+    out = tmp_path / "m.npz"
+    code, err = _main(monkeypatch, capsys, "motion", "from-video", str(clip), "-o", str(out))
+    assert code in (0, None), err
+    assert "no person in 4 of 10 frames (0, 4-6, 1 of them showing another person" in err
+    assert read_motion(out).num_frames == 10

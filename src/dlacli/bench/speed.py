@@ -28,7 +28,11 @@ Suites (SUITES):
   stored keypoints), each run a fresh interpreter as a user runs it, and its stages in this
   process: detection, the body fit, framing + the views of the body and the shell backends,
   plausibility, and writing the folder (with the fit overlay); first_seconds is a stage's first
-  call in this process (detection: importing mediapipe; fit: building the body model).
+  call in this process (detection: importing mediapipe; fit: building the body model);
+- motion: `dla motion from-video` on a synthetic video of the built-in walk (data/video.py; 10 s at
+  30 fps, 320 px): the whole command in a fresh interpreter (rows carry the frame count as
+  `items`, so video frames per second = items / seconds), and in this process its detection, its
+  fit and the process's CPU seconds.
 Times are medians over `repeats` calls after one warm-up call, unless a row says repeats = 1
 (stages too slow to repeat). Speed is measured here, never asserted in tests.
 """
@@ -48,7 +52,15 @@ from dataclasses import replace
 from pathlib import Path
 
 from dlacli.bench.speed_config import DENSE_MAX_PAIRS, SUITES, SpeedConfig, cli_seconds, median_min
-from dlacli.bench.speed_stages import animate_suite, dream_suite, lift_suite, render_suite, usd_suite, view_suite
+from dlacli.bench.speed_stages import (
+    animate_suite,
+    dream_suite,
+    lift_suite,
+    motion_suite,
+    render_suite,
+    usd_suite,
+    view_suite,
+)
 
 # ------------------------------------------------------------------------------------ startup
 
@@ -380,6 +392,7 @@ def run(
         "render": lambda: render_suite(cfg, row, log),
         "view": lambda: view_suite(cfg, row, log),
         "dream": lambda: dream_suite(cfg, row, log),
+        "motion": lambda: motion_suite(cfg, row, log),
     }
     rows: list[dict] = []
     try:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 from dlacli.limits import DEFAULT_GAUSSIANS, FIT_STEPS
 
-SUITES = ("startup", "splat", "body", "lift", "animate", "usd", "render", "view", "dream")
+SUITES = ("startup", "splat", "body", "lift", "animate", "usd", "render", "view", "dream", "motion")
 _N = DEFAULT_GAUSSIANS
 SPLAT_CASES = ((2_048, 128), (20_000, 256), (20_000, 512), (65_536, 256), (65_536, 512), (_N, 256), (_N, 512))
 DENSE_MAX_PAIRS = 2_048 * 128 * 128  # Gaussians x pixels up to which the dense path runs
@@ -42,6 +42,9 @@ class SpeedConfig:
     usd_tolerances_mm: tuple[float, ...] = (0.0, 1.0)
     dream_res: int = 512  # dream: the views' size
     dream_fit_steps: int = FIT_STEPS  # dream: the body fit's steps (dream's default)
+    motion_clip: str = "walk"  # motion: the built-in motion the synthetic video shows
+    motion_res: int = 320  # motion: the synthetic video's size
+    motion_seconds: float = 10.0  # motion: its length (the clip forward and backward, at 30 fps)
     _cache: dict = field(default_factory=dict, repr=False)
 
 
@@ -59,6 +62,8 @@ def quick_config() -> SpeedConfig:
         usd_tolerances_mm=(0.0,),
         dream_res=64,
         dream_fit_steps=3,
+        motion_res=128,
+        motion_seconds=0.5,
     )
 
 

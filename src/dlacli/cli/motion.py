@@ -14,7 +14,7 @@ PREVIEW_MAX_FPS = 30.0  # a preview plays the motion at its own rate up to this
 
 motion_app = typer.Typer(
     name="motion",
-    help="Motions: convert CMU BVH / ASF-AMC / AMASS to motion.npz, preview any motion as mp4.",
+    help="Motions: convert CMU BVH / ASF-AMC / AMASS to motion.npz, fit one to a video, preview any motion as mp4.",
     no_args_is_help=True,
     add_completion=False,
 )
@@ -67,7 +67,60 @@ def preview(
     typer.echo(f"{output}  {motion.num_frames} frames at {video_fps:g} fps, {res}x{res}")
 
 
+def from_video(
+    video: Path = typer.Argument(..., metavar="VIDEO", help="A video of one person (any file ffmpeg reads)."),
+    output: Path = options.output("motion.npz to write.", (".npz",), "motion"),
+    fps: Optional[float] = options.resample_fps("Frame rate of the motion (default: the video's; at most it)."),
+    start: float = typer.Option(
+        0.0, "--start", min=0.0, callback=options.finite, help="Start, seconds into the video."
+    ),
+    end: Optional[float] = typer.Option(
+        None, "--end", min=0.0, callback=options.finite, help="End, seconds into the video (default: its end)."
+    ),
+    preview: Optional[Path] = options.side_output(
+        "--preview", "Also write an mp4 of the fitted body drawn over the clip.", (".mp4",), "video"
+    ),
+) -> None:
+    """Fit anny's motion to a video of a person (MediaPipe Pose per frame, one temporal fit)."""
+    from dlacli.cli.progress import progress_bar
+    from dlacli.io.atomic import check_outputs, output_group
+    from dlacli.io.motion import write_motion
+    from dlacli.io.video import open_video, write_video
+    from dlacli.stages.motion_video import preview_frames, video_to_motion
+
+    check_outputs(files=[output, preview], inputs=[video])
+    clip = open_video(video, fps=fps, start=start, end=end)
+    with progress_bar("from-video", clip.expected_frames) as update:
+        result = video_to_motion(
+            clip,
+            detect_progress=lambda done, total: update(done, total, "detecting"),
+            fit_progress=lambda done, total: update(done, total, "fitting"),
+        )
+    motion = result.motion
+    with output_group():  # the motion and its preview land together or not at all
+        write_motion(motion, output)
+        if preview is not None:
+            with progress_bar("preview", motion.num_frames) as update:
+                frames = preview_frames(clip, result)
+                write_video((update(k + 1) or f for k, f in enumerate(frames)), preview, motion.fps)
+    if result.missing:
+        spans = ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in result.missing[:10])
+        more = f" and {len(result.missing) - 10} more ranges" if len(result.missing) > 10 else ""
+        count = sum(b - a + 1 for a, b in result.missing)
+        other = len(result.detections.switched)
+        note = f", {other} of them showing another person than the tracked one" if other else ""
+        typer.echo(
+            f"warning: no person in {count} of {motion.num_frames} frames ({spans}{more}{note}): interpolated", err=True
+        )
+    det, sec = result.detections, result.seconds
+    typer.echo(
+        f"{output}  {motion.num_frames} frames at {motion.fps:g} fps from {det.width}x{det.height} video"
+        f"  (detect {sec['detect']:.1f} s, fit {sec['fit']:.1f} s)"
+    )
+
+
 motion_app.command("convert")(convert)
+motion_app.command("from-video")(from_video)
 motion_app.command("preview")(preview)
 
 

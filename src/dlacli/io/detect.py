@@ -92,6 +92,38 @@ def quiet_fd2() -> Iterator[None]:
         os.close(saved)
 
 
+@contextlib.contextmanager
+def native_stderr_quiet() -> Iterator[None]:
+    """Inside the block, file descriptor 2 goes to the null device (what MediaPipe's C++ threads
+    log, also after a call returned) while Python's `sys.stderr` writes to the original stderr
+    (so progress bars and warnings still show). Restored afterwards, also when the block raises."""
+    import io
+
+    with contextlib.suppress(Exception):
+        sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:
+        yield
+        return
+    old = sys.stderr
+    stream = io.TextIOWrapper(os.fdopen(os.dup(saved), "wb", buffering=0), write_through=True)
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, 2)
+        finally:
+            os.close(null)
+        sys.stderr = stream
+        yield
+    finally:
+        sys.stderr = old
+        with contextlib.suppress(Exception):
+            stream.close()
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 class _Deferred(types.ModuleType):
     """A stand-in for a module that is not imported yet: the first attribute it lacks imports the
     real module, which then replaces it in sys.modules and on its parent package, and is what
@@ -175,12 +207,60 @@ def detect_person(image: np.ndarray, alpha: np.ndarray | None = None) -> Detecti
             result = pose.process(img)
     if result.pose_landmarks is None:
         raise DlaInputError("image", NO_PERSON)
+    if result.segmentation_mask is None:  # pragma: no cover - enable_segmentation is set
+        raise DlaInputError("image", "mediapipe returned no person mask")
+    det = _detection(result, h, w)
+    if det is None:  # pragma: no cover - non-finite landmarks
+        raise DlaInputError("image", NO_PERSON)
+    return det
+
+
+class PoseTracker:
+    """MediaPipe Pose in video mode over the frames of one clip (`with PoseTracker() as t:
+    t(frame)`): after a first detection it follows the person's region from frame to frame, so a
+    second person who enters is not switched to while the first stays in view (the legacy Pose
+    solution returns one person). `__call__(frame [H, W, 3] uint8) -> Detection | None` (None: no
+    person in this frame)."""
+
+    def __init__(self) -> None:
+        self._pose = None
+        self._quiet = None
+
+    def __enter__(self) -> PoseTracker:
+        self._quiet = native_stderr_quiet()  # for the tracker's whole life: its threads log late
+        self._quiet.__enter__()
+        try:
+            mp = _import_mediapipe()
+            self._pose = mp.solutions.pose.Pose(
+                static_image_mode=False, model_complexity=1, enable_segmentation=True, smooth_landmarks=False
+            )
+        except BaseException:
+            self._quiet.__exit__(None, None, None)
+            raise
+        return self
+
+    def __exit__(self, *exc) -> None:
+        try:
+            if self._pose is not None:
+                self._pose.close()
+                self._pose = None
+        finally:
+            self._quiet.__exit__(None, None, None)
+
+    def __call__(self, frame: np.ndarray) -> Detection | None:
+        img = to_uint8(frame)
+        result = self._pose.process(img)
+        return _detection(result, *img.shape[:2])
+
+
+def _detection(result, h: int, w: int) -> Detection | None:
+    """MediaPipe's result for an h x w image -> Detection, or None when it found no person."""
+    if result.pose_landmarks is None or result.segmentation_mask is None:
+        return None
     lms = result.pose_landmarks.landmark
     kp = np.zeros((len(BLAZEPOSE_TO_COCO), 3), np.float32)
     for k, i in enumerate(BLAZEPOSE_TO_COCO):
         kp[k] = (lms[i].x * w, lms[i].y * h, np.clip(lms[i].visibility, 0.0, 1.0))
-    if result.segmentation_mask is None:  # pragma: no cover - enable_segmentation is set
-        raise DlaInputError("image", "mediapipe returned no person mask")
     mask = np.clip(np.asarray(result.segmentation_mask, dtype=np.float32), 0.0, 1.0)
     world = None
     if getattr(result, "pose_world_landmarks", None) is not None:
@@ -190,6 +270,8 @@ def detect_person(image: np.ndarray, alpha: np.ndarray | None = None) -> Detecti
             world[k] = (wl[i].x, wl[i].y, wl[i].z, kp[k, 2])
         if not np.all(np.isfinite(world)):  # pragma: no cover - defensive
             world = None
+    if not np.all(np.isfinite(kp)):  # pragma: no cover - defensive
+        return None
     return Detection(mask, kp, world)
 
 

@@ -1,0 +1,73 @@
+"""Streamed video reading (io/video.open_video): frames, --start/--end/--fps selection, bad input.
+
+The oracle: a tiny mp4 written here whose frame i is a flat grey of level 8 i, so every decoded
+frame says which source frame it is (H.264 keeps flat greys within +-2 levels)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dlacli.errors import DlaInputError
+from dlacli.io.video import open_video, write_video
+
+FPS = 25
+COUNT = 25
+
+
+@pytest.fixture(scope="module")
+def grey_clip(tmp_path_factory):
+    path = tmp_path_factory.mktemp("video") / "grey.mp4"
+    write_video([np.full((32, 48, 3), 8 * i, np.uint8) for i in range(COUNT)], path, FPS)
+    return path
+
+
+def _which(frame: np.ndarray) -> int:
+    return int(round(float(frame.mean()) / 8.0))
+
+
+def test_reads_every_frame_in_order(grey_clip):
+    clip = open_video(grey_clip)
+    assert (clip.width, clip.height, clip.source_fps, clip.fps) == (48, 32, FPS, FPS)
+    got = [(k, t, _which(f), f.shape, f.dtype) for k, t, f in clip]
+    assert [g[0] for g in got] == list(range(COUNT))
+    assert [g[2] for g in got] == list(range(COUNT))
+    np.testing.assert_allclose([g[1] for g in got], np.arange(COUNT) / FPS)
+    assert all(g[3] == (32, 48, 3) and g[4] == np.uint8 for g in got)
+    assert clip.expected_frames == COUNT
+    assert [_which(f) for _, _, f in clip] == list(range(COUNT))  # a second pass decodes again
+
+
+def test_start_end_and_resampling(grey_clip):
+    clip = open_video(grey_clip, start=0.2, end=0.6)  # source frames 5..14 (t < 0.6)
+    assert [_which(f) for _, _, f in clip] == list(range(5, 15))
+    clip = open_video(grey_clip, fps=5)  # every 5th source frame: the nearest to k / 5 s
+    got = list(clip)
+    assert [_which(f) for _, _, f in got] == [0, 5, 10, 15, 20]
+    np.testing.assert_allclose([t for _, t, _ in got], np.arange(5) / 5)
+    clip = open_video(grey_clip, fps=10, start=0.4)  # nearest source frame to 0.4 + k / 10 s (ties: the later)
+    assert [_which(f) for _, _, f in clip] == [10, 13, 15, 18, 20, 23]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "where"),
+    [
+        ({"start": 1.0, "end": 0.5}, "--end"),
+        ({"start": 2.0}, "--start"),
+        ({"fps": 50.0}, "--fps"),
+        ({"start": -1.0}, "--start"),
+    ],
+)
+def test_bad_options(grey_clip, kwargs, where):
+    with pytest.raises(DlaInputError) as err:
+        open_video(grey_clip, **kwargs)
+    assert err.value.where == where
+
+
+def test_not_a_video(tmp_path):
+    bad = tmp_path / "clip.mp4"
+    bad.write_text("not a video")
+    with pytest.raises(DlaInputError, match="cannot read it as a video"):
+        open_video(bad)
+    with pytest.raises(DlaInputError, match="no such file"):
+        open_video(tmp_path / "missing.mp4")
