@@ -133,7 +133,9 @@ def lift(
         from dlacli.stages.budget import choose_for_views
 
         with options.naming(views=views, pose=body, phenotype=body):
-            result.avatar, choice = choose_for_views(result.avatar, view_set, checkpoint=ckpt)
+            # the network the avatar's decoder names (the residual lift's network is no decoder)
+            decoder_ckpt = ckpt if result.avatar.checkpoint else None
+            result.avatar, choice = choose_for_views(result.avatar, view_set, checkpoint=decoder_ckpt)
         typer.echo(
             f"note: --gaussians auto: {choice.count:,} Gaussians (input views, masked PSNR "
             f"{choice.scores[choice.count]:.2f} dB, best {max(choice.scores.values()):.2f})",

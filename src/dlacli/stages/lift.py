@@ -115,6 +115,23 @@ def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128
     views: the view folder; vertices [V, 3] the fitted body in the input pose.
     -> (Gaussians, view index per Gaussian [N] int64, camera centre per Gaussian [N, 3]).
     """
+    return _unstructured(views, vertices, grid)[:3]
+
+
+@dataclass
+class HullDepth:
+    """What step a. measured along the rays of a grid x grid downsampling of every view: the
+    camera depth [V, gh, gw] where each masked pixel's ray enters the visual hull of the other
+    views (inf off the mask or where it never does) and the body's depth there (inf off the
+    body), for the cameras of that grid."""
+
+    hull: np.ndarray
+    body: np.ndarray
+    cameras: Cameras
+
+
+def _unstructured(views: ViewSet, vertices: np.ndarray, grid: int):
+    """`unstructured_gaussians` plus the HullDepth it measured on the way."""
     from dlacli.body.model import get_body_model
     from dlacli.render.raster import rasterize
 
@@ -127,6 +144,7 @@ def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128
     centre = vertices.mean(axis=0)
     radius = float(np.linalg.norm(vertices - centre, axis=1).max()) + 0.4
     out_means, out_rgb, out_alpha, out_scale, out_view, out_eye = [], [], [], [], [], []
+    hulls = np.full((len(views), gh, gw), np.inf)
     for v in range(len(views)):
         alpha = _block_mean(views.masks[v], stride)  # [gh, gw]
         rgb = _block_mean(views.images[v] * views.masks[v][..., None], stride)
@@ -142,6 +160,7 @@ def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128
         dirs = np.stack([xc, yc, np.ones_like(xc)], -1) @ c2w[:3, :3].T  # camera z = 1 per unit
         origin = c2w[:3, 3]
         hull = _hull_depth(origin, dirs, views, v, centre, radius)
+        hulls[v][rows, cols] = hull
         bdepth = body.depth[v][rows, cols].astype(np.float64)
         depth = np.where(np.isfinite(bdepth), np.maximum(hull, bdepth - CLOTH_MARGIN), hull)
         if not np.isfinite(hull).all():  # rays that miss the hull (inconsistent masks): use the body
@@ -169,7 +188,7 @@ def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128
         torch.from_numpy(np.concatenate(out_alpha)).float().clamp(0.0, 1.0),
         torch.from_numpy(np.concatenate(out_rgb)).float().clamp(0.0, 1.0),
     )
-    return gaussians, np.concatenate(out_view), np.concatenate(out_eye)
+    return gaussians, np.concatenate(out_view), np.concatenate(out_eye), HullDepth(hulls, body.depth, cams)
 
 
 # --------------------------------------------------------------------------- b. unprojection
@@ -403,7 +422,7 @@ def lifted_posed(fmap: np.ndarray, falloff: float, vertices: np.ndarray, cameras
     from dlacli.avatar.posed import PosedAvatar
     from dlacli.geometry import camera_centers
 
-    z = torch.from_numpy(fmap).float()
+    z = torch.as_tensor(fmap, dtype=torch.float32)  # a tensor stays differentiable (training renders through it)
     decoder = IdentityDecoder()
     if falloff:
         z, decoder = torch.cat([z, torch.full((1, *fmap.shape[1:]), float(falloff))]), ViewCosineDecoder()
@@ -536,35 +555,74 @@ def sheet_and_novel_view(views: ViewSet, novel: ViewSet | None, render):
     return contact_sheet(inputs, renders), novel_view
 
 
-def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: ViewSet | None = None) -> LiftResult:
-    """A view folder (with body.json) -> avatar (Z = the Gaussian map F), the unstructured
-    Gaussians and a contact sheet. `novel`: ground-truth views of the same pose that lift does not
-    see (synth's novel_views/); the first one joins the contact sheet as a fifth column and is
-    returned rendered (`LiftResult.novel_view`) for scoring."""
-    from dlacli.body.model import get_body_model
-    from dlacli.body.uv import UV_LAYOUT
+@dataclass
+class Unprojected:
+    """What mesh unprojection makes of a view folder: the lift with 0 steps (a, b and the bake)."""
 
-    cfg = cfg or LiftConfig()
+    vertices: np.ndarray  # [V, 3] the body in the input pose
+    unstructured: Gaussians  # step a's pose-space Gaussians
+    depth: np.ndarray  # [V, H, W] the body's camera depth in the views (inf off it)
+    hull: HullDepth  # step a's visual-hull depths
+    fmap: np.ndarray  # [14, R, R] float32: F, colours baked
+    falloff: float  # the views' view falloff k (0: the identity decoder)
+
+
+def unprojection(views: ViewSet, cfg: LiftConfig) -> Unprojected:
+    """Steps a and b and the colour bake: everything `lift` does before refining."""
+    from dlacli.body.model import get_body_model
+
     if views.body is None:
         raise DlaInputError("views", "lift needs body.json beside transforms.json")
     if len(views) > MAX_VIEWS:
         raise DlaInputError("views", f"has {len(views)} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
     vertices = get_body_model().forward_body(views.body).vertices[0].numpy()
-    unstructured, _, eyes = unstructured_gaussians(views, vertices, cfg.grid)
+    unstructured, _, eyes, hull = _unstructured(views, vertices, cfg.grid)
     depth = body_depth_maps(vertices, views)  # for the bakes and the falloff
     fmap = unproject_to_uv(unstructured, eyes, vertices, cfg.resolution)
     falloff = view_falloff(fmap, views, vertices, depth) if cfg.view_colour else 0.0
     falloff = falloff if abs(falloff) >= MIN_FALLOFF else 0.0
     fmap = bake_colours(fmap, views, vertices, depth, falloff)
+    return Unprojected(vertices, unstructured, depth, hull, fmap, falloff)
+
+
+def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: ViewSet | None = None) -> LiftResult:
+    """A view folder (with body.json) -> avatar (Z = the Gaussian map F), the unstructured
+    Gaussians and a contact sheet. `novel`: ground-truth views of the same pose that lift does not
+    see (synth's novel_views/); the first one joins the contact sheet as a fifth column and is
+    returned rendered (`LiftResult.novel_view`) for scoring."""
+    cfg = cfg or LiftConfig()
+    base = unprojection(views, cfg)
+    return finish_lift(views, cfg, base, base.fmap, progress, novel)
+
+
+def finish_lift(
+    views: ViewSet,
+    cfg: LiftConfig,
+    base: Unprojected,
+    fmap: np.ndarray,
+    progress=None,
+    novel: ViewSet | None = None,
+    encoder: str = ENCODER,
+    rebake: bool = True,
+    extra: dict | None = None,
+) -> LiftResult:
+    """The lift's end from a Gaussian map F [14, R, R] on the body of `base`: cfg.steps of
+    refinement (colours re-baked after it when `rebake`), the contact sheet, and the avatar
+    (identity or view-cosine decoder) that records `encoder` and `extra` beside the lift's own."""
+    from dlacli.body.uv import UV_LAYOUT
+
+    vertices, depth, falloff = base.vertices, base.depth, base.falloff
     samples = gm.make_samples(cfg.gaussians, cfg.seed)  # the Gaussians refined and shown
     history: list[float] = []
     if cfg.steps > 0:
         fmap, history = refine(fmap, views, vertices, cfg, progress, samples, falloff)
-        fmap = bake_colours(fmap, views, vertices, depth, falloff)  # colours where the refined geometry puts them
+        if rebake:
+            fmap = bake_colours(fmap, views, vertices, depth, falloff)  # colours where the refined geometry puts them
     sheet, novel_view = sheet_and_novel_view(
         views, novel, lambda cams: render_views(fmap, vertices, cams, samples, falloff)[0].numpy()
     )
     extra = {
+        **(extra or {}),
         "lift": {
             "steps": cfg.steps,
             "grid": cfg.grid,
@@ -577,5 +635,5 @@ def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: Vi
     z, decoder = fmap, DECODER
     if falloff:  # colour depends on the view: the view-cosine decoder, k in z's last channel
         z, decoder = np.concatenate([fmap, np.full((1, *fmap.shape[1:]), falloff, np.float32)]), VIEW_DECODER
-    avatar = Avatar(z=z, encoder=ENCODER, decoder=decoder, body=views.body, uv_layout=UV_LAYOUT, extra=extra)
-    return LiftResult(avatar, unstructured, sheet, novel_view)
+    avatar = Avatar(z=z, encoder=encoder, decoder=decoder, body=views.body, uv_layout=UV_LAYOUT, extra=extra)
+    return LiftResult(avatar, base.unstructured, sheet, novel_view)

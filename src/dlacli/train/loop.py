@@ -531,7 +531,7 @@ def draw_losses(record: dict, path: Path) -> None:
     hist = record["history"]
     steps = [h["step"] for h in hist]
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4))
-    for key in ("total", "l1", "ug", "mask", "perceptual", "gan", "kl", "delta", "disc"):
+    for key in ("total", "l1", "ug", "mask", "ssim", "perceptual", "gan", "kl", "delta", "disc"):
         pts = [(h["step"], h[key]) for h in hist if key in h and h[key] > 0]
         if pts:
             ax.plot(*zip(*pts), label=key, lw=1)
