@@ -36,7 +36,6 @@ from torch import nn
 from dlacli.errors import DlaInputError
 from dlacli.train.loop import (
     FORMAT,
-    World,
     _all_reduce_mean,
     _global_batch,
     _psnr,
