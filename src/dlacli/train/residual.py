@@ -1,9 +1,8 @@
 """`dla train --method residual`: the residual lift's network (nn/residual.py) trained through
 skinning and splatting on novel views and novel poses of synthetic subjects.
 
-Per subject, what the network does not change is computed once and cached in the run folder
-(`cache/<subject>-<key>.npz`, key = the inputs' code version and lift settings): the unprojected
-map F, its observation features and its view falloff (stages/residual.residual_inputs on the
+Per subject, what the network does not change is computed once and cached (`precomputed`): the
+unprojected map F, its observation features and its view falloff (stages/residual.residual_inputs on the
 subject's input views). One step, per item of the batch: F' = F + corrections(F, features);
 F' is placed on each target's posed body as the residual lift's avatar is (stages/lift.lifted_posed:
 identity or view-cosine decoder) and splatted at the target camera; losses against the target:
@@ -104,15 +103,20 @@ def _lift_config(cfg: ResidualTrainConfig):
     return LiftConfig(resolution=cfg.resolution, gaussians=cfg.gaussians, steps=0)
 
 
-def precomputed(folder: Path, cache: Path, cfg: ResidualTrainConfig) -> Precomputed:
-    """A subject's unprojection and features, from the cache or computed (and cached) now."""
+def precomputed(folder: Path, cfg: ResidualTrainConfig) -> Precomputed:
+    """A subject's unprojection and features, from the cache or computed (and cached) now. The
+    cache (dla's cache folder, `residual_inputs/`) is keyed by the subject folder (its path and
+    its files' times and sizes), the code version and the lift settings, so runs share it."""
     from dlacli.io.atomic import atomic_path
     from dlacli.io.views import read_views
+    from dlacli.paths import cache_dir
     from dlacli.stages.residual import residual_inputs
 
     lcfg = _lift_config(cfg)
-    key = hashlib.sha256(repr((INPUTS_VERSION, asdict(lcfg))).encode()).hexdigest()[:12]
-    path = cache / f"{folder.name}-{key}.npz"
+    folder = Path(folder).resolve()
+    stamps = [(f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in sorted(folder.glob("*.json"))]
+    key = hashlib.sha256(repr((INPUTS_VERSION, asdict(lcfg), str(folder), stamps)).encode()).hexdigest()[:20]
+    path = cache_dir("residual_inputs") / f"{folder.name}-{key}.npz"
     if path.is_file():
         try:
             with np.load(path) as z:
@@ -121,7 +125,6 @@ def precomputed(folder: Path, cache: Path, cfg: ResidualTrainConfig) -> Precompu
             pass  # a damaged cache file is recomputed
     inputs = residual_inputs(read_views(folder), lcfg)
     out = Precomputed(torch.from_numpy(inputs.base.fmap), torch.from_numpy(inputs.features), inputs.base.falloff)
-    cache.mkdir(parents=True, exist_ok=True)
     with atomic_path(path, cache=True) as tmp:
         with open(tmp, "wb") as f:
             np.savez(f, fmap=out.fmap.numpy(), features=out.features.numpy(), falloff=np.float64(out.falloff))
@@ -191,8 +194,8 @@ class Validator:
     novel views and novel poses (VAL_TARGETS) of validation subjects; unprojection's renders are
     made once."""
 
-    def __init__(self, data, folders: list[Path], cache: Path, cfg: ResidualTrainConfig, samples):
-        self.data, self.folders, self.cache, self.cfg, self.samples = data, folders, cache, cfg, samples
+    def __init__(self, data, folders: list[Path], cfg: ResidualTrainConfig, samples):
+        self.data, self.folders, self.cfg, self.samples = data, folders, cfg, samples
         self._base: dict[int, tuple] = {}
 
     def _item(self, i: int):
@@ -206,7 +209,7 @@ class Validator:
         rows = []
         for i in range(len(self.data)):
             it = self._item(i)
-            p = precomputed(self.folders[i], self.cache, self.cfg)
+            p = precomputed(self.folders[i], self.cfg)
             out, _ = net(p.fmap[None], p.features[None])
             gt, mask = it.target_rgb.permute(0, 2, 3, 1), it.target_mask[:, 0]
             renders = {}
@@ -292,7 +295,7 @@ def train_residual(
     world = init_world()
     say = (log or (lambda line: print(line, file=sys.stderr, flush=True))) if world.main else (lambda line: None)
     out = Path(out)
-    record_path, cache = out / "train.json", out / "cache"
+    record_path = out / "train.json"
     ncfg = net_config(cfg)
     settings = _settings(cfg, str(data))
     if resume:
@@ -333,7 +336,7 @@ def train_residual(
         run = DDP(loss)
     else:
         run = loss
-    validator = Validator(val, [folders[s] for s in val_ids], cache, cfg, samples) if val is not None else None
+    validator = Validator(val, [folders[s] for s in val_ids], cfg, samples) if val is not None else None
     if world.main:
         out.mkdir(parents=True, exist_ok=True)
     start = int(record["step"])
@@ -343,7 +346,7 @@ def train_residual(
     for step in range(start, stop):
         picks, slots = _global_batch(cfg, step, len(full), world)
         items = [full.item(i, np.random.default_rng([cfg.seed, step, s, 1])) for i, s in zip(picks, slots)]
-        pre = [precomputed(folders[full.subjects[i]], cache, cfg) for i in picks]
+        pre = [precomputed(folders[full.subjects[i]], cfg) for i in picks]
         opt.zero_grad(set_to_none=True)
         total, parts = run(items, pre)
         total.backward()
