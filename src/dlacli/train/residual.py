@@ -21,6 +21,7 @@ unprojection, residual). Validation: masked PSNR and IoU of the residual and of 
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import shutil
 import sys
@@ -60,6 +61,7 @@ class ResidualTrainConfig:
     resolution: int = 128  # UV side of the unprojected map F
     gaussians: int = 32_768  # Gaussians sampled from F per render
     lr: float = 1e-3
+    lr_final: float = 0.1  # the learning rate falls to lr * lr_final along a half cosine
     betas: tuple[float, float] = (0.9, 0.999)
     w_l1: float = 1.0
     w_mask: float = 1.0
@@ -74,6 +76,11 @@ class ResidualTrainConfig:
     @property
     def total_steps(self) -> int:
         return self.steps
+
+    def lr_at(self, step: int) -> float:
+        """The learning rate of step `step` (0-based): a half cosine from lr to lr * lr_final."""
+        frac = step / max(self.steps - 1, 1)
+        return self.lr * (self.lr_final + (1.0 - self.lr_final) * 0.5 * (1.0 + math.cos(math.pi * frac)))
 
 
 def net_config(cfg: ResidualTrainConfig):
@@ -347,6 +354,8 @@ def train_residual(
         picks, slots = _global_batch(cfg, step, len(full), world)
         items = [full.item(i, np.random.default_rng([cfg.seed, step, s, 1])) for i, s in zip(picks, slots)]
         pre = [precomputed(folders[full.subjects[i]], cfg) for i in picks]
+        for group in opt.param_groups:
+            group["lr"] = cfg.lr_at(step)
         opt.zero_grad(set_to_none=True)
         total, parts = run(items, pre)
         total.backward()
