@@ -53,7 +53,8 @@ def one_subject(tmp_path_factory):
     return synth(3, tmp_path_factory.mktemp("one") / "s3", res=64, novel_views=6, novel_poses=1, appearance="lit")
 
 
-def test_overfitting_one_subject_beats_unprojection_on_its_held_out_views(one_subject, tmp_path):
+@pytest.mark.slow
+def test_overfitting_one_subject_beats_unprojection_on_its_held_out_views(one_subject):
     """The issue's first probe, small: train on 4 novel views and the novel poses of one subject,
     hold out 2 novel views. The decoder's own image loss on its training targets (masked L1 +
     mask + D-SSIM of its renders, no penalty) falls by more than half, its masked L1 alone
@@ -84,8 +85,8 @@ def test_overfitting_one_subject_beats_unprojection_on_its_held_out_views(one_su
 
     before = image_loss()
     rng = np.random.default_rng(0)
-    for _ in range(40):
-        item = data.item_at(0, rng.choice(train_pick, size=3, replace=False))
+    for _ in range(30):
+        item = data.item_at(0, rng.choice(train_pick, size=2, replace=False))
         opt.zero_grad()
         loss([item], [pre])[0].backward()
         opt.step()
