@@ -150,3 +150,84 @@ def test_cli_lift_residual_then_render(subject, untrained, tmp_path):
     r = _dla("lift", subject, "--method", "residual", "-o", tmp_path / "b.npz", env=env)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "checkpoint=" in r.stderr, r.stderr
     assert not (tmp_path / "b.npz").exists()
+
+
+# ---------------------------------------------------------------------------- F_delta, the colour gain
+
+
+def _gain_net(seed: int = 3, trained: bool = False):
+    from dataclasses import replace
+
+    from dlacli.nn.residual import ResidualNet
+
+    torch.manual_seed(seed)
+    net = ResidualNet(replace(_config(), gain=True))
+    if trained:  # stand-in for training: every head non-zero
+        for head in (net.head, net.gain_head):
+            torch.nn.init.normal_(head.weight, std=0.3)
+    return net.eval()
+
+
+def _pose_and_rays(seed: int, res: int = 16):
+    from dlacli.avatar.codec import PoseConditioning
+
+    g = torch.Generator().manual_seed(seed)
+    normals = torch.nn.functional.normalize(torch.randn(3, res, res, generator=g), dim=0)
+    rays = torch.cat([torch.nn.functional.normalize(torch.randn(3, res, res, generator=g), dim=0)] * 2)
+    return PoseConditioning(0.1 * torch.randn(3, res, res, generator=g), normals), rays
+
+
+def test_gain_is_one_at_initialisation_and_without_conditioning_and_moves_with_pose_and_rays():
+    from dlacli.avatar.codec import ViewCosineDecoder
+
+    res = 16
+    fmap, feats = torch.rand(1, 14, res, res), torch.randn(1, _config().features, res, res)
+    pose, rays = _pose_and_rays(0, res)
+    fresh = _gain_net()
+    with torch.no_grad():
+        z, _ = fresh.encode(fmap, feats, 0.3)
+        z = z[0]
+        assert z.shape == (14 + 1 + fresh.config.light_channels, res, res)
+        assert torch.equal(fresh.gain(z, pose, rays), torch.ones(3, res, res))  # untrained: exactly 1
+        # ... so the decoder is the view-cosine decoder bit for bit
+        assert torch.equal(fresh.delta(z, pose, rays), ViewCosineDecoder().delta(z[:15], pose, rays))
+        assert torch.equal(fresh.canonical(z), z[:14])
+        trained = _gain_net(trained=True)
+        z, _ = trained.encode(fmap, feats, 0.3)
+        z = z[0]
+        assert torch.equal(trained.gain(z, None, rays), torch.ones(3, res, res))  # conditioning off
+        assert trained.delta(z, pose, None) is None and trained.delta(z, None, rays) is None
+        g = trained.gain(z, pose, rays)
+        assert float((g - 1).abs().max()) > 1e-3 and float(g.min()) >= 0.5 and float(g.max()) <= 2.0
+        other_pose, other_rays = _pose_and_rays(1, res)
+        assert float((trained.gain(z, other_pose, rays) - g).abs().max()) > 1e-4  # the pose maps move it
+        assert float((trained.gain(z, pose, other_rays) - g).abs().max()) > 1e-4  # the rays move it
+        moved = pose.__class__(pose.relative_positions + 0.2, pose.normals)
+        assert float((trained.gain(z, moved, rays) - g).abs().max()) > 1e-4  # relative positions too
+
+
+@pytest.mark.slow
+def test_cli_lift_residual_with_gain_then_render(subject, tmp_path):
+    """An untrained gain network: the avatar's F is unprojection's bit for bit, it names the
+    residual-gain decoder and its checkpoint, and `dla render` finds the network by hash."""
+    from dlacli.avatar.checkpoint import save_checkpoint
+    from dlacli.io.avatar import read_avatar
+    from dlacli.paths import cache_dir
+    from dlacli.stages.methods import make_spec
+
+    net = _gain_net()
+    digest = save_checkpoint(tmp_path / "ck", net, net.config)
+    env = {**os.environ, "DLA_CACHE_DIR": str(tmp_path / "cache"), "ANNY_CACHE_DIR": str(cache_dir("anny"))}
+    out = tmp_path / "g.npz"
+    r = _dla("lift", subject, "--method", f"residual:checkpoint={tmp_path / 'ck'}", "-o", out, env=env)
+    assert r.returncode == 0, r.stderr
+    avatar = read_avatar(out)
+    assert avatar.decoder == "residual-gain" and avatar.checkpoint == digest
+    from dlacli.io.views import read_views
+
+    views = read_views(subject)  # bit for bit before the file's float16 storage
+    gained = make_spec("residual", checkpoint=str(tmp_path / "ck")).lift(views).avatar
+    base = make_spec("unproject", steps=0, resolution=RES, gaussians=GAUSSIANS).lift(views).avatar
+    assert torch.equal(torch.from_numpy(gained.z[:14]), torch.from_numpy(base.z[:14]))
+    r = _dla("render", out, "-o", tmp_path / "frames", "--turntable", "2", "--size", "48", env=env)
+    assert r.returncode == 0, r.stderr

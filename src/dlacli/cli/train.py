@@ -95,6 +95,11 @@ def train(
         "MS-SSIM.",
     ),
     seed: int = options.seed("Seed of initialisation, data order and noise.", default=0, maximum=MAX_TRAIN_SEED),
+    gain: bool = typer.Option(
+        False,
+        "--gain",
+        help="Residual only: also train F_delta, a colour gain conditioned on the target pose and rays.",
+    ),
 ) -> None:
     """Train the learned avatar networks end to end through skinning and splatting.
 
@@ -119,9 +124,11 @@ def train(
             raise DlaInputError(flag, "applies to --method learned only (residual trains one stage)")
         _train_residual(
             data, output, preset or "small", resume, steps_full, full_size, batch, targets, lr_g, validation,
-            eval_every, checkpoint_every, seed,
+            eval_every, checkpoint_every, seed, gain,
         )  # fmt: skip
         return
+    if gain:
+        raise DlaInputError("--gain", "applies to --method residual only")
     preset = preset or "tiny"
     if preset not in PRESET_NAMES:
         raise DlaInputError("--preset", f"unknown preset {preset!r} (available: {', '.join(PRESET_NAMES)})")
@@ -169,7 +176,7 @@ _RESIDUAL = dict(steps=2000, size=128, batch=2, targets=4, lr=1e-3)  # docs/trai
 
 
 def _train_residual(
-    data, output, preset, resume, steps, size, batch, targets, lr, validation, eval_every, checkpoint_every, seed
+    data, output, preset, resume, steps, size, batch, targets, lr, validation, eval_every, checkpoint_every, seed, gain
 ) -> None:
     import os
 
@@ -182,6 +189,7 @@ def _train_residual(
         eval_every=eval_every,
         checkpoint_every=checkpoint_every,
         seed=seed,
+        gain=gain,
         **{**_RESIDUAL, **{k: v for k, v in given.items() if v is not None}},
     )
     net_config(cfg)  # an unknown preset is refused before any work

@@ -572,10 +572,13 @@ def finish_lift(
     encoder: str = ENCODER,
     rebake: bool = True,
     extra: dict | None = None,
+    code=None,
 ) -> LiftResult:
     """The lift's end from a Gaussian map F [14, R, R] on the body of `base`: cfg.steps of
     refinement (colours re-baked after it when `rebake`), the contact sheet, and the avatar
-    (identity or view-cosine decoder) that records `encoder` and `extra` beside the lift's own."""
+    that records `encoder` and `extra` beside the lift's own. Its decoder is identity or
+    view-cosine (z = F, or F and the falloff), unless `code(F)` -> (z, decoder name, checkpoint
+    hash, render(cameras) -> rgb [C, H, W, 3] numpy) says otherwise."""
     from dlacli.body.uv import UV_LAYOUT
 
     vertices, depth, falloff = base.vertices, base.depth, base.falloff
@@ -585,9 +588,14 @@ def finish_lift(
         fmap, history = refine(fmap, views, vertices, cfg, progress, samples, falloff)
         if rebake:
             fmap = bake_colours(fmap, views, vertices, depth, falloff)  # colours where the refined geometry puts them
-    sheet, novel_view = sheet_and_novel_view(
-        views, novel, lambda cams: render_views(fmap, vertices, cams, samples, falloff)[0].numpy()
-    )
+    if code is None:
+        z, decoder, checkpoint = fmap, DECODER, ""
+        if falloff:  # colour depends on the view: the view-cosine decoder, k in z's last channel
+            z, decoder = np.concatenate([fmap, np.full((1, *fmap.shape[1:]), falloff, np.float32)]), VIEW_DECODER
+        render = lambda cams: render_views(fmap, vertices, cams, samples, falloff)[0].numpy()  # noqa: E731
+    else:
+        z, decoder, checkpoint, render = code(fmap)
+    sheet, novel_view = sheet_and_novel_view(views, novel, render)
     extra = {
         **(extra or {}),
         "lift": {
@@ -599,8 +607,5 @@ def finish_lift(
         },
         "samples": {"count": cfg.gaussians, "seed": cfg.seed},
     }  # what render/animate draw by default
-    z, decoder = fmap, DECODER
-    if falloff:  # colour depends on the view: the view-cosine decoder, k in z's last channel
-        z, decoder = np.concatenate([fmap, np.full((1, *fmap.shape[1:]), falloff, np.float32)]), VIEW_DECODER
-    avatar = Avatar(z=z, encoder=encoder, decoder=decoder, body=views.body, uv_layout=UV_LAYOUT, extra=extra)
+    avatar = Avatar(z, encoder, decoder, views.body, UV_LAYOUT, checkpoint, extra=extra)
     return LiftResult(avatar, base.unstructured, sheet, novel_view)

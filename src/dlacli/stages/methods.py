@@ -373,11 +373,22 @@ register(
         install=_install_learned,
     )
 )
+
+
+def _install_residual(config: ResidualConfig) -> None:
+    """A residual network with the colour gain is its avatars' decoder, found by hash elsewhere."""
+    from dlacli.avatar.checkpoint import install_checkpoint, resolve_checkpoint
+    from dlacli.stages.residual import SHIPPED
+
+    install_checkpoint(SHIPPED if config.checkpoint is None else resolve_checkpoint(config.checkpoint))
+
+
 register(
     Method(
         "residual",
         ResidualConfig,
         _lift_residual,
         "mesh unprojection corrected by a small trained UV network (checkpoint=PATH or the shipped weights)",
+        install=_install_residual,
     )
 )

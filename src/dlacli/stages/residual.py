@@ -91,6 +91,41 @@ def lift_residual(
     options = {"resolution": net.config.resolution, "gaussians": net.config.gaussians, **lift_options}
     cfg = LiftConfig(steps=steps, **options)
     inputs = residual_inputs(views, cfg)
-    fmap = corrected_map(net, inputs)
-    extra = {"residual": {"checkpoint": digest}}
-    return finish_lift(views, cfg, inputs.base, fmap, progress, novel, encoder=ENCODER, rebake=False, extra=extra)
+    extra = {"residual": {"checkpoint": digest, "gain": bool(net.config.gain)}}
+    if not net.config.gain:
+        fmap = corrected_map(net, inputs)
+        return finish_lift(views, cfg, inputs.base, fmap, progress, novel, encoder=ENCODER, rebake=False, extra=extra)
+    with torch.no_grad():
+        z, _ = net.encode(
+            torch.from_numpy(inputs.base.fmap)[None], torch.from_numpy(inputs.features)[None], inputs.base.falloff
+        )
+    z = z[0].numpy()
+    fmap = z[:14].copy()
+
+    def code(final: np.ndarray):
+        """The residual-gain avatar code around the (refined) map: F_delta is the gain decoder's."""
+        out = np.concatenate([final, z[14:]])
+        render = lambda cams: render_code(net, out, inputs.base.vertices, views.body, cams, cfg)  # noqa: E731
+        return out, net.name, digest, render
+
+    return finish_lift(
+        views, cfg, inputs.base, fmap, progress, novel, encoder=ENCODER, rebake=False, extra=extra, code=code
+    )
+
+
+def render_code(net, z: np.ndarray, vertices: np.ndarray, body, cameras, cfg) -> np.ndarray:
+    """The residual-gain code z on the body in the input pose (vertices [V, 3]) from cameras, as
+    `dla render` draws it -> rgb [C, H, W, 3] numpy."""
+    from dlacli.avatar import gaussian_map as gm
+    from dlacli.avatar.codec import Decoded
+    from dlacli.avatar.posed import PosedAvatar, render_posed
+    from dlacli.body.model import get_body_model
+    from dlacli.geometry import camera_centers
+
+    rest = get_body_model().rest_vertices(body.phenotype)
+    verts = torch.from_numpy(np.asarray(vertices, np.float32))[None]
+    eyes = camera_centers(cameras.viewmats.float())[None]
+    with torch.no_grad():
+        decoded = Decoded.of(net, torch.from_numpy(z), rest)
+        posed = PosedAvatar(decoded, gm.make_samples(cfg.gaussians, cfg.seed), verts, eyes)
+        return torch.cat([out.rgb for _, out in render_posed(posed, cameras)]).numpy()

@@ -72,6 +72,7 @@ class ResidualTrainConfig:
     checkpoint_every: int = 50
     seed: int = 0
     include_inputs: bool = False  # the input views may also be drawn as targets
+    gain: bool = False  # train F_delta, the pose- and view-conditioned colour gain (nn/residual.py)
 
     @property
     def total_steps(self) -> int:
@@ -90,7 +91,11 @@ def net_config(cfg: ResidualTrainConfig):
     if cfg.preset not in WIDTHS:
         raise DlaInputError("--preset", f"unknown preset {cfg.preset!r} (available: {', '.join(WIDTHS)})")
     return ResidualNetConfig(
-        features=feature_count(), width=WIDTHS[cfg.preset], resolution=cfg.resolution, gaussians=cfg.gaussians
+        features=feature_count(),
+        width=WIDTHS[cfg.preset],
+        resolution=cfg.resolution,
+        gaussians=cfg.gaussians,
+        gain=cfg.gain,
     )
 
 
@@ -151,6 +156,31 @@ def render_map(z: torch.Tensor, falloff: float, vertices: torch.Tensor, cameras,
     return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
 
 
+def code_of(net, p: Precomputed) -> tuple[torch.Tensor, torch.Tensor]:
+    """The avatar code of one subject's inputs (F', or with the gain the residual-gain code) and
+    the corrections t."""
+    if net.config.gain:
+        z, t = net.encode(p.fmap[None], p.features[None], p.falloff)
+    else:
+        z, t = net(p.fmap[None], p.features[None])
+    return z[0], t
+
+
+def render_target(net, code: torch.Tensor, p: Precomputed, vertices, rest, cameras, samples):
+    """`render_map` of a code from `code_of`; with the gain through the residual-gain decoder
+    (rest [V, 3]: the body's zero pose, for the pose conditioning)."""
+    if not net.config.gain:
+        return render_map(code, p.falloff, vertices, cameras, samples)
+    from dlacli.avatar.codec import Decoded
+    from dlacli.avatar.posed import PosedAvatar, render_posed
+    from dlacli.geometry import camera_centers
+
+    eyes = camera_centers(cameras.viewmats.float())[None]
+    posed = PosedAvatar(Decoded.of(net, code, np.asarray(rest)), samples, vertices[None].float(), eyes)
+    outs = [out for _, out in render_posed(posed, cameras)]
+    return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
+
+
 def image_losses(pred: torch.Tensor, alpha: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor) -> dict:
     """pred, gt [T, H, W, 3]; alpha, mask [T, H, W] -> {"l1" (inside the mask), "mask", "ssim"}."""
     from dlacli.nn.losses import ssim_map
@@ -176,10 +206,11 @@ class ResidualLoss(nn.Module):
         cfg = self.cfg
         parts = {k: [] for k in ("l1", "mask", "ssim", "delta")}
         for it, p in zip(items, pre):
-            out, t = self.net(p.fmap[None], p.features[None])
+            code, t = code_of(self.net, p)
             preds, alphas = [], []
             for k in range(len(it.target_kind)):
-                rgb, a = render_map(out[0], p.falloff, it.target_vertices[k], it.target_cameras.select(k), self.samples)
+                cam = it.target_cameras.select(k)
+                rgb, a = render_target(self.net, code, p, it.target_vertices[k], it.rest_vertices, cam, self.samples)
                 preds.append(rgb[0])
                 alphas.append(a[0])
             losses = image_losses(
@@ -217,15 +248,19 @@ class Validator:
         for i in range(len(self.data)):
             it = self._item(i)
             p = precomputed(self.folders[i], self.cfg)
-            out, _ = net(p.fmap[None], p.features[None])
+            code, _ = code_of(net, p)
             gt, mask = it.target_rgb.permute(0, 2, 3, 1), it.target_mask[:, 0]
             renders = {}
-            for name, z in (("base", p.fmap), ("residual", out[0])):
+            for name in ("base", "residual"):
                 if name == "base" and i in self._base:
                     renders[name] = self._base[i]
                     continue
                 made = [
-                    render_map(z, p.falloff, it.target_vertices[k], it.target_cameras.select(k), self.samples)
+                    render_map(p.fmap, p.falloff, it.target_vertices[k], it.target_cameras.select(k), self.samples)
+                    if name == "base"
+                    else render_target(
+                        net, code, p, it.target_vertices[k], it.rest_vertices, it.target_cameras.select(k), self.samples
+                    )
                     for k in range(len(it.target_kind))
                 ]
                 renders[name] = (torch.cat([m[0] for m in made]), torch.cat([m[1] for m in made]))
