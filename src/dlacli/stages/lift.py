@@ -428,10 +428,10 @@ def lifted_posed(fmap: np.ndarray, falloff: float, vertices: np.ndarray, cameras
     decoder = IdentityDecoder()
     if falloff:
         z, decoder = torch.cat([z, torch.full((1, *fmap.shape[1:]), float(falloff))]), ViewCosineDecoder()
-    verts = torch.from_numpy(np.asarray(vertices, dtype=np.float32))
+    verts = torch.as_tensor(vertices, dtype=torch.float32, device=z.device)  # z's device (training may use CUDA)
     # the view-cosine decoder reads the posed normals alone: the posed body stands in for the rest pose
-    decoded = Decoded.of(decoder, z, rest_vertices=verts.numpy())
-    return PosedAvatar(decoded, samples, verts[None], camera_centers(cameras.viewmats)[None])
+    decoded = Decoded.of(decoder, z, rest_vertices=verts.cpu().numpy())
+    return PosedAvatar(decoded, samples, verts[None], camera_centers(cameras.viewmats.to(z.device))[None])
 
 
 def view_colours(

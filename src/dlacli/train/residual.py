@@ -158,25 +158,25 @@ def render_map(z: torch.Tensor, falloff: float, vertices: torch.Tensor, cameras,
 
 def code_of(net, p: Precomputed) -> tuple[torch.Tensor, torch.Tensor]:
     """The avatar code of one subject's inputs (F', or with the gain the residual-gain code) and
-    the corrections t."""
-    if net.config.gain:
-        z, t = net.encode(p.fmap[None], p.features[None], p.falloff)
-    else:
-        z, t = net(p.fmap[None], p.features[None])
+    the corrections t, on the network's device."""
+    device = next(net.parameters()).device
+    fmap, feats = p.fmap[None].to(device), p.features[None].to(device)
+    z, t = net.encode(fmap, feats, p.falloff) if net.config.gain else net(fmap, feats)
     return z[0], t
 
 
 def render_target(net, code: torch.Tensor, p: Precomputed, vertices, rest, cameras, samples):
     """`render_map` of a code from `code_of`; with the gain through the residual-gain decoder
     (rest [V, 3]: the body's zero pose, for the pose conditioning)."""
+    vertices = vertices.to(code.device)
     if not net.config.gain:
         return render_map(code, p.falloff, vertices, cameras, samples)
     from dlacli.avatar.codec import Decoded
     from dlacli.avatar.posed import PosedAvatar, render_posed
     from dlacli.geometry import camera_centers
 
-    eyes = camera_centers(cameras.viewmats.float())[None]
-    posed = PosedAvatar(Decoded.of(net, code, np.asarray(rest)), samples, vertices[None].float(), eyes)
+    eyes = camera_centers(cameras.viewmats.float().to(code.device))[None]
+    posed = PosedAvatar(Decoded.of(net, code, np.asarray(rest.cpu())), samples, vertices[None].float(), eyes)
     outs = [out for _, out in render_posed(posed, cameras)]
     return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
 
@@ -213,9 +213,8 @@ class ResidualLoss(nn.Module):
                 rgb, a = render_target(self.net, code, p, it.target_vertices[k], it.rest_vertices, cam, self.samples)
                 preds.append(rgb[0])
                 alphas.append(a[0])
-            losses = image_losses(
-                torch.stack(preds), torch.stack(alphas), it.target_rgb.permute(0, 2, 3, 1), it.target_mask[:, 0]
-            )
+            gt, mask = it.target_rgb.permute(0, 2, 3, 1).to(code.device), it.target_mask[:, 0].to(code.device)
+            losses = image_losses(torch.stack(preds), torch.stack(alphas), gt, mask)
             for k, v in losses.items():
                 parts[k].append(v)
             parts["delta"].append((t**2).mean())
@@ -256,14 +255,20 @@ class Validator:
                     renders[name] = self._base[i]
                     continue
                 made = [
-                    render_map(p.fmap, p.falloff, it.target_vertices[k], it.target_cameras.select(k), self.samples)
+                    render_map(
+                        p.fmap.to(code.device),
+                        p.falloff,
+                        it.target_vertices[k].to(code.device),
+                        it.target_cameras.select(k),
+                        self.samples,
+                    )
                     if name == "base"
                     else render_target(
                         net, code, p, it.target_vertices[k], it.rest_vertices, it.target_cameras.select(k), self.samples
                     )
                     for k in range(len(it.target_kind))
                 ]
-                renders[name] = (torch.cat([m[0] for m in made]), torch.cat([m[1] for m in made]))
+                renders[name] = (torch.cat([m[0] for m in made]).cpu(), torch.cat([m[1] for m in made]).cpu())
             self._base[i] = renders["base"]
             for name, (rgb, alpha) in renders.items():
                 prefix = "" if name == "residual" else "base_"
