@@ -59,6 +59,13 @@ class ResidualNetConfig:
     gain_width: int = 16
     max_log_gain: float = 0.7  # the gain stays in [1/2, 2]
 
+    @staticmethod
+    def from_older(config: dict) -> dict:
+        """A config saved before the gain existed (the first residual runs): no gain."""
+        for key, value in (("gain", False), ("light_channels", 8), ("gain_width", 16), ("max_log_gain", 0.7)):
+            config.setdefault(key, value)
+        return config
+
 
 class _Block(nn.Module):
     def __init__(self, c: int, groups: int):

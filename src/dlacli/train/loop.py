@@ -155,7 +155,10 @@ class GeneratorLoss(nn.Module):
         depth = torch.stack([subject_depth(c, it.input_vertices) for c, it in zip(cams, items)]).to(device)
         g, feats = net.reconstruct(rgb, cams, depth)
         mean, logvar = net.encode(
-            g, feats, net.uv_positions(torch.stack([it.input_vertices for it in items]).to(device))
+            g,
+            feats,
+            net.uv_positions(torch.stack([it.input_vertices for it in items]).to(device)),
+            mask=torch.stack([it.input_mask for it in items]).to(device),
         )
         parts = {k: [] for k in ("l1", "mask", "ug", "perceptual", "gan", "kl", "delta")}
         fakes, reals = [], []
@@ -432,7 +435,7 @@ def validate(net, data, size: int, seed: int = 0, subjects: int = 2):
         it = data.item(i, np.random.default_rng([seed, 7, i]))
         cams = it.input_cameras
         g, feats = net.reconstruct(it.input_rgb[None], [cams], subject_depth(cams, it.input_vertices)[None])
-        mean, _ = net.encode(g, feats, net.uv_positions(it.input_vertices[None]))
+        mean, _ = net.encode(g, feats, net.uv_positions(it.input_vertices[None]), mask=it.input_mask[None])
         t_cams = it.target_cameras.resized(size, size)
         for t in range(len(it.target_kind)):
             pred, alpha = render_targets(net, mean[0], it.target_vertices[t], it.rest_vertices, t_cams.select(t))
