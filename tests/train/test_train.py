@@ -142,7 +142,10 @@ def test_two_gloo_processes_equal_one_process_with_the_combined_batch(data64, tm
 
 
 def test_tiny_model_overfits_two_subjects(data64, tmp_path):
-    """Stage low only (L_UG + L1), the same 2 subjects every step: the loss falls by half."""
+    """Stage low only (L_UG + L1), the same 2 subjects every step: the total falls by half, and
+    so does the decoder's own image loss (L1 of its renders; L_UG is ~97 % of the total, so the
+    total alone would pass with a decoder that learned nothing, issue 22). Measured: L1 0.060 ->
+    0.024 over 40 steps."""
     from dlacli.train.loop import train
 
     rec = train(
@@ -151,9 +154,10 @@ def test_tiny_model_overfits_two_subjects(data64, tmp_path):
         _cfg(batch=2, targets=2, steps_low=40, steps_full=0, validation=1, lr_g=3e-3),
         log=lambda s: None,
     )
-    totals = [h["total"] for h in rec["history"]]
-    start, end = np.mean(totals[:3]), np.mean(totals[-3:])
-    assert end < 0.5 * start, (start, end)
+    for key in ("total", "l1"):
+        values = [h[key] for h in rec["history"]]
+        start, end = np.mean(values[:3]), np.mean(values[-3:])
+        assert end < 0.5 * start, (key, start, end)
 
 
 def test_run_folder_pictures_and_record(data64, tmp_path):
