@@ -195,12 +195,17 @@ def test_cli_refuses_learned_only_options_in_one_line(dataset, tmp_path, capsys)
 
 def test_training_with_the_gain_moves_it_and_lifts(dataset, tmp_path):
     """`gain=True`: the run trains F_delta too (its head leaves zero) and its checkpoint is the
-    residual-gain decoder."""
+    residual-gain decoder; with supersampled targets."""
     from dlacli.avatar.checkpoint import load_checkpoint
     from dlacli.train.residual import train_residual
 
-    rec = train_residual(dataset, tmp_path / "run", _cfg(gain=True, steps=2, eval_every=2), log=lambda s: None)
-    assert rec["settings"]["gain"] is True and np.isfinite(rec["validation"][-1]["psnr_masked_pose"])
+    cfg = _cfg(gain=True, steps=2, eval_every=2, supersample=2)  # targets rendered at 96 px, box-filtered to 48
+    rec = train_residual(dataset, tmp_path / "run", cfg, log=lambda s: None)
+    assert (
+        rec["settings"]["gain"] is True
+        and rec["settings"]["supersample"] == 2
+        and np.isfinite(rec["validation"][-1]["psnr_masked_pose"])
+    )
     net = load_checkpoint(tmp_path / "run" / rec["checkpoint"] / "generator").module
     assert net.config.gain and net.name == "residual-gain" and net.pose_conditioned and net.view_conditioned
     assert float(net.gain_head.weight.detach().abs().max()) > 0

@@ -100,6 +100,13 @@ def train(
         "--gain",
         help="Residual only: also train F_delta, a colour gain conditioned on the target pose and rays.",
     ),
+    supersample: int = typer.Option(
+        1,
+        "--supersample",
+        min=1,
+        max=8,
+        help="Residual only: render targets N times larger and box-filter them (corrections that hold at any size).",
+    ),
 ) -> None:
     """Train the learned avatar networks end to end through skinning and splatting.
 
@@ -124,11 +131,11 @@ def train(
             raise DlaInputError(flag, "applies to --method learned only (residual trains one stage)")
         _train_residual(
             data, output, preset or "small", resume, steps_full, full_size, batch, targets, lr_g, validation,
-            eval_every, checkpoint_every, seed, gain,
+            eval_every, checkpoint_every, seed, gain, supersample,
         )  # fmt: skip
         return
-    if gain:
-        raise DlaInputError("--gain", "applies to --method residual only")
+    if gain or supersample != 1:
+        raise DlaInputError("--gain" if gain else "--supersample", "applies to --method residual only")
     preset = preset or "tiny"
     if preset not in PRESET_NAMES:
         raise DlaInputError("--preset", f"unknown preset {preset!r} (available: {', '.join(PRESET_NAMES)})")
@@ -176,8 +183,9 @@ _RESIDUAL = dict(steps=2000, size=128, batch=2, targets=4, lr=1e-3)  # docs/trai
 
 
 def _train_residual(
-    data, output, preset, resume, steps, size, batch, targets, lr, validation, eval_every, checkpoint_every, seed, gain
-) -> None:
+    data, output, preset, resume, steps, size, batch, targets, lr, validation, eval_every, checkpoint_every, seed, gain,
+    supersample,
+) -> None:  # fmt: skip
     import os
 
     from dlacli.train.residual import ResidualTrainConfig, net_config, train_residual
@@ -190,6 +198,7 @@ def _train_residual(
         checkpoint_every=checkpoint_every,
         seed=seed,
         gain=gain,
+        supersample=supersample,
         **{**_RESIDUAL, **{k: v for k, v in given.items() if v is not None}},
     )
     net_config(cfg)  # an unknown preset is refused before any work

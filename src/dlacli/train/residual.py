@@ -73,6 +73,10 @@ class ResidualTrainConfig:
     seed: int = 0
     include_inputs: bool = False  # the input views may also be drawn as targets
     gain: bool = False  # train F_delta, the pose- and view-conditioned colour gain (nn/residual.py)
+    # render targets this many times larger and box-filter them (1: at `size`). At 1 the network
+    # learns corrections that only hold at the training render size: trained at 128 px it beat
+    # unprojection by 2 dB at 128 px and lost 5-8 dB at 256-512 px (docs/train.md)
+    supersample: int = 1
 
     @property
     def total_steps(self) -> int:
@@ -146,14 +150,31 @@ def precomputed(folder: Path, cfg: ResidualTrainConfig) -> Precomputed:
 # ------------------------------------------------------------------------------ the step
 
 
-def render_map(z: torch.Tensor, falloff: float, vertices: torch.Tensor, cameras, samples):
+def _supersampled(render, cameras, factor: int):
+    """render(cameras) -> (rgb [C, H, W, 3], alpha [C, H, W]) at `factor` times the cameras' size,
+    box-filtered back to it: the splatter's low-resolution footprint (its 0.3 px dilation) then
+    does not reward corrections that only hold at one render size."""
+    if factor <= 1:
+        return render(cameras)
+    import torch.nn.functional as nnf
+
+    rgb, alpha = render(cameras.resized(cameras.width * factor, cameras.height * factor))
+    rgb = nnf.avg_pool2d(rgb.permute(0, 3, 1, 2), factor).permute(0, 2, 3, 1)
+    return rgb, nnf.avg_pool2d(alpha[:, None], factor)[:, 0]
+
+
+def render_map(z: torch.Tensor, falloff: float, vertices: torch.Tensor, cameras, samples, supersample: int = 1):
     """F z [14, R, R] (differentiable) on one posed body (vertices [V, 3]) seen from each of
-    `cameras`, as the residual lift's avatar renders -> (rgb [C, H, W, 3], alpha [C, H, W])."""
+    `cameras`, as the residual lift's avatar renders -> (rgb [C, H, W, 3], alpha [C, H, W]);
+    `supersample`: rendered that many times larger and box-filtered (`_supersampled`)."""
     from dlacli.avatar.posed import render_posed
     from dlacli.stages.lift import lifted_posed
 
-    outs = [out for _, out in render_posed(lifted_posed(z, falloff, vertices, cameras, samples), cameras)]
-    return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
+    def render(cams):
+        outs = [out for _, out in render_posed(lifted_posed(z, falloff, vertices, cams, samples), cams)]
+        return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
+
+    return _supersampled(render, cameras, supersample)
 
 
 def code_of(net, p: Precomputed) -> tuple[torch.Tensor, torch.Tensor]:
@@ -165,20 +186,24 @@ def code_of(net, p: Precomputed) -> tuple[torch.Tensor, torch.Tensor]:
     return z[0], t
 
 
-def render_target(net, code: torch.Tensor, p: Precomputed, vertices, rest, cameras, samples):
+def render_target(net, code: torch.Tensor, p: Precomputed, vertices, rest, cameras, samples, supersample: int = 1):
     """`render_map` of a code from `code_of`; with the gain through the residual-gain decoder
     (rest [V, 3]: the body's zero pose, for the pose conditioning)."""
     vertices = vertices.to(code.device)
     if not net.config.gain:
-        return render_map(code, p.falloff, vertices, cameras, samples)
+        return render_map(code, p.falloff, vertices, cameras, samples, supersample)
     from dlacli.avatar.codec import Decoded
     from dlacli.avatar.posed import PosedAvatar, render_posed
     from dlacli.geometry import camera_centers
 
     eyes = camera_centers(cameras.viewmats.float().to(code.device))[None]
     posed = PosedAvatar(Decoded.of(net, code, np.asarray(rest.cpu())), samples, vertices[None].float(), eyes)
-    outs = [out for _, out in render_posed(posed, cameras)]
-    return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
+
+    def render(cams):
+        outs = [out for _, out in render_posed(posed, cams)]
+        return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
+
+    return _supersampled(render, cameras, supersample)
 
 
 def image_losses(pred: torch.Tensor, alpha: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor) -> dict:
@@ -210,7 +235,9 @@ class ResidualLoss(nn.Module):
             preds, alphas = [], []
             for k in range(len(it.target_kind)):
                 cam = it.target_cameras.select(k)
-                rgb, a = render_target(self.net, code, p, it.target_vertices[k], it.rest_vertices, cam, self.samples)
+                rgb, a = render_target(
+                    self.net, code, p, it.target_vertices[k], it.rest_vertices, cam, self.samples, cfg.supersample
+                )
                 preds.append(rgb[0])
                 alphas.append(a[0])
             gt, mask = it.target_rgb.permute(0, 2, 3, 1).to(code.device), it.target_mask[:, 0].to(code.device)
@@ -261,10 +288,18 @@ class Validator:
                         it.target_vertices[k].to(code.device),
                         it.target_cameras.select(k),
                         self.samples,
+                        self.cfg.supersample,
                     )
                     if name == "base"
                     else render_target(
-                        net, code, p, it.target_vertices[k], it.rest_vertices, it.target_cameras.select(k), self.samples
+                        net,
+                        code,
+                        p,
+                        it.target_vertices[k],
+                        it.rest_vertices,
+                        it.target_cameras.select(k),
+                        self.samples,
+                        self.cfg.supersample,
                     )
                     for k in range(len(it.target_kind))
                 ]
