@@ -205,7 +205,8 @@ def test_sample_latent_seeded_and_moments():
 
 
 def test_body_query_depends_on_uv_positions_learned_does_not():
-    body, learned = make(tiny(query="body")), make(tiny(query="learned"))
+    # logvar_init None: the log-variance head random like the mean's (the presets start it constant)
+    body, learned = make(tiny(query="body", logvar_init=None)), make(tiny(query="learned"))
     params, features, positions, opacities, uv = inputs(tiny())
     uv2 = uv + 0.3
     with torch.no_grad():
@@ -259,7 +260,7 @@ def test_select_starts_at_the_most_opaque_and_falls_back_to_the_most_opaque():
 
 
 def test_batch_items_are_independent(tol):
-    cfg = tiny()
+    cfg = tiny(logvar_init=None)  # both halves of the head depend on the inputs
     net = make(cfg)
     first = inputs(cfg, seed=0)
     other = inputs(cfg, seed=1)
@@ -313,3 +314,85 @@ def test_save_load_keeps_outputs(tmp_path, query):
     with torch.no_grad():
         for a, b in zip(net(*data), loaded.module(*data)):
             assert torch.equal(a, b)
+
+
+# ------------------------------------------------------------------------ issue 22's diagnosis, fixed
+
+
+def test_logvar_starts_at_its_init_value_everywhere():
+    """The presets start Z's posterior narrow (std e^(-5/2) ~ 0.08, below the ~0.3 spread of the
+    mean): the head's log-variance half is zero weights plus a constant bias."""
+    cfg = tiny()
+    assert cfg.logvar_init == -5.0
+    with torch.no_grad():
+        mean, logvar = make(cfg)(*inputs(cfg, b=1))
+    assert torch.equal(logvar, torch.full_like(logvar, -5.0))
+    assert float(mean.std()) > 0.05  # the mean half keeps its random init
+
+
+def test_locality_lets_a_texel_ignore_far_gaussians():
+    """With locality 0.05 m, a texel reads the Gaussians near its body point: changing a
+    Gaussian 1 m away barely moves it, changing one 1 cm away does; with locality off (older
+    checkpoints) the far one moves it as much as any."""
+    n, r = 64, 4
+    for locality, far_matters in ((0.05, False), (0.0, True)):
+        cfg = tiny(points=n, uv_resolution=r, locality=locality)
+        params, features, positions, opacities, _ = inputs(cfg, b=1, n=n)
+        positions[0, :] = torch.tensor([5.0, 5.0, 5.0]) + torch.rand(n, 3)  # the rest far from everything
+        uv = torch.zeros(1, 3, r, r) + torch.tensor([2.0, 2.0, 2.0])[None, :, None, None]
+        uv[0, :, 0, 0] = 0.0  # texel (0, 0) at the origin
+        positions[0, 0] = torch.tensor([0.01, 0.0, 0.0])  # near it
+        positions[0, 1] = torch.tensor([1.0, 0.0, 0.0])  # far from it (but nearer than the rest)
+        enc = make(cfg)
+        with torch.no_grad():
+            base = enc(params, features, positions, opacities, uv)[0][0, :, 0, 0]
+            moved = []
+            for i in (0, 1):
+                p = params.clone()
+                p[0, i] += 3.0
+                moved.append(float((enc(p, features, positions, opacities, uv)[0][0, :, 0, 0] - base).abs().max()))
+        near, far = moved
+        assert near > 1e-3, locality
+        if far_matters:
+            assert far > 0.1 * near, (near, far)
+        else:
+            assert far < 1e-6 * max(near, 1.0), (near, far)
+
+
+def test_the_person_masks_keep_background_out_of_the_keys():
+    """An untrained U-Net's opacity is ~0.5 everywhere; with the input masks the encoder's keys
+    are foreground pixel Gaussians only (nn/learned.pixel_mask keeps the Gaussians' order)."""
+    from dlacli.nn.learned import pixel_mask
+
+    b, v, s, h = 1, 4, 16, 8
+    mask = torch.zeros(b, v, 1, s, s)
+    mask[:, :, :, 4:12, 6:10] = 1.0  # a person in the middle of every view
+    flat = pixel_mask(mask, v * h * h)
+    assert flat.shape == (b, v * h * h)
+    expect = torch.zeros(v, h, h)
+    expect[:, 2:6, 3:5] = 1.0
+    assert torch.equal(flat[0], expect.flatten())
+    cfg = tiny(points=16)
+    enc = make(cfg)
+    opacities = torch.full((b, v * h * h), 0.5)
+    positions = torch.rand(b, v * h * h, 3)
+    keys = enc.select(positions, opacities * flat)
+    assert bool((flat[0, keys[0]] > 0).all())
+    assert not bool((flat[0, enc.select(positions, opacities)[0]] > 0).all())  # without: background too
+
+
+def test_checkpoints_from_before_locality_load_as_they_were(tmp_path):
+    import json
+
+    cfg = tiny()
+    save_checkpoint(tmp_path / "ck", make(cfg), cfg)
+    rec = json.loads((tmp_path / "ck" / "config.json").read_text())
+    for key in ("locality", "logvar_init"):
+        del rec["config"][key]
+    from dlacli.avatar.checkpoint import content_hash
+
+    weights = (tmp_path / "ck" / "model.safetensors").read_bytes()
+    rec["hash"] = content_hash(rec["class"], rec["config_class"], rec["config"], weights)
+    (tmp_path / "ck" / "config.json").write_text(json.dumps(rec))
+    loaded = load_checkpoint(tmp_path / "ck")
+    assert loaded.config.locality == 0.0 and loaded.config.logvar_init is None

@@ -187,6 +187,7 @@ def test_refinement_compares_a_window_that_loses_nothing(subject):
     from dlacli.body.model import get_body_model
     from dlacli.nn.losses import ssim_map
     from dlacli.stages import lift as stage
+    from dlacli.stages.refine import subject_crops
 
     views = read_views(subject)
     cfg = LiftConfig(steps=1, gaussians=N)
@@ -203,7 +204,7 @@ def test_refinement_compares_a_window_that_loses_nothing(subject):
     whole = (rgb - rgb_t).abs().mean() + (alpha - mask_t).abs().mean() + 0.2 * (1 - ssim_map(rgb, rgb_t).mean())
     assert history[0] == pytest.approx(float(whole), rel=1e-5)
 
-    x0, y0, w, h = stage.subject_crops(mask_t, g.means.numpy().astype(np.float64), cams)
+    x0, y0, w, h = subject_crops(mask_t, g.means.numpy().astype(np.float64), cams)
     assert w * h < cams.width * cams.height  # a real saving on this subject
     for i in range(len(views)):
         inside = mask_t[i, y0[i] : y0[i] + h, x0[i] : x0[i] + w].sum()

@@ -22,7 +22,7 @@ def test_specs_name_the_registry_and_refuse_in_one_line():
     assert methods.parse_method("unproject").options() == {"steps": 0}  # the bare name: the mesh unprojection
     assert spec.with_options(resolution=64).options() == {**spec.options(), "resolution": 64}
     for text, needle in (
-        ("magic", "unknown method 'magic' (one of: learned, unproject)"),
+        ("magic", "unknown method 'magic' (one of: learned, residual, unproject)"),
         ("unproject:steps=x", "steps: expected an integer"),
         ("unproject:checkpoint=a", "unproject takes no 'checkpoint'"),
         ("learned", "needs checkpoint="),
@@ -81,7 +81,7 @@ def test_a_new_method_is_known_by_one_name_everywhere(toy, tmp_path, capsys):
     code, _, err = _main(["lift", views, "--method", "toy", "--resolution", "64", "-o", tmp_path / "c.npz"], capsys)
     assert code == 2 and "--method toy takes no resolution" in err and not (tmp_path / "c.npz").exists()
     code, _, err = _main(["lift", views, "--method", "nosuch", "-o", tmp_path / "c.npz"], capsys)
-    assert code == 2 and "one of: learned, toy, unproject" in err
+    assert code == 2 and "one of: learned, residual, toy, unproject" in err
 
     # dla bench accuracy (its lift runs in a fresh process) and stability: rows named "toy"
     rows_file = tmp_path / "rows.jsonl"

@@ -142,7 +142,10 @@ def test_two_gloo_processes_equal_one_process_with_the_combined_batch(data64, tm
 
 
 def test_tiny_model_overfits_two_subjects(data64, tmp_path):
-    """Stage low only (L_UG + L1), the same 2 subjects every step: the loss falls by half."""
+    """Stage low only (L_UG + L1), the same 2 subjects every step: the total falls by half. The
+    total is ~97 % L_UG, and stage low has no mask loss: its decoder L1 falls to the L1 of an
+    empty render (0.060 -> 0.024 against 0.022, measured), so the decoder is tested on its own
+    below (issue 22)."""
     from dlacli.train.loop import train
 
     rec = train(
@@ -154,6 +157,27 @@ def test_tiny_model_overfits_two_subjects(data64, tmp_path):
     totals = [h["total"] for h in rec["history"]]
     start, end = np.mean(totals[:3]), np.mean(totals[-3:])
     assert end < 0.5 * start, (start, end)
+
+
+@pytest.mark.slow
+def test_tiny_decoder_renders_better_than_an_empty_image(data64, tmp_path):
+    """The decoder's own image loss, overfitting 2 subjects for 40 steps of stage full (every
+    loss, mask included): its L1 ends well below the L1 of an empty (black) render of the same
+    kind of targets, the level a decoder that learned nothing but transparency reaches.
+    Measured: 0.087 -> 0.015 against 0.022."""
+    from dlacli.train.data import TrainingData
+    from dlacli.train.loop import train
+
+    rec = train(
+        data64,
+        tmp_path / "run",
+        _cfg(batch=2, targets=2, steps_low=0, steps_full=40, validation=1, lr_g=3e-3),
+        log=lambda s: None,
+    )
+    data = TrainingData(data64, 64, SIZE, 2, subjects=rec["train_subjects"], include_inputs=False)
+    empty = np.mean([float(data.item(i % 2, np.random.default_rng(i)).target_rgb.mean()) for i in range(20)])
+    l1 = [h["l1"] for h in rec["history"]]
+    assert np.mean(l1[-3:]) < 0.8 * empty < 0.8 * np.mean(l1[:3]), (l1[:3], l1[-3:], empty)
 
 
 def test_run_folder_pictures_and_record(data64, tmp_path):

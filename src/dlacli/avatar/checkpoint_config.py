@@ -95,6 +95,9 @@ def _coerce(v, hint, where, name: str):
 def config_from_dict(cls: type, data: dict, where=None, prefix: str = ""):
     """Build the Config dataclass `cls` from its JSON object, checking every field's type;
     unknown or missing fields are a DlaInputError naming `where`."""
+    older = getattr(cls, "from_older", None)  # the network's migration of configs saved before a field existed
+    if callable(older):
+        data = older(dict(data))
     fields = [f for f in dataclasses.fields(cls) if f.init]
     names = {f.name for f in fields}
     unknown, missing = sorted(set(data) - names), sorted(names - set(data))

@@ -136,8 +136,10 @@ def lift(
         # loss never looked and score lower, so its budget is that count (docs/lift.md step 5)
         refined = result.avatar.extra.get("samples", {}).get("count") if steps else None
         with options.naming(views=views, pose=body, phenotype=body):
+            # the network the avatar's decoder names (the residual lift's network is no decoder)
+            decoder_ckpt = ckpt if result.avatar.checkpoint else None
             result.avatar, choice = choose_for_views(
-                result.avatar, view_set, checkpoint=ckpt, **({"counts": (refined,)} if refined else {})
+                result.avatar, view_set, checkpoint=decoder_ckpt, **({"counts": (refined,)} if refined else {})
             )
         typer.echo(
             f"note: --gaussians auto: {choice.count:,} Gaussians (input views, masked PSNR "

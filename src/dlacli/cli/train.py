@@ -8,6 +8,7 @@ from typing import Optional
 import typer
 
 from dlacli.cli import options
+from dlacli.errors import DlaInputError
 from dlacli.limits import MAX_TRAIN_SEED
 
 # per-preset defaults of the schedule (a flag given on the command line wins); see docs/train.md
@@ -27,11 +28,17 @@ def train(
         ..., "--data", help="Dataset folder (`dla synth --seeds A-B -o DATA`) or one subject folder."
     ),
     output: Path = options.output("Run folder: train.json, checkpoints, loss.png, val/."),
-    preset: str = typer.Option(
-        "tiny",
+    method: str = typer.Option(
+        "learned",
+        "--method",
+        help="learned (U-Net + encoder + GPD, the paper's) or residual (the small network that corrects mesh "
+        "unprojection; one stage: --steps-full steps at --full-size).",
+    ),
+    preset: Optional[str] = typer.Option(
+        None,
         "--preset",
         help="Network sizes and schedule: tiny (2 CPU cores, about an hour), small, paper (the paper's parameter "
-        "counts).",
+        "counts). Default: tiny for learned, small for residual.",
     ),
     variant: str = typer.Option(
         "full", "--variant", help="full, learned-query (ablation A.ii) or no-conditioning (ablation B)."
@@ -88,6 +95,18 @@ def train(
         "MS-SSIM.",
     ),
     seed: int = options.seed("Seed of initialisation, data order and noise.", default=0, maximum=MAX_TRAIN_SEED),
+    gain: bool = typer.Option(
+        False,
+        "--gain",
+        help="Residual only: also train F_delta, a colour gain conditioned on the target pose and rays.",
+    ),
+    supersample: int = typer.Option(
+        1,
+        "--supersample",
+        min=1,
+        max=8,
+        help="Residual only: render targets N times larger and box-filter them (corrections that hold at any size).",
+    ),
 ) -> None:
     """Train the learned avatar networks end to end through skinning and splatting.
 
@@ -96,19 +115,34 @@ def train(
     Progress on stderr; the run folder's generator checkpoint is what `dla lift --method learned
     --checkpoint RUN/ckpt-N/generator` uses.
     """
-    from dlacli.errors import DlaInputError
     from dlacli.nn.learned import PRESET_NAMES, VARIANTS
     from dlacli.train.loop import TrainConfig
     from dlacli.train.loop import train as run
 
+    if method not in ("learned", "residual"):
+        raise DlaInputError("--method", f"must be learned or residual, got {method!r}")
+    if not data.exists():
+        raise DlaInputError(data, "no such dataset folder")
+    if method == "residual":
+        learned_only = dict(steps_low=steps_low, low_size=low_size, lr_d=lr_d, alexnet=alexnet)
+        given = [k for k, v in learned_only.items() if v is not None]
+        if given or variant != "full" or stage != "both":
+            flag = "--" + (given[0] if given else "variant" if variant != "full" else "stage").replace("_", "-")
+            raise DlaInputError(flag, "applies to --method learned only (residual trains one stage)")
+        _train_residual(
+            data, output, preset or "small", resume, steps_full, full_size, batch, targets, lr_g, validation,
+            eval_every, checkpoint_every, seed, gain, supersample,
+        )  # fmt: skip
+        return
+    if gain or supersample != 1:
+        raise DlaInputError("--gain" if gain else "--supersample", "applies to --method residual only")
+    preset = preset or "tiny"
     if preset not in PRESET_NAMES:
         raise DlaInputError("--preset", f"unknown preset {preset!r} (available: {', '.join(PRESET_NAMES)})")
     if variant not in VARIANTS:
         raise DlaInputError("--variant", f"unknown variant {variant!r} (available: {', '.join(VARIANTS)})")
     if stage not in ("low", "full", "both"):
         raise DlaInputError("--stage", f"must be low, full or both, got {stage!r}")
-    if not data.exists():
-        raise DlaInputError(data, "no such dataset folder")
     if alexnet is not None and not alexnet.is_file():
         raise DlaInputError(alexnet, "no such file")
     given = dict(
@@ -142,6 +176,36 @@ def train(
 
     record = run(data, output, cfg, resume=resume)
     if os.environ.get("RANK", "0") == "0":  # under torchrun only rank 0 writes and reports
+        typer.echo(str(output / record["checkpoint"] / "generator"))
+
+
+_RESIDUAL = dict(steps=2000, size=128, batch=2, targets=4, lr=1e-3)  # docs/train.md "The residual lift"
+
+
+def _train_residual(
+    data, output, preset, resume, steps, size, batch, targets, lr, validation, eval_every, checkpoint_every, seed, gain,
+    supersample,
+) -> None:  # fmt: skip
+    import os
+
+    from dlacli.train.residual import ResidualTrainConfig, net_config, train_residual
+
+    given = dict(steps=steps, size=size, batch=batch, targets=targets, lr=lr)
+    cfg = ResidualTrainConfig(
+        preset=preset,
+        validation=validation,
+        eval_every=eval_every,
+        checkpoint_every=checkpoint_every,
+        seed=seed,
+        gain=gain,
+        supersample=supersample,
+        **{**_RESIDUAL, **{k: v for k, v in given.items() if v is not None}},
+    )
+    net_config(cfg)  # an unknown preset is refused before any work
+    if cfg.total_steps == 0:
+        raise DlaInputError("--steps-full", "no steps to train")
+    record = train_residual(data, output, cfg, resume=resume)
+    if os.environ.get("RANK", "0") == "0":
         typer.echo(str(output / record["checkpoint"] / "generator"))
 
 

@@ -42,6 +42,21 @@ class EncoderConfig:
     query: str = "body"  # "body": encoded posed-body UV position map; "learned": a learned [r*r, width] table
     token_hidden: int = 2816  # hidden width of the per-token residual MLP (0: none)
     mlp_hidden: int = 4096  # hidden width of the residual MLP after the cross-attention
+    # locality (issue 22's diagnosis: untrained attention stays uniform over all tokens): with body
+    # queries, each texel's attention logits get -d^2 / (2 locality^2), d = the distance in metres
+    # from its posed-body point to the token's Gaussian, so a texel starts by reading the Gaussians
+    # near it. 0: off (checkpoints made before it existed)
+    locality: float = 0.0
+    # the log-variance of Z at initialisation: the head's log-variance half starts with zero weights
+    # and this bias (None: the default init, std ~1, far above the spread of Z's mean)
+    logvar_init: float | None = None
+
+    @staticmethod
+    def from_older(config: dict) -> dict:
+        """A config saved before locality and logvar_init existed: both off (its network as it was)."""
+        config.setdefault("locality", 0.0)
+        config.setdefault("logvar_init", None)
+        return config
 
     def __post_init__(self):
         if self.query not in QUERIES:
@@ -51,10 +66,13 @@ class EncoderConfig:
         for name in ("gaussian_channels", "points", "uv_resolution", "latent_channels", "mlp_hidden"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("feature_channels", "pe_frequencies", "token_hidden"):
+        for name in ("feature_channels", "pe_frequencies", "token_hidden", "locality"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
 
+
+LOCALITY = 0.1  # metres: about a limb's radius
+LOGVAR_INIT = -5.0  # std 0.08 at initialisation, below the ~0.3 spread of Z's mean measured untrained
 
 PRESETS: dict[str, EncoderConfig] = {
     "tiny": EncoderConfig(
@@ -66,6 +84,8 @@ PRESETS: dict[str, EncoderConfig] = {
         pe_frequencies=6,
         token_hidden=128,
         mlp_hidden=128,
+        locality=LOCALITY,
+        logvar_init=LOGVAR_INIT,
     ),
     "small": EncoderConfig(
         width=256,
@@ -76,9 +96,11 @@ PRESETS: dict[str, EncoderConfig] = {
         pe_frequencies=8,
         token_hidden=512,
         mlp_hidden=1024,
+        locality=LOCALITY,
+        logvar_init=LOGVAR_INIT,
     ),
     # 19,077,376 parameters (paper: 19 M); feature_channels 32 = the U-Net's default Cf
-    "paper": EncoderConfig(),
+    "paper": EncoderConfig(locality=LOCALITY, logvar_init=LOGVAR_INIT),
 }
 
 
@@ -184,6 +206,10 @@ class UVEncoder(nn.Module):
         self.mlp = _MLP(c.width, c.mlp_hidden)
         self.norm_out = nn.LayerNorm(c.width)
         self.head = nn.Linear(c.width, 2 * c.latent_channels)
+        if c.logvar_init is not None:
+            with torch.no_grad():
+                self.head.weight[c.latent_channels :].zero_()
+                self.head.bias[c.latent_channels :].fill_(c.logvar_init)
 
     def select(self, positions: Tensor, opacities: Tensor, generator: torch.Generator | None = None) -> Tensor:
         """The P key Gaussians [B, P] (long): farthest points among those with opacity > threshold
@@ -251,7 +277,11 @@ class UVEncoder(nn.Module):
 
         q = split(self.to_q(self.norm_q(query)))
         k, v = self.to_kv(self.norm_kv(tokens)).chunk(2, dim=-1)
-        att = nnf.scaled_dot_product_attention(q, split(k), split(v))  # [B, heads, r*r, W / heads]
+        bias = None
+        if c.query == "body" and c.locality > 0:  # [B, 1, r*r, P]: texels read the Gaussians near them first
+            d2 = torch.cdist(uv, take(positions).to(uv)).square()
+            bias = (-d2 / (2.0 * c.locality**2)).to(q.dtype)[:, None]
+        att = nnf.scaled_dot_product_attention(q, split(k), split(v), attn_mask=bias)  # [B, heads, r*r, W / heads]
         x = query + self.to_out(att.transpose(1, 2).flatten(2))
         x = x + self.mlp(x)
         out = self.head(self.norm_out(x))  # [B, r*r, 2C]

@@ -73,6 +73,20 @@ def learned_config(preset: str = "tiny", variant: str = "full") -> LearnedConfig
     return LearnedConfig(u, e, g, gaussians=GAUSSIANS[preset], preset=preset, variant=variant)
 
 
+def pixel_mask(mask: torch.Tensor, n: int) -> torch.Tensor:
+    """Person masks [B, V, 1, S, S] at the U-Net's output pixels, flattened as its Gaussians are
+    (view-major, row-major) -> [B, n], n = V h h (area-averaged to h x h)."""
+    import torch.nn.functional as nnf
+
+    b, v = mask.shape[:2]
+    h = math.isqrt(n // v)
+    assert v * h * h == n, f"{n} Gaussians are not {v} square maps"
+    m = mask.reshape(b * v, 1, *mask.shape[-2:]).float()
+    if m.shape[-1] != h:
+        m = nnf.interpolate(m, size=(h, h), mode="area" if m.shape[-1] > h else "bilinear", align_corners=None)
+    return m.reshape(b, v * h * h)
+
+
 def subject_depth(cameras: Cameras, vertices: torch.Tensor) -> torch.Tensor:
     """[C] distance from each camera centre to the centre of the body's bounding box (metres)."""
     from dlacli.geometry import camera_centers
@@ -148,11 +162,17 @@ class LearnedAvatarNet(nn.Module, Decoder):
         features = feats.permute(0, 1, 3, 4, 2).reshape(b, v * h * h, -1)
         return g, features
 
-    def encode(self, g: PixelGaussians, features: torch.Tensor, uv_positions: torch.Tensor, generator=None):
-        """-> (mean, logvar) of Z [B, C, r, r]; uv_positions [B, 3, r, r] the posed body's map."""
+    def encode(self, g: PixelGaussians, features: torch.Tensor, uv_positions: torch.Tensor, generator=None, mask=None):
+        """-> (mean, logvar) of Z [B, C, r, r]; uv_positions [B, 3, r, r] the posed body's map.
+        mask [B, V, 1, S, S]: the input views' person masks; the encoder's opacity filter then
+        keys on opacity x mask at each pixel Gaussian, so an untrained G (opacity ~0.5 everywhere)
+        cannot hand it background Gaussians (issue 22's diagnosis)."""
         from dlacli.nn.unet import raw_parameters
 
-        return self.encoder(raw_parameters(g), features, g.means, g.opacities, uv_positions, generator=generator)
+        opacities = (
+            g.opacities if mask is None else g.opacities * pixel_mask(mask, g.opacities.shape[1]).to(g.opacities)
+        )
+        return self.encoder(raw_parameters(g), features, g.means, opacities, uv_positions, generator=generator)
 
     def uv_positions(self, vertices: torch.Tensor) -> torch.Tensor:
         """[B, V, 3] posed body vertices -> the encoder's queries' positions [B, 3, r, r]."""

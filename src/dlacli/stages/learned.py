@@ -86,11 +86,11 @@ def lift_learned(
     model = get_body_model()
     verts = model.forward_body(views.body).vertices[0].float()
     rest = model.rest_vertices(views.body.phenotype)
-    rgb, _, cams = input_tensors(views, net.input_size)
+    rgb, mask, cams = input_tensors(views, net.input_size)
     t0 = time.perf_counter()
     with torch.no_grad():
         g, feats = net.reconstruct(rgb[None], [cams], subject_depth(cams, verts)[None])
-        mean, _ = net.encode(g, feats, net.uv_positions(verts[None]))
+        mean, _ = net.encode(g, feats, net.uv_positions(verts[None]), mask=mask[None])
     z = mean[0].clone()
     history: list[float] = []
     if steps > 0:

@@ -31,6 +31,8 @@ from dlacli.avatar.codec import shading
 from dlacli.errors import DlaInputError
 from dlacli.geometry import project_points as _project  # points [..., 3] -> (pixels [..., 2], z [...])
 from dlacli.limits import LIFT_GAUSSIANS, LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS, MIN_VIEW_FALLOFF
+from dlacli.stages.sheet import contact_sheet as contact_sheet  # re-exported: the sheet lift writes
+from dlacli.stages.sheet import sheet_and_novel_view
 from dlacli.types import Avatar, Cameras, Gaussians, ViewSet, rgb_to_sh0
 
 ENCODER = "unproject"
@@ -115,6 +117,23 @@ def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128
     views: the view folder; vertices [V, 3] the fitted body in the input pose.
     -> (Gaussians, view index per Gaussian [N] int64, camera centre per Gaussian [N, 3]).
     """
+    return _unstructured(views, vertices, grid)[:3]
+
+
+@dataclass
+class HullDepth:
+    """What step a. measured along the rays of a grid x grid downsampling of every view: the
+    camera depth [V, gh, gw] where each masked pixel's ray enters the visual hull of the other
+    views (inf off the mask or where it never does) and the body's depth there (inf off the
+    body), for the cameras of that grid."""
+
+    hull: np.ndarray
+    body: np.ndarray
+    cameras: Cameras
+
+
+def _unstructured(views: ViewSet, vertices: np.ndarray, grid: int):
+    """`unstructured_gaussians` plus the HullDepth it measured on the way."""
     from dlacli.body.model import get_body_model
     from dlacli.render.raster import rasterize
 
@@ -127,6 +146,7 @@ def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128
     centre = vertices.mean(axis=0)
     radius = float(np.linalg.norm(vertices - centre, axis=1).max()) + 0.4
     out_means, out_rgb, out_alpha, out_scale, out_view, out_eye = [], [], [], [], [], []
+    hulls = np.full((len(views), gh, gw), np.inf)
     for v in range(len(views)):
         alpha = _block_mean(views.masks[v], stride)  # [gh, gw]
         rgb = _block_mean(views.images[v] * views.masks[v][..., None], stride)
@@ -142,6 +162,7 @@ def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128
         dirs = np.stack([xc, yc, np.ones_like(xc)], -1) @ c2w[:3, :3].T  # camera z = 1 per unit
         origin = c2w[:3, 3]
         hull = _hull_depth(origin, dirs, views, v, centre, radius)
+        hulls[v][rows, cols] = hull
         bdepth = body.depth[v][rows, cols].astype(np.float64)
         depth = np.where(np.isfinite(bdepth), np.maximum(hull, bdepth - CLOTH_MARGIN), hull)
         if not np.isfinite(hull).all():  # rays that miss the hull (inconsistent masks): use the body
@@ -169,7 +190,7 @@ def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128
         torch.from_numpy(np.concatenate(out_alpha)).float().clamp(0.0, 1.0),
         torch.from_numpy(np.concatenate(out_rgb)).float().clamp(0.0, 1.0),
     )
-    return gaussians, np.concatenate(out_view), np.concatenate(out_eye)
+    return gaussians, np.concatenate(out_view), np.concatenate(out_eye), HullDepth(hulls, body.depth, cams)
 
 
 # --------------------------------------------------------------------------- b. unprojection
@@ -384,48 +405,6 @@ def _resized_targets(views: ViewSet, max_size: int):
     return x[..., :3].contiguous(), x[..., 3].contiguous(), views.cameras.resized(rw, rh)
 
 
-CROP_MARGIN = 0.05  # of the long side: the refinement's crops reach this far beyond the subject
-
-
-def subject_crops(target_mask: torch.Tensor, points: np.ndarray, cameras: Cameras, margin: float = CROP_MARGIN):
-    """One window size for all views that holds, in each view, every pixel of its target mask
-    [V, h, w] and the projection of every point [N, 3] in front of it, plus `margin` x the long
-    side on every side (clipped to the image): (x0 [V], y0 [V], width, height) for
-    `Cameras.cropped`. What lies outside a view's window is background in the target and, while
-    the Gaussians stay within the margin of where they started, in the render too."""
-    from dlacli.nn.losses import SSIM_WINDOW
-
-    v, h, w = target_mask.shape
-    pad = max(int(np.ceil(margin * max(h, w))), SSIM_WINDOW)  # SSIM's windows at the edge see only black
-    boxes = []
-    for i in range(v):
-        rows, cols = np.nonzero(target_mask[i].numpy() > 0)
-        px, z = _project(
-            points, cameras.viewmats[i].numpy().astype(np.float64), cameras.Ks[i].numpy().astype(np.float64)
-        )
-        px = px[z > 0]
-        xs = np.concatenate([cols + 0.5, px[:, 0]]) if px.size else cols + 0.5
-        ys = np.concatenate([rows + 0.5, px[:, 1]]) if px.size else rows + 0.5
-        if xs.size == 0:
-            boxes.append((0, 0, w, h))
-            continue
-        x0, x1 = int(np.floor(xs.min())) - pad, int(np.ceil(xs.max())) + pad
-        y0, y1 = int(np.floor(ys.min())) - pad, int(np.ceil(ys.max())) + pad
-        boxes.append((max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)))
-    cw = min(w, max(2 * SSIM_WINDOW, *(b[2] - b[0] for b in boxes)))
-    ch = min(h, max(2 * SSIM_WINDOW, *(b[3] - b[1] for b in boxes)))
-    x0s = [int(np.clip((b[0] + b[2] - cw) // 2, 0, w - cw)) for b in boxes]
-    y0s = [int(np.clip((b[1] + b[3] - ch) // 2, 0, h - ch)) for b in boxes]
-    return np.array(x0s), np.array(y0s), cw, ch
-
-
-def _crop(images: torch.Tensor, x0s, y0s, width: int, height: int) -> torch.Tensor:
-    """[V, h, w, ...] -> [V, height, width, ...]: view i's window at (x0s[i], y0s[i])."""
-    return torch.stack(
-        [images[i, y : y + height, x : x + width] for i, (x, y) in enumerate(zip(x0s, y0s))]
-    ).contiguous()
-
-
 def _mean(x: torch.Tensor, rows: int = 1024) -> torch.Tensor:
     """Mean whose value does not depend on the thread count: torch splits a reduction to one
     number of more than 32,768 elements over its threads, but sums each row of a [rows, -1]
@@ -445,14 +424,14 @@ def lifted_posed(fmap: np.ndarray, falloff: float, vertices: np.ndarray, cameras
     from dlacli.avatar.posed import PosedAvatar
     from dlacli.geometry import camera_centers
 
-    z = torch.from_numpy(fmap).float()
+    z = torch.as_tensor(fmap, dtype=torch.float32)  # a tensor stays differentiable (training renders through it)
     decoder = IdentityDecoder()
     if falloff:
         z, decoder = torch.cat([z, torch.full((1, *fmap.shape[1:]), float(falloff))]), ViewCosineDecoder()
-    verts = torch.from_numpy(np.asarray(vertices, dtype=np.float32))
+    verts = torch.as_tensor(vertices, dtype=torch.float32, device=z.device)  # z's device (training may use CUDA)
     # the view-cosine decoder reads the posed normals alone: the posed body stands in for the rest pose
-    decoded = Decoded.of(decoder, z, rest_vertices=verts.numpy())
-    return PosedAvatar(decoded, samples, verts[None], camera_centers(cameras.viewmats)[None])
+    decoded = Decoded.of(decoder, z, rest_vertices=verts.cpu().numpy())
+    return PosedAvatar(decoded, samples, verts[None], camera_centers(cameras.viewmats.to(z.device))[None])
 
 
 def view_colours(
@@ -497,7 +476,7 @@ def refine(
     L1 + w_mask * mask L1 + w_ssim * (1 - SSIM), Adam for cfg.steps steps.
     `progress(step, loss)` is called per step. Returns the refined map and the loss of every step."""
     from dlacli.nn.losses import SSIM_WINDOW, ssim_map
-    from dlacli.stages.refine import adam_refine
+    from dlacli.stages.refine import adam_refine, crop, subject_crops
 
     samples = samples or gm.make_samples(cfg.gaussians, cfg.seed)
     # F itself is optimised (the identity decoder's F = Z): its Gaussians are placed straight by
@@ -511,7 +490,7 @@ def refine(
     with torch.no_grad():
         (start,) = gm.gaussians_at_frames(base, samples, frames)
     x0s, y0s, cw, ch = subject_crops(target_mask, start.means.numpy().astype(np.float64), cams)
-    target_rgb, target_mask = _crop(target_rgb, x0s, y0s, cw, ch), _crop(target_mask, x0s, y0s, cw, ch)
+    target_rgb, target_mask = crop(target_rgb, x0s, y0s, cw, ch), crop(target_mask, x0s, y0s, cw, ch)
     cams = cams.cropped(x0s, y0s, cw, ch)
     colours = view_colours(fmap, falloff, vertices, cams, samples)  # colours are held: once
     delta = torch.zeros_like(base, requires_grad=True)
@@ -555,39 +534,34 @@ def render_views(fmap: np.ndarray, vertices: np.ndarray, cameras: Cameras, sampl
     return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
 
 
-def contact_sheet(inputs: np.ndarray, renders: np.ndarray, tile: int = 256) -> np.ndarray:
-    """Inputs [V, H, W, 3] above renders [V, H, W, 3] (floats in [0, 1]) -> uint8 image; tiles
-    are framed by a 1-pixel grey line so that columns stay apart on a black background."""
-    from PIL import Image
+@dataclass
+class Unprojected:
+    """What mesh unprojection makes of a view folder: the lift with 0 steps (a, b and the bake)."""
 
-    def row(images):
-        tiles = []
-        for im in images:
-            pil = Image.fromarray((np.clip(im, 0, 1) * 255 + 0.5).astype(np.uint8))
-            pil.thumbnail((tile, tile))
-            canvas = Image.new("RGB", (tile, tile))
-            canvas.paste(pil, ((tile - pil.width) // 2, (tile - pil.height) // 2))
-            framed = np.asarray(canvas).copy()
-            framed[[0, -1], :] = framed[:, [0, -1]] = 64
-            tiles.append(framed)
-        return np.concatenate(tiles, axis=1)
-
-    return np.concatenate([row(inputs), row(renders)], axis=0)
+    vertices: np.ndarray  # [V, 3] the body in the input pose
+    unstructured: Gaussians  # step a's pose-space Gaussians
+    depth: np.ndarray  # [V, H, W] the body's camera depth in the views (inf off it)
+    hull: HullDepth  # step a's visual-hull depths
+    fmap: np.ndarray  # [14, R, R] float32: F, colours baked
+    falloff: float  # the views' view falloff k (0: the identity decoder)
 
 
-def sheet_and_novel_view(views: ViewSet, novel: ViewSet | None, render):
-    """The contact sheet of an avatar shown by `render(cameras) -> rgb [C, H, W, 3]` (numpy):
-    the views at <= 512 px above its renders of them, plus the first novel view (ground truth
-    the avatar never saw) as a fifth column when `novel` has one -> (sheet, (render, truth,
-    mask) of that novel view or None)."""
-    rgb, _, cams = _resized_targets(views, 512)
-    inputs, renders, novel_view = rgb.numpy(), render(cams), None
-    if novel is not None and len(novel):
-        n_rgb, n_mask, n_cams = _resized_targets(novel, 512)
-        n_out = render(n_cams.select(0))
-        novel_view = (n_out[0], n_rgb[0].numpy(), n_mask[0].numpy())
-        inputs, renders = np.concatenate([inputs, n_rgb[:1].numpy()]), np.concatenate([renders, n_out])
-    return contact_sheet(inputs, renders), novel_view
+def unprojection(views: ViewSet, cfg: LiftConfig) -> Unprojected:
+    """Steps a and b and the colour bake: everything `lift` does before refining."""
+    from dlacli.body.model import get_body_model
+
+    if views.body is None:
+        raise DlaInputError("views", "lift needs body.json beside transforms.json")
+    if len(views) > MAX_VIEWS:
+        raise DlaInputError("views", f"has {len(views)} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
+    vertices = get_body_model().forward_body(views.body).vertices[0].numpy()
+    unstructured, _, eyes, hull = _unstructured(views, vertices, cfg.grid)
+    depth = body_depth_maps(vertices, views)  # for the bakes and the falloff
+    fmap = unproject_to_uv(unstructured, eyes, vertices, cfg.resolution)
+    falloff = view_falloff(fmap, views, vertices, depth) if cfg.view_colour else 0.0
+    falloff = falloff if abs(falloff) >= MIN_FALLOFF else 0.0
+    fmap = bake_colours(fmap, views, vertices, depth, falloff)
+    return Unprojected(vertices, unstructured, depth, hull, fmap, falloff)
 
 
 def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: ViewSet | None = None) -> LiftResult:
@@ -595,30 +569,47 @@ def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: Vi
     Gaussians and a contact sheet. `novel`: ground-truth views of the same pose that lift does not
     see (synth's novel_views/); the first one joins the contact sheet as a fifth column and is
     returned rendered (`LiftResult.novel_view`) for scoring."""
-    from dlacli.body.model import get_body_model
+    cfg = cfg or LiftConfig()
+    base = unprojection(views, cfg)
+    return finish_lift(views, cfg, base, base.fmap, progress, novel)
+
+
+def finish_lift(
+    views: ViewSet,
+    cfg: LiftConfig,
+    base: Unprojected,
+    fmap: np.ndarray,
+    progress=None,
+    novel: ViewSet | None = None,
+    encoder: str = ENCODER,
+    rebake: bool = True,
+    extra: dict | None = None,
+    code=None,
+) -> LiftResult:
+    """The lift's end from a Gaussian map F [14, R, R] on the body of `base`: cfg.steps of
+    refinement (colours re-baked after it when `rebake`), the contact sheet, and the avatar
+    that records `encoder` and `extra` beside the lift's own. Its decoder is identity or
+    view-cosine (z = F, or F and the falloff), unless `code(F)` -> (z, decoder name, checkpoint
+    hash, render(cameras) -> rgb [C, H, W, 3] numpy) says otherwise."""
     from dlacli.body.uv import UV_LAYOUT
 
-    cfg = cfg or LiftConfig()
-    if views.body is None:
-        raise DlaInputError("views", "lift needs body.json beside transforms.json")
-    if len(views) > MAX_VIEWS:
-        raise DlaInputError("views", f"has {len(views)} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
-    vertices = get_body_model().forward_body(views.body).vertices[0].numpy()
-    unstructured, _, eyes = unstructured_gaussians(views, vertices, cfg.grid)
-    depth = body_depth_maps(vertices, views)  # for the bakes and the falloff
-    fmap = unproject_to_uv(unstructured, eyes, vertices, cfg.resolution)
-    falloff = view_falloff(fmap, views, vertices, depth) if cfg.view_colour else 0.0
-    falloff = falloff if abs(falloff) >= MIN_FALLOFF else 0.0
-    fmap = bake_colours(fmap, views, vertices, depth, falloff)
+    vertices, depth, falloff = base.vertices, base.depth, base.falloff
     samples = gm.make_samples(cfg.gaussians, cfg.seed)  # the Gaussians refined and shown
     history: list[float] = []
     if cfg.steps > 0:
         fmap, history = refine(fmap, views, vertices, cfg, progress, samples, falloff)
-        fmap = bake_colours(fmap, views, vertices, depth, falloff)  # colours where the refined geometry puts them
-    sheet, novel_view = sheet_and_novel_view(
-        views, novel, lambda cams: render_views(fmap, vertices, cams, samples, falloff)[0].numpy()
-    )
+        if rebake:
+            fmap = bake_colours(fmap, views, vertices, depth, falloff)  # colours where the refined geometry puts them
+    if code is None:
+        z, decoder, checkpoint = fmap, DECODER, ""
+        if falloff:  # colour depends on the view: the view-cosine decoder, k in z's last channel
+            z, decoder = np.concatenate([fmap, np.full((1, *fmap.shape[1:]), falloff, np.float32)]), VIEW_DECODER
+        render = lambda cams: render_views(fmap, vertices, cams, samples, falloff)[0].numpy()  # noqa: E731
+    else:
+        z, decoder, checkpoint, render = code(fmap)
+    sheet, novel_view = sheet_and_novel_view(views, novel, render)
     extra = {
+        **(extra or {}),
         "lift": {
             "steps": cfg.steps,
             "grid": cfg.grid,
@@ -628,8 +619,5 @@ def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: Vi
         },
         "samples": {"count": cfg.gaussians, "seed": cfg.seed},
     }  # what render/animate draw by default
-    z, decoder = fmap, DECODER
-    if falloff:  # colour depends on the view: the view-cosine decoder, k in z's last channel
-        z, decoder = np.concatenate([fmap, np.full((1, *fmap.shape[1:]), falloff, np.float32)]), VIEW_DECODER
-    avatar = Avatar(z=z, encoder=ENCODER, decoder=decoder, body=views.body, uv_layout=UV_LAYOUT, extra=extra)
-    return LiftResult(avatar, unstructured, sheet, novel_view)
+    avatar = Avatar(z, encoder, decoder, views.body, UV_LAYOUT, checkpoint, extra=extra)
+    return LiftResult(avatar, base.unstructured, sheet, novel_view)

@@ -13,6 +13,7 @@ starts with `KEY=` belonging to the spec before it):
     unproject:steps=50                 + 50 refinement steps through skinning and splatting
     unproject:steps=150,render_size=256
     learned:checkpoint=PATH,steps=20   the learned encoder + GPD, + 20 refinement steps of Z
+    residual:checkpoint=PATH,steps=10  unprojection corrected by the residual network, + 10 steps
 
 A bare name means the config's defaults; `dla lift` alone refines by default (`lift_defaults`).
 Older spellings still read, as what they always meant: `refine` (unproject:steps=50),
@@ -327,6 +328,33 @@ def _install_learned(config: LearnedConfig) -> None:
     install_checkpoint(resolve_checkpoint(config.checkpoint))
 
 
+@dataclass(frozen=True)
+class ResidualConfig:
+    """Mesh unprojection corrected by the residual network of a `dla train --method residual`
+    checkpoint (folder or hash; None: the weights shipped in the package), then `steps` of
+    refinement (stages/residual.py; None: the network's training resolution and Gaussian count,
+    the lift's defaults otherwise)."""
+
+    checkpoint: str | None = None
+    steps: int = 0
+    resolution: int | None = None  # UV side of Z
+    gaussians: int | None = None  # Gaussians sampled while refining and rendering
+    render_size: int | None = None  # refinement renders at most this many pixels on the long side
+    seed: int | None = None  # seed of the Gaussian sample points
+
+    def __post_init__(self):
+        UnprojectConfig(self.steps, self.resolution, self.gaussians, self.render_size, self.seed)  # the same bounds
+
+
+def _lift_residual(views, config: ResidualConfig, progress: Progress | None = None, novel=None):
+    from dlacli.stages.residual import lift_residual
+
+    options = {
+        k: v for k, v in dataclasses.asdict(config).items() if v is not None and k not in ("checkpoint", "steps")
+    }
+    return lift_residual(views, config.checkpoint, config.steps, progress, novel, **options)
+
+
 register(
     Method(
         "unproject",
@@ -343,5 +371,24 @@ register(
         _lift_learned,
         "U-Net + cross-attention encoder + GPD from checkpoint=PATH",
         install=_install_learned,
+    )
+)
+
+
+def _install_residual(config: ResidualConfig) -> None:
+    """A residual network with the colour gain is its avatars' decoder, found by hash elsewhere."""
+    from dlacli.avatar.checkpoint import install_checkpoint, resolve_checkpoint
+    from dlacli.stages.residual import SHIPPED
+
+    install_checkpoint(SHIPPED if config.checkpoint is None else resolve_checkpoint(config.checkpoint))
+
+
+register(
+    Method(
+        "residual",
+        ResidualConfig,
+        _lift_residual,
+        "mesh unprojection corrected by a small trained UV network (checkpoint=PATH or the shipped weights)",
+        install=_install_residual,
     )
 )

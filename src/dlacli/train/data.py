@@ -233,9 +233,17 @@ class TrainingData:
     def item(self, index: int, rng: np.random.Generator) -> Item:
         """Subject `index` with `targets` targets drawn by `rng` (without replacement when the
         pool is large enough); the same index and rng state give the same Item."""
+        n = self._subject(index).pool.shape[0]
+        return self.item_at(index, rng.choice(n, size=self.targets, replace=n < self.targets))
+
+    def kinds(self, index: int) -> list[str]:
+        """The kind ("view" or "pose") of each target in subject `index`'s pool, in pool order."""
+        return list(self._subject(index).pool_kind)
+
+    def item_at(self, index: int, pick) -> Item:
+        """Subject `index` with the targets at pool positions `pick` (`kinds` lists the pool)."""
         sub = self._subject(index)
-        n = sub.pool.shape[0]
-        pick = rng.choice(n, size=self.targets, replace=n < self.targets)
+        pick = np.asarray(pick, np.int64)
         in_rgb, in_mask = _tensors(sub.inputs)
         t_rgb, t_mask = _tensors(sub.pool[pick])
         return Item(

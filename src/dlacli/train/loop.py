@@ -155,7 +155,10 @@ class GeneratorLoss(nn.Module):
         depth = torch.stack([subject_depth(c, it.input_vertices) for c, it in zip(cams, items)]).to(device)
         g, feats = net.reconstruct(rgb, cams, depth)
         mean, logvar = net.encode(
-            g, feats, net.uv_positions(torch.stack([it.input_vertices for it in items]).to(device))
+            g,
+            feats,
+            net.uv_positions(torch.stack([it.input_vertices for it in items]).to(device)),
+            mask=torch.stack([it.input_mask for it in items]).to(device),
         )
         parts = {k: [] for k in ("l1", "mask", "ug", "perceptual", "gan", "kl", "delta")}
         fakes, reals = [], []
@@ -432,7 +435,7 @@ def validate(net, data, size: int, seed: int = 0, subjects: int = 2):
         it = data.item(i, np.random.default_rng([seed, 7, i]))
         cams = it.input_cameras
         g, feats = net.reconstruct(it.input_rgb[None], [cams], subject_depth(cams, it.input_vertices)[None])
-        mean, _ = net.encode(g, feats, net.uv_positions(it.input_vertices[None]))
+        mean, _ = net.encode(g, feats, net.uv_positions(it.input_vertices[None]), mask=it.input_mask[None])
         t_cams = it.target_cameras.resized(size, size)
         for t in range(len(it.target_kind)):
             pred, alpha = render_targets(net, mean[0], it.target_vertices[t], it.rest_vertices, t_cams.select(t))
@@ -531,7 +534,7 @@ def draw_losses(record: dict, path: Path) -> None:
     hist = record["history"]
     steps = [h["step"] for h in hist]
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4))
-    for key in ("total", "l1", "ug", "mask", "perceptual", "gan", "kl", "delta", "disc"):
+    for key in ("total", "l1", "ug", "mask", "ssim", "perceptual", "gan", "kl", "delta", "disc"):
         pts = [(h["step"], h[key]) for h in hist if key in h and h[key] > 0]
         if pts:
             ax.plot(*zip(*pts), label=key, lw=1)

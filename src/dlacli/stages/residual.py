@@ -1,0 +1,131 @@
+"""The residual lift (`dla lift --method residual`): mesh unprojection, then a small trained
+UV-space network (nn/residual.py) that corrects its Gaussian map from observation features
+(stages/observations.py), then optionally `steps` of the lift's own refinement.
+
+    views --stages/lift.unprojection--> F, body, depths --observation_features--> features
+        --ResidualNet--> F' = F + bounded corrections --(refine, steps)--> avatar (identity or
+        view-cosine decoder: F' is a Gaussian map like any unprojected one)
+
+The untrained network returns F bit for bit, so with an untrained checkpoint this lift writes
+the same avatar z as `unproject` (tests/nn/test_residual.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dlacli.errors import DlaInputError
+from dlacli.types import ViewSet
+
+ENCODER = "residual"
+SHIPPED = Path(__file__).resolve().parent.parent / "assets" / "weights" / "residual"
+
+
+@dataclass
+class ResidualInputs:
+    """What the network reads of one view folder, and the unprojection it corrects."""
+
+    base: object  # stages/lift.Unprojected
+    features: np.ndarray  # [feature_count, R, R] float32
+
+
+def residual_inputs(views: ViewSet, cfg) -> ResidualInputs:
+    """Unprojection of `views` with the lift config cfg (stages/lift.LiftConfig) and its
+    observation features: everything the network does not change, computed once."""
+    from dlacli.stages.lift import unprojection
+    from dlacli.stages.observations import observation_features
+
+    base = unprojection(views, cfg)
+    return ResidualInputs(base, observation_features(base.fmap, views, base.vertices, base.depth, base.hull))
+
+
+def load_residual(checkpoint: str | None, where: str = "--method residual"):
+    """(ResidualNet in eval mode, its hash) from a checkpoint folder or hash; None: the shipped
+    weights (assets/weights/residual/), a one-line error when none ship."""
+    from dlacli.avatar.checkpoint import CONFIG, load_checkpoint, resolve_checkpoint
+    from dlacli.nn.residual import ResidualNet
+
+    if checkpoint is None:
+        if not (SHIPPED / CONFIG).is_file():
+            raise DlaInputError(
+                where,
+                "no residual weights ship with this version; pass checkpoint=PATH "
+                "(a `dla train --method residual` run's RUN/ckpt-N/generator)",
+            )
+        path = SHIPPED
+    else:
+        path = resolve_checkpoint(checkpoint)
+    loaded = load_checkpoint(path)
+    if not isinstance(loaded.module, ResidualNet):
+        raise DlaInputError(where, f"{path} holds a {type(loaded.module).__name__}, not a residual lift network")
+    return loaded.module.eval(), loaded.hash
+
+
+def corrected_map(net, inputs: ResidualInputs) -> np.ndarray:
+    """The network's F' [14, R, R] float32 for one view folder's inputs (no gradient)."""
+    with torch.no_grad():
+        fmap = torch.from_numpy(inputs.base.fmap)[None]
+        feats = torch.from_numpy(inputs.features)[None]
+        out, _ = net(fmap, feats)
+    return out[0].numpy()
+
+
+def lift_residual(
+    views: ViewSet,
+    checkpoint: str | None = None,
+    steps: int = 0,
+    progress=None,
+    novel: ViewSet | None = None,
+    **lift_options,
+):
+    """views -> stages.lift.LiftResult: unprojection at the network's resolution and Gaussian
+    count (unless `lift_options` set resolution / gaussians / render_size / seed), the network's
+    corrections, `steps` of refinement of the geometry (colours stay the network's)."""
+    from dlacli.stages.lift import LiftConfig, finish_lift
+
+    net, digest = load_residual(checkpoint)
+    options = {"resolution": net.config.resolution, "gaussians": net.config.gaussians, **lift_options}
+    cfg = LiftConfig(steps=steps, **options)
+    inputs = residual_inputs(views, cfg)
+    extra = {"residual": {"checkpoint": digest, "gain": bool(net.config.gain)}}
+    if not net.config.gain:
+        fmap = corrected_map(net, inputs)
+        return finish_lift(views, cfg, inputs.base, fmap, progress, novel, encoder=ENCODER, rebake=False, extra=extra)
+    with torch.no_grad():
+        z, _ = net.encode(
+            torch.from_numpy(inputs.base.fmap)[None], torch.from_numpy(inputs.features)[None], inputs.base.falloff
+        )
+    z = z[0].numpy()
+    fmap = z[:14].copy()
+
+    def code(final: np.ndarray):
+        """The residual-gain avatar code around the (refined) map: F_delta is the gain decoder's."""
+        out = np.concatenate([final, z[14:]])
+        render = lambda cams: render_code(net, out, inputs.base.vertices, views.body, cams, cfg)  # noqa: E731
+        return out, net.name, digest, render
+
+    return finish_lift(
+        views, cfg, inputs.base, fmap, progress, novel, encoder=ENCODER, rebake=False, extra=extra, code=code
+    )
+
+
+def render_code(net, z: np.ndarray, vertices: np.ndarray, body, cameras, cfg) -> np.ndarray:
+    """The residual-gain code z on the body in the input pose (vertices [V, 3]) from cameras, as
+    `dla render` draws it -> rgb [C, H, W, 3] numpy."""
+    from dlacli.avatar import gaussian_map as gm
+    from dlacli.avatar.codec import Decoded
+    from dlacli.avatar.posed import PosedAvatar, render_posed
+    from dlacli.body.model import get_body_model
+    from dlacli.geometry import camera_centers
+
+    rest = get_body_model().rest_vertices(body.phenotype)
+    verts = torch.from_numpy(np.asarray(vertices, np.float32))[None]
+    eyes = camera_centers(cameras.viewmats.float())[None]
+    with torch.no_grad():
+        decoded = Decoded.of(net, torch.from_numpy(z), rest)
+        posed = PosedAvatar(decoded, gm.make_samples(cfg.gaussians, cfg.seed), verts, eyes)
+        return torch.cat([out.rgb for _, out in render_posed(posed, cameras)]).numpy()
