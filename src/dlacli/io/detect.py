@@ -94,34 +94,27 @@ def quiet_fd2() -> Iterator[None]:
 
 @contextlib.contextmanager
 def native_stderr_quiet() -> Iterator[None]:
-    """Inside the block, file descriptor 2 goes to the null device (what MediaPipe's C++ threads
-    log, also after a call returned) while Python's `sys.stderr` writes to the original stderr
-    (so progress bars and warnings still show). Restored afterwards, also when the block raises."""
+    """`quiet_fd2` (file descriptor 2 to the null device: what MediaPipe's C++ threads log, also
+    after a call returned), while Python's `sys.stderr` writes to the original stderr (so progress
+    bars and warnings still show). Restored afterwards, also when the block raises."""
     import io
 
-    with contextlib.suppress(Exception):
-        sys.stderr.flush()
     try:
-        saved = os.dup(2)
+        stream = io.TextIOWrapper(os.fdopen(os.dup(2), "wb", buffering=0), write_through=True)
     except OSError:
         yield
         return
     old = sys.stderr
-    stream = io.TextIOWrapper(os.fdopen(os.dup(saved), "wb", buffering=0), write_through=True)
     try:
-        null = os.open(os.devnull, os.O_WRONLY)
-        try:
-            os.dup2(null, 2)
-        finally:
-            os.close(null)
-        sys.stderr = stream
-        yield
+        with quiet_fd2():
+            sys.stderr = stream
+            try:
+                yield
+            finally:
+                sys.stderr = old
     finally:
-        sys.stderr = old
         with contextlib.suppress(Exception):
             stream.close()
-        os.dup2(saved, 2)
-        os.close(saved)
 
 
 class _Deferred(types.ModuleType):

@@ -299,37 +299,19 @@ def train(
     opt_g = torch.optim.Adam(net.parameters(), lr=cfg.lr_g, betas=tuple(cfg.betas))
     opt_d = torch.optim.Adam(disc.parameters(), lr=cfg.lr_d, betas=tuple(cfg.betas))
     settings = _settings(cfg, str(data))
-    record = {
-        "format": FORMAT,
-        "settings": settings,
-        "step": 0,
-        "history": [],
-        "validation": [],
-        "checkpoint": None,
-        "seconds": 0.0,
-        "world_size": world.size,
-        "train_subjects": train_ids,
-        "validation_subjects": val_ids,
-    }
-    if resume:
-        record = _read_record(record_path)
-        if record["settings"] != settings:
-            diff = sorted(k for k in settings if record["settings"].get(k) != settings[k])
-            raise DlaInputError(
-                record_path, f"was trained with other settings ({', '.join(diff)}); resume with the same ones"
-            )
-        if record["checkpoint"]:
-            ck = out / record["checkpoint"]
-            lg, ld = (
-                load_checkpoint(ck / "generator", map_location=world.device),
-                load_checkpoint(ck / "discriminator", map_location=world.device),
-            )
-            net.load_state_dict(lg.module.state_dict())
-            disc.load_state_dict(ld.module.state_dict())
-            opt_g.load_state_dict(lg.optimizer_state)
-            opt_d.load_state_dict(ld.optimizer_state)
-    elif out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise DlaInputError(out, "exists and is not an empty folder (use --resume to continue a run, or a new folder)")
+    if not resume:
+        start_run(out)
+    record = resumed_record(record_path, settings) if resume else new_record(settings, world, train_ids, val_ids)
+    if record["checkpoint"]:
+        ck = out / record["checkpoint"]
+        lg, ld = (
+            load_checkpoint(ck / "generator", map_location=world.device),
+            load_checkpoint(ck / "discriminator", map_location=world.device),
+        )
+        net.load_state_dict(lg.module.state_dict())
+        disc.load_state_dict(ld.module.state_dict())
+        opt_g.load_state_dict(lg.optimizer_state)
+        opt_d.load_state_dict(ld.optimizer_state)
     alexnet = load_alexnet(cfg.alexnet).to(world.device) if cfg.alexnet else None
     g_loss, d_loss = GeneratorLoss(net, cfg, alexnet), DiscriminatorLoss(disc)
     if world.size > 1:
@@ -497,6 +479,39 @@ def _read_record(path: Path) -> dict:
         if not ok:
             raise DlaInputError(path, f"'{key}' must be a list of objects holding a 'step' and numbers")
     return rec
+
+
+def new_record(settings: dict, world: World, train_ids: list, val_ids: list) -> dict:
+    """train.json's content before the first step (formats/train-run.md)."""
+    return {
+        "format": FORMAT,
+        "settings": settings,
+        "step": 0,
+        "history": [],
+        "validation": [],
+        "checkpoint": None,
+        "seconds": 0.0,
+        "world_size": world.size,
+        "train_subjects": train_ids,
+        "validation_subjects": val_ids,
+    }
+
+
+def start_run(out: Path) -> None:
+    """A new run needs a new or empty folder (one-line error otherwise)."""
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise DlaInputError(out, "exists and is not an empty folder (use --resume to continue a run, or a new folder)")
+
+
+def resumed_record(record_path: Path, settings: dict) -> dict:
+    """train.json of a run to resume, refused (one line) when it was trained with other settings."""
+    record = _read_record(record_path)
+    if record["settings"] != settings:
+        diff = sorted(k for k in settings if record["settings"].get(k) != settings[k])
+        raise DlaInputError(
+            record_path, f"was trained with other settings ({', '.join(diff)}); resume with the same ones"
+        )
+    return record
 
 
 def _is_number(value) -> bool:

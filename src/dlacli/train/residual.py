@@ -35,15 +35,16 @@ from torch import nn
 
 from dlacli.errors import DlaInputError
 from dlacli.train.loop import (
-    FORMAT,
     _all_reduce_mean,
     _global_batch,
     _psnr,
-    _read_record,
     _save_png,
     _write_record,
     draw_losses,
     init_world,
+    new_record,
+    resumed_record,
+    start_run,
 )
 
 INPUTS_VERSION = "residual-inputs/1"  # bump when unprojection or the features change
@@ -380,33 +381,16 @@ def train_residual(
     record_path = out / "train.json"
     ncfg = net_config(cfg)
     settings = _settings(cfg, str(data))
-    if resume:
-        record = _read_record(record_path)
-        if record["settings"] != settings:
-            diff = sorted(k for k in settings if record["settings"].get(k) != settings[k])
-            raise DlaInputError(
-                record_path, f"was trained with other settings ({', '.join(diff)}); resume with the same ones"
-            )
-    elif out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise DlaInputError(out, "exists and is not an empty folder (use --resume to continue a run, or a new folder)")
+    record = resumed_record(record_path, settings) if resume else None
+    if not resume:
+        start_run(out)
     train_ids, val_ids, folders, full, val = _setup(data, cfg)
     torch.manual_seed(cfg.seed)
     net = ResidualNet(ncfg).to(world.device)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, betas=tuple(cfg.betas))
-    if not resume:
-        record = {
-            "format": FORMAT,
-            "settings": settings,
-            "step": 0,
-            "history": [],
-            "validation": [],
-            "checkpoint": None,
-            "seconds": 0.0,
-            "world_size": world.size,
-            "train_subjects": train_ids,
-            "validation_subjects": val_ids,
-        }
-    elif record["checkpoint"]:
+    if record is None:
+        record = new_record(settings, world, train_ids, val_ids)
+    if record["checkpoint"]:
         loaded = load_checkpoint(out / record["checkpoint"] / "generator", map_location=world.device)
         net.load_state_dict(loaded.module.state_dict())
         opt.load_state_dict(loaded.optimizer_state)
