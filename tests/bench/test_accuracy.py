@@ -70,3 +70,27 @@ def test_a_small_run_scores_every_split(tmp_path):
     for r in rows:
         for k, v in direct[r["split"]].items():
             assert abs(r["metrics"][k] - v) <= (1e-3 if k.startswith("psnr") else 1e-4), (r["split"], k)
+
+
+def test_a_residual_row_names_its_network_by_hash(tmp_path):
+    """The residual lift's network is no decoder (the avatar records no checkpoint): its row
+    names the weights by the hash the lift records, and no empty preset / variant fields."""
+    from dlacli.avatar.checkpoint import save_checkpoint
+    from dlacli.bench.accuracy import run
+    from dlacli.nn.residual import ResidualNet, ResidualNetConfig
+    from dlacli.stages.methods import parse_methods
+    from dlacli.stages.observations import feature_count
+
+    cfg = ResidualNetConfig(features=feature_count(), width=8, resolution=32, gaussians=4096)
+    digest = save_checkpoint(tmp_path / "ck", ResidualNet(cfg), cfg)
+    rows = run(
+        [8102],
+        parse_methods(f"residual:checkpoint={tmp_path / 'ck'}"),
+        res=48,
+        novel_views=1,
+        novel_poses=1,
+        log=lambda s: None,
+    )
+    for r in rows:
+        assert r["config"]["checkpoint"] == digest[:16]
+        assert "preset" not in r["config"] and "variant" not in r["config"]

@@ -157,9 +157,9 @@ def run(
                 config = {**spec.options(), "res": res, "appearance": appearance, "wardrobe": wardrobe}
                 if "checkpoint" in config:  # the weights by hash, not by local path; what they are
                     lift = avatar.extra.get("lift", {})
-                    config.update(
-                        checkpoint=avatar.checkpoint[:16], preset=lift.get("preset"), variant=lift.get("variant")
-                    )
+                    digest = avatar.checkpoint or avatar.extra.get("residual", {}).get("checkpoint", "")
+                    named = {"checkpoint": digest[:16], "preset": lift.get("preset"), "variant": lift.get("variant")}
+                    config.update({k: v for k, v in named.items() if v})
                 for split in SPLITS:
                     rows.append(make_row(spec.name, config, split, seconds, peak, result[split], subject=seed))
                 log(
