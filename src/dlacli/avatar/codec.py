@@ -90,7 +90,7 @@ class ViewCosineDecoder(IdentityDecoder):
     F_delta holds rgb k (cos - 1) in the colour channels and zeros elsewhere. k = 0 is the
     identity decoder; k > 0 darkens surfaces seen obliquely (a light near the camera, a rough
     material's falloff), k < 0 brightens them. `dla lift` measures k from the views
-    (stages/lift.py `view_falloff`) and writes this decoder only when it is not ~0."""
+    (stages/bake.py `view_falloff`) and writes this decoder only when it is not ~0."""
 
     name = "view-cosine"
     pose_conditioned = True  # the posed normals

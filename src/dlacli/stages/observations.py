@@ -5,7 +5,7 @@ tell where unprojection had good evidence and where it guessed. Numpy, no networ
 per lift at the map's resolution R (docs/lift.md "Observation features" says what each means):
 
     0      coverage          1 on texels the UV layout covers, 0 elsewhere
-    1      seen              fraction of the views that see the texel (`lift._observations`)
+    1      seen              fraction of the views that see the texel (`bake._observations`)
     2      best_cos          the most frontal viewing cosine among them (0: none sees it)
     3      colour_std        spread of the views' colours at the texel (std over the views that
                              see it, mean over r, g, b; 0 when fewer than 2 see it)
@@ -55,9 +55,9 @@ def _lookup(image: np.ndarray, px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def observation_features(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, depth: np.ndarray, hull) -> np.ndarray:
     """Features [feature_count(), R, R] float32 of the unprojected map F [14, R, R] (module doc)
     from the views, the body in their pose (vertices [V, 3]), its depth in the views
-    (depth [V, H, W], `lift.body_depth_maps`) and step a's hull depths (`lift.HullDepth`)."""
+    (depth [V, H, W], `bake.body_depth_maps`) and step a's hull depths (`lift.HullDepth`)."""
     from dlacli.body.regions import segmentation_onehot
-    from dlacli.stages.lift import VISIBLE_DEPTH, _observations, _texel_points
+    from dlacli.stages.bake import VISIBLE_DEPTH, _observations, _texel_points
 
     res = fmap.shape[-1]
     valid, points, normals = _texel_points(fmap, vertices)
