@@ -94,3 +94,28 @@ def test_a_residual_row_names_its_network_by_hash(tmp_path):
     for r in rows:
         assert r["config"]["checkpoint"] == digest[:16]
         assert "preset" not in r["config"] and "variant" not in r["config"]
+
+
+def test_kept_subjects_are_reused(tmp_path, monkeypatch):
+    """With keep, the subjects are written once under keep/<settings>/ and a second run reuses
+    them (no synth call) and scores the same; other settings get a folder of their own."""
+    import dlacli.data.synth as synth_module
+    from dlacli.bench.accuracy import run
+    from dlacli.stages.methods import parse_methods
+
+    kw = dict(res=48, novel_views=1, novel_poses=1, log=lambda s: None, keep=tmp_path / "keep")
+    first = run([8102], parse_methods("unproject"), **kw)
+    (settings,) = (tmp_path / "keep").iterdir()
+    assert (settings / "s8102" / "transforms.json").is_file()
+    stamp = (settings / "s8102" / "transforms.json").stat().st_mtime_ns
+
+    def no_synth(*args, **kwargs):
+        raise AssertionError("a kept subject was synthesised again")
+
+    monkeypatch.setattr(synth_module, "synth", no_synth)
+    again = run([8102], parse_methods("unproject"), **kw)
+    assert (settings / "s8102" / "transforms.json").stat().st_mtime_ns == stamp
+    for a, b in zip(again, first, strict=True):  # the same files lifted again: float32 order at most
+        assert a["metrics"] == pytest.approx(b["metrics"], rel=1e-5), a["split"]
+    with pytest.raises(AssertionError, match="synthesised again"):  # albedo is another subject
+        run([8102], parse_methods("unproject"), appearance="albedo", **kw)

@@ -109,24 +109,50 @@ def score_avatar(avatar, folder: Path) -> dict[str, dict[str, float]]:
     return out
 
 
-def subjects(seeds, folder: Path, res: int, novel_views: int, novel_poses: int, appearance: str, wardrobe: str):
+def subjects(
+    seeds,
+    folder: Path,
+    res: int,
+    novel_views: int,
+    novel_poses: int,
+    appearance: str,
+    wardrobe: str,
+    keep: Path | None = None,
+):
     """(seed, subject folder) per seed: each synthetic subject written under `folder` as the
-    accuracy benchmarks score it (its views, novel views and novel poses)."""
+    accuracy benchmarks score it (its views, novel views and novel poses). With `keep`, subjects
+    live in keep/<settings>/s<seed> instead, and one already complete there is reused (synth is
+    deterministic: the same seed and settings give the same files)."""
     from dlacli.data.synth import synth
 
+    if keep is not None:
+        folder = Path(keep) / f"{appearance}-{wardrobe}-{res}px-{novel_views}v-{novel_poses}p"
+        folder.mkdir(parents=True, exist_ok=True)
     for seed in seeds:
-        yield (
-            seed,
+        out = folder / f"s{seed}"
+        if keep is None or not _complete(out, seed):
             synth(
                 seed,
-                folder / f"s{seed}",
+                out,
                 res=res,
                 novel_views=novel_views,
                 novel_poses=novel_poses,
                 appearance=appearance,
                 wardrobe=wardrobe,
-            ),
-        )
+            )
+        yield seed, out
+
+
+def _complete(folder: Path, seed: int) -> bool:
+    """Whether `folder` holds the synthetic subject `seed` (synth writes its folder atomically, so
+    one that exists is whole)."""
+    import json
+
+    try:
+        record = json.loads((folder / "transforms.json").read_text())["dla"]["synth"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    return record.get("seed") == seed
 
 
 def run(
@@ -138,9 +164,11 @@ def run(
     novel_views: int = 12,
     novel_poses: int = 8,
     log: Callable[[str], None] = print,
+    keep: Path | None = None,
 ) -> list[dict]:
     """dla.bench/1 rows: one per seed, method and split (the 4 true views as the input; one photo
-    through `dla dream`: bench/single_photo.run_photo)."""
+    through `dla dream`: bench/single_photo.run_photo). `keep`: a folder the subjects are kept in
+    and reused from (`subjects`)."""
     from dlacli.bench.rows import make_row
     from dlacli.io.avatar import read_avatar
 
@@ -148,7 +176,7 @@ def run(
         spec.install()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for seed, folder in subjects(seeds, Path(tmp), res, novel_views, novel_poses, appearance, wardrobe):
+        for seed, folder in subjects(seeds, Path(tmp), res, novel_views, novel_poses, appearance, wardrobe, keep):
             for spec in methods:
                 path = Path(tmp) / f"s{seed}_{len(rows)}.npz"
                 seconds, peak = timed_lift(spec, folder, path)

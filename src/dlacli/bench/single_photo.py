@@ -212,6 +212,7 @@ def run_photo(
     novel_poses: int = 8,
     fit_steps: int = FIT_STEPS,
     log: Callable[[str], None] = print,
+    keep: Path | None = None,
 ) -> list[dict]:
     """dla.bench/1 rows, one per seed, backend, method and split (PHOTO_SPLITS), the subjects
     as `dla bench accuracy` makes them (bench/accuracy.run); a subject whose dream fails (e.g. no
@@ -227,7 +228,7 @@ def run_photo(
         spec.install()
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
-        for seed, subject in subjects(seeds, Path(tmp), res, novel_views, novel_poses, appearance, wardrobe):
+        for seed, subject in subjects(seeds, Path(tmp), res, novel_views, novel_poses, appearance, wardrobe, keep):
             photo = write_photo(subject, Path(tmp) / f"s{seed}_photo.png")
             for backend in backends:
                 base = {

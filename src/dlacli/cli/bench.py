@@ -200,6 +200,11 @@ def accuracy(
     fit_steps: int = typer.Option(
         FIT_STEPS, "--fit-steps", min=3, max=100_000, help="With --input photo: dream's body-fit steps (as dla dream)."
     ),
+    keep: Optional[Path] = typer.Option(
+        None,
+        "--subjects",
+        help="Keep the synthetic subjects in this folder and reuse those already there (same seed and settings).",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of a table."),
     jsonl: Optional[Path] = _results("rows"),
 ) -> None:
@@ -227,7 +232,11 @@ def accuracy(
 
     _names(input, "--input", INPUTS)
     seed_list = _ints(seeds, "--seeds", MAX_SEED)
-    common = dict(res=res, appearance=appearance, wardrobe=wardrobe, log=_stderr)
+    if keep is not None and keep.exists() and not keep.is_dir():
+        from dlacli.errors import DlaInputError
+
+        raise DlaInputError("--subjects", f"{keep} is not a folder")
+    common = dict(res=res, appearance=appearance, wardrobe=wardrobe, log=_stderr, keep=keep)
     if input == "photo":
         rows = run_photo(seed_list, specs, check_backends(backend.split(",")), fit_steps=fit_steps, **common)
     else:
