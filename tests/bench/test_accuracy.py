@@ -11,6 +11,7 @@ from dlacli.errors import DlaInputError
 def test_method_specs():
     """The suite reads the registry's specs (dlacli.stages.methods) and the older spellings as
     what they meant; a method has one name whatever its setting."""
+    from dlacli.limits import LIFT_STEPS
     from dlacli.stages.methods import parse_methods
 
     specs = parse_methods("unproject, refine:50, refine:150@256, learned:/runs/a/generator, learned:/r:b/g:20, refine")
@@ -20,7 +21,7 @@ def test_method_specs():
         ("unproject", {"steps": 150, "render_size": 256}),
         ("learned", {"checkpoint": "/runs/a/generator", "steps": 0}),
         ("learned", {"checkpoint": "/r:b/g", "steps": 20}),
-        ("unproject", {"steps": 50}),  # bare `refine`, as `dla bench stability` read it
+        ("unproject", {"steps": LIFT_STEPS}),  # bare `refine`, as `dla bench stability` reads it
     ]
     text = "unproject:steps=0, unproject:steps=50, unproject:steps=150,render_size=256, "
     text += "learned:checkpoint=/r:b/g,steps=20"

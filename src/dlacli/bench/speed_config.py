@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from dlacli.limits import DEFAULT_GAUSSIANS, FIT_STEPS
+from dlacli.limits import DEFAULT_GAUSSIANS, FIT_STEPS, LIFT_STEPS
 
 SUITES = ("startup", "splat", "body", "lift", "animate", "usd", "render", "view", "dream", "motion")
 _N = DEFAULT_GAUSSIANS
@@ -34,7 +34,7 @@ class SpeedConfig:
     gaussians: int = DEFAULT_GAUSSIANS  # body, animate, render
     frames: int = 30  # animate, render, usd
     res: int = 512  # lift subject, render size
-    lift_steps: tuple[int, ...] = (0, 50)
+    lift_steps: tuple[int, ...] = (0, LIFT_STEPS)
     seed: int = 1001  # the lift subject (a seed no test uses)
     startup_runs: int = 10
     usd_gaussians: int = DEFAULT_GAUSSIANS

@@ -51,7 +51,7 @@ class LiftConfig:
     steps: int = LIFT_STEPS  # refinement steps (0: unprojection only); see `dla bench pipeline`
     gaussians: int = LIFT_GAUSSIANS  # sampled during refinement, and recorded
     render_size: int = 512  # refinement renders views at most this many pixels on the long side
-    lr: float = 0.01
+    lr: float = 0.03  # Adam; with LIFT_STEPS (see limits.py)
     w_mask: float = 1.0
     w_ssim: float = 0.2
     seed: int = 0
@@ -472,6 +472,7 @@ def finish_lift(
         **(extra or {}),
         "lift": {
             "steps": cfg.steps,
+            "lr": cfg.lr,
             "grid": cfg.grid,
             "gaussians": cfg.gaussians,
             "final_loss": history[-1] if history else None,

@@ -12,11 +12,12 @@ starts with `KEY=` belonging to the spec before it):
     unproject                          mesh unprojection alone (paper ablation A.i; 0 steps)
     unproject:steps=50                 + 50 refinement steps through skinning and splatting
     unproject:steps=150,render_size=256
+    unproject:steps=50,lr=0.01         the default lift before it took 30 steps at lr 0.03
     learned:checkpoint=PATH,steps=20   the learned encoder + GPD, + 20 refinement steps of Z
     residual:checkpoint=PATH,steps=10  unprojection corrected by the residual network, + 10 steps
 
 A bare name means the config's defaults; `dla lift` alone refines by default (`lift_defaults`).
-Older spellings still read, as what they always meant: `refine` (unproject:steps=50),
+Older spellings still read: `refine` (unproject with the default lift's steps),
 `refine:STEPS[@SIZE]` (unproject:steps=STEPS[,render_size=SIZE]) and `learned:CKPT[:STEPS]`
 (learned:checkpoint=CKPT[,steps=STEPS]). Old result rows name methods "refine",
 "unproject+refine" and "learned+refine"; `LEGACY_NAMES` maps them (bench/rows.py reads them).
@@ -167,7 +168,7 @@ def _build(method: Method, values: dict, label: str, where: str, flags: Mapping[
 
 def _legacy(name: str, rest: str, refine_steps: int) -> tuple[str, dict] | None:
     """The older spellings (module doc) -> (method name, options); None when `name:rest` is not one.
-    A bare `refine` refines `refine_steps` steps (`dla bench stability --steps`, default 50)."""
+    A bare `refine` refines `refine_steps` steps (`dla bench stability --steps`, default LIFT_STEPS)."""
     if name == "refine":
         if not rest:
             return "unproject", {"steps": refine_steps}
@@ -270,9 +271,11 @@ class UnprojectConfig:
     render_size: int | None = None  # refinement renders at most this many pixels on the long side
     seed: int | None = None  # seed of the Gaussian sample points
     view_colour: bool | None = None  # measure and model the views' view-dependent falloff
+    lr: float | None = None  # the refinement's Adam learning rate
 
     def __post_init__(self):
         _check(0 <= self.steps <= MAX_LIFT_STEPS, f"steps must be in [0, {MAX_LIFT_STEPS}], got {self.steps}")
+        _check(self.lr is None or 0 < self.lr <= 1, f"lr must be in (0, 1], got {self.lr}")
         _check(
             self.resolution is None or MIN_IMAGE_SIZE <= self.resolution <= MAX_LIFT_RESOLUTION,
             f"resolution must be in [{MIN_IMAGE_SIZE}, {MAX_LIFT_RESOLUTION}], got {self.resolution}",
