@@ -153,32 +153,80 @@ def _depth_order(radii, depth_keys):
     return out
 
 
-@njit(cache=True, nogil=True)
-def _tile_lists(src, trect, n, ncam, width, height):
+@njit(parallel=True, cache=True)
+def _tile_lists(src, trect, n, ncam, width, height, nthreads):
+    """Per-tile lists of the sorted pairs `src` (each tile's list front to back) in three parallel
+    passes: the tile rectangles gathered in depth order, per-thread tile counts (summed), then
+    each thread fills the lists of its own band of tile rows (camera-major rows c * TH + ty, split
+    so the bands hold about equal numbers of entries), walking all pairs in depth order. Every
+    list slot has one writer and its value does not depend on the split: the same lists for any
+    thread count."""
     tw = (width + TILE - 1) // TILE
     th = (height + TILE - 1) // TILE
     ntiles = tw * th
-    counts = np.zeros(ncam * ntiles + 1, dtype=np.int64)
+    nrows = ncam * th
     m = src.shape[0]
-    for s in range(m):
-        i = src[s]
-        base = (i // n) * ntiles + 1
-        for ty in range(trect[i, 2], trect[i, 3]):
-            for tx in range(trect[i, 0], trect[i, 1]):
-                counts[base + ty * tw + tx] += 1
+    nparts = max(1, min(nthreads, nrows))
+    rect = np.empty((m, 4), dtype=np.int32)  # tx0, tx1, camera-major row y0, y1 (ends exclusive)
+    cam_end = np.searchsorted(src, np.arange(1, ncam + 1) * n)  # src is sorted by camera
+    for c in range(ncam):
+        r0 = c * th
+        for s in prange(0 if c == 0 else cam_end[c - 1], cam_end[c]):
+            i = src[s]
+            rect[s, 0] = trect[i, 0]
+            rect[s, 1] = trect[i, 1]
+            rect[s, 2] = r0 + trect[i, 2]
+            rect[s, 3] = r0 + trect[i, 3]
+    chunk = (m + nparts - 1) // nparts
+    part_counts = np.zeros((nparts, nrows * tw), dtype=np.int64)
+    for k in prange(nparts):
+        _count_tiles(rect, k * chunk, min(m, (k + 1) * chunk), tw, part_counts[k])
+    counts = np.zeros(ncam * ntiles + 1, dtype=np.int64)
+    for k in range(nparts):
+        for t in range(ncam * ntiles):
+            counts[t + 1] += part_counts[k, t]
     for t in range(ncam * ntiles):
         counts[t + 1] += counts[t]
-    lists = np.empty(counts[ncam * ntiles], dtype=np.int64)
+    total = counts[ncam * ntiles]
+    lists = np.empty(total, dtype=np.int64)
+    # bands of rows with about total / nparts entries each
+    bands = np.empty(nparts + 1, dtype=np.int64)
+    bands[0] = 0
+    r = 0
+    for k in range(1, nparts):
+        while r < nrows and counts[(r + 1) * tw] * nparts < total * k:
+            r += 1
+        bands[k] = max(r, bands[k - 1])
+    bands[nparts] = nrows
     fill = counts[:-1].copy()
-    for s in range(m):  # depth order: each tile's list front to back
+    for k in prange(nparts):
+        _fill_band(src, rect, bands[k], bands[k + 1], tw, fill, lists)
+    return counts, lists
+
+
+@njit(cache=True, nogil=True)
+def _count_tiles(rect, s0, s1, tw, cnt):
+    """cnt[row * tw + tx] += 1 for every tile of the rectangles rect[s0:s1] (`_tile_lists`)."""
+    for s in range(s0, s1):
+        for r in range(rect[s, 2], rect[s, 3]):
+            for tx in range(rect[s, 0], rect[s, 1]):
+                cnt[r * tw + tx] += 1
+
+
+@njit(cache=True, nogil=True)
+def _fill_band(src, rect, b0, b1, tw, fill, lists):
+    """Append every pair, in depth order, to the lists of its tiles in rows b0 .. b1 - 1."""
+    for s in range(src.shape[0]):
+        r0 = max(rect[s, 2], b0)
+        r1 = min(rect[s, 3], b1)
+        if r0 >= r1:
+            continue
         i = src[s]
-        base = (i // n) * ntiles
-        for ty in range(trect[i, 2], trect[i, 3]):
-            for tx in range(trect[i, 0], trect[i, 1]):
-                t = base + ty * tw + tx
+        for r in range(r0, r1):
+            for tx in range(rect[s, 0], rect[s, 1]):
+                t = r * tw + tx
                 lists[fill[t]] = i
                 fill[t] += 1
-    return counts, lists
 
 
 @njit(cache=True, nogil=True)
@@ -207,7 +255,7 @@ def bin_gaussians(means2d, conics, opacities, colors, radii, depth_keys, width, 
     trect = np.empty((ncam * n, 4), dtype=np.int32)
     _prepare(means2d, conics, opacities, colors, radii, width, height, params, trect)
     src = _depth_order(radii, depth_keys)
-    offsets, lists = _tile_lists(src, trect, n, ncam, width, height)
+    offsets, lists = _tile_lists(src, trect, n, ncam, width, height, num_threads())
     return params, src, offsets, lists, trect
 
 
