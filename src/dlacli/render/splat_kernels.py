@@ -632,3 +632,30 @@ def reduce_grads(isect_grad, isect_hit, sptr, out):
 
 def num_threads() -> int:
     return numba.get_num_threads()
+
+
+@njit(parallel=True, cache=True)
+def compose(acc, t_final, bg, out_rgb, out_alpha, out_depth):
+    """The images of `raster_forward`'s output without autograd, the operations of the torch
+    code in `splat.render_gaussians` in its order and precision (out dtype; no fused
+    multiply-add), so the results are bitwise the same: alpha = 1 - T (float64, then rounded),
+    rgb = acc + (1 - alpha) bg, depth = acc_z / max(alpha, 1e-10). acc [C, H, W, 4],
+    t_final [C, H, W] float64, bg [C, 3] -> out_rgb [C, H, W, 3], out_alpha, out_depth [C, H, W]."""
+    ncam, height, width = t_final.shape
+    ft = out_alpha.dtype.type
+    one = ft(1.0)
+    floor = ft(1e-10)
+    for cy in prange(ncam * height):
+        c = cy // height
+        y = cy - c * height
+        b0 = ft(bg[c, 0])
+        b1 = ft(bg[c, 1])
+        b2 = ft(bg[c, 2])
+        for x in range(width):
+            a = ft(1.0 - t_final[c, y, x])
+            out_alpha[c, y, x] = a
+            rest = one - a
+            out_rgb[c, y, x, 0] = ft(acc[c, y, x, 0]) + rest * b0
+            out_rgb[c, y, x, 1] = ft(acc[c, y, x, 1]) + rest * b1
+            out_rgb[c, y, x, 2] = ft(acc[c, y, x, 2]) + rest * b2
+            out_depth[c, y, x] = ft(acc[c, y, x, 3]) / max(a, floor)
