@@ -32,6 +32,7 @@ import os
 import numba
 import numpy as np
 from numba import njit, prange
+from numba.cpython.unsafe.numbers import leading_zeros, trailing_zeros
 
 from dlacli.render.radix_sort import radix_argsort_u32
 
@@ -312,6 +313,17 @@ def _row_span(inv_a, cb, det, thr2a, mx, dy, xlo, xhi):
     return x0, x1
 
 
+@njit(cache=True, inline="always")
+def _pending_span(mask, lo, hi):
+    """The smallest range inside [lo, hi] holding every set bit of mask in [lo, hi] (bit i = pixel
+    x0 + i of a tile row); empty (1, 0) when there is none. Skips the finished pixels at the ends
+    of a Gaussian's row without visiting them."""
+    m = mask & ((2 << hi) - 1) & ~((1 << lo) - 1)
+    if m == 0:
+        return 1, 0
+    return trailing_zeros(m), 63 - leading_zeros(m)
+
+
 @njit(parallel=True, cache=True)
 def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, height, out_acc, out_t, out_last, out_work):
     """Composite front to back. out_acc [C, H, W, 4] (sum of w_i colour_i, no background),
@@ -326,7 +338,7 @@ def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, heigh
         acc = np.empty((TILE * TILE, 4), dtype=np.float64)
         last = np.empty(TILE * TILE, dtype=np.int64)
         done = np.empty(TILE * TILE, dtype=np.bool_)
-        rowleft = np.empty(TILE, dtype=np.int64)  # pixels of each tile row not finished yet
+        pend = np.empty(TILE, dtype=np.int64)  # bit x - x0 of row y - y0: pixel not finished yet
         buf = np.empty((BATCH, NPARAM), dtype=params.dtype)
         for it in range(wptr[wk], wptr[wk + 1]):
             tid = wtiles[it]
@@ -350,7 +362,7 @@ def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, heigh
             ndone = 0
             work = 0
             for r in range(TILE):
-                rowleft[r] = x1 - x0
+                pend[r] = (1 << (x1 - x0)) - 1 if r < y1 - y0 else 0
             kend = tile_offsets[tid + 1]
             for kb in range(tile_offsets[tid], kend, BATCH):
                 if ndone >= npix:
@@ -383,13 +395,18 @@ def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, heigh
                     det = ca * cc - cb * cb
                     thr2a = 2.0 * ca * thr
                     for y in range(by0, by1 + 1):
-                        if rowleft[y - y0] == 0:
+                        if pend[y - y0] == 0:
                             continue
                         dy = my - (y + 0.5)
                         row = (y - y0) * TILE - x0
                         rx0, rx1 = bx0, bx1
                         if narrow:
                             rx0, rx1 = _row_span(inv_a, cb, det, thr2a, mx, dy, bx0, bx1)
+                            if rx0 > rx1:
+                                continue
+                        rx0, rx1 = _pending_span(pend[y - y0], rx0 - x0, rx1 - x0)
+                        rx0 += x0
+                        rx1 += x0
                         for x in range(rx0, rx1 + 1):
                             p = row + x
                             work += 1
@@ -407,7 +424,7 @@ def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, heigh
                             if nt <= T_MIN:
                                 done[p] = True
                                 ndone += 1
-                                rowleft[y - y0] -= 1
+                                pend[y - y0] &= ~(1 << (x - x0))
                                 continue
                             wgt = alpha * t
                             acc[p, 0] += wgt * c0
