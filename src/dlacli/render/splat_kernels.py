@@ -66,64 +66,64 @@ def _prepare(means2d, conics, opacities, colors, radii, width, height, params, t
     ncam, n = radii.shape[0], radii.shape[1]
     tw = (width + TILE - 1) // TILE
     th = (height + TILE - 1) // TILE
-    for i in prange(ncam * n):
-        c = i // n
-        g = i - c * n
-        trect[i, 0] = 0
-        trect[i, 1] = 0
-        trect[i, 2] = 0
-        trect[i, 3] = 0
-        if radii[c, g] <= 0:
-            continue
-        mx = np.float64(means2d[c, g, 0])
-        my = np.float64(means2d[c, g, 1])
-        a = np.float64(conics[c, g, 0])
-        b = np.float64(conics[c, g, 1])
-        cc = np.float64(conics[c, g, 2])
-        op = np.float64(opacities[c, g])
-        params[i, 0] = means2d[c, g, 0]
-        params[i, 1] = means2d[c, g, 1]
-        params[i, 2] = conics[c, g, 0]
-        params[i, 3] = conics[c, g, 1]
-        params[i, 4] = conics[c, g, 2]
-        params[i, 5] = opacities[c, g]
-        params[i, 11] = 0.0
-        for k in range(4):
-            params[i, 12 + k] = colors[c, g, k]
-        # gsplat's tile rectangle from the integer radius (this decides membership)
-        r = np.float64(radii[c, g])
-        tx0 = int(min(max(np.floor(mx / TILE - r / TILE), 0.0), tw))
-        tx1 = int(min(max(np.ceil(mx / TILE + r / TILE), 0.0), tw))
-        ty0 = int(min(max(np.floor(my / TILE - r / TILE), 0.0), th))
-        ty1 = int(min(max(np.ceil(my / TILE + r / TILE), 0.0), th))
-        # pixel box outside of which sigma > log(255 opacity): alpha < 1/255 there
-        det = a * cc - b * b
-        ok = np.isfinite(mx) and np.isfinite(my) and det > 0.0 and a > 0.0 and cc > 0.0
-        if not ok or not (op * 255.0 >= 1.0):
-            thr = -1.0
-            bx0, bx1, by0, by1 = 0, -1, 0, -1
-        else:
-            thr = math.log(op * 255.0) + SIGMA_MARGIN
-            ex = math.sqrt(2.0 * thr * cc / det)  # sqrt(2 thr cov_xx)
-            ey = math.sqrt(2.0 * thr * a / det)
-            if not (np.isfinite(ex) and np.isfinite(ey)):
-                ex = 1e30
-                ey = 1e30
-            bx0 = int(min(max(np.ceil(mx - ex - 0.5), 0.0), width))
-            bx1 = int(min(max(np.floor(mx + ex - 0.5), -1.0), width - 1))
-            by0 = int(min(max(np.ceil(my - ey - 0.5), 0.0), height))
-            by1 = int(min(max(np.floor(my + ey - 0.5), -1.0), height - 1))
-        params[i, 6] = thr
-        params[i, 7] = bx0
-        params[i, 8] = bx1
-        params[i, 9] = by0
-        params[i, 10] = by1
-        if bx0 > bx1 or by0 > by1:
-            continue
-        trect[i, 0] = max(tx0, bx0 // TILE)
-        trect[i, 1] = max(min(tx1, bx1 // TILE + 1), trect[i, 0])
-        trect[i, 2] = max(ty0, by0 // TILE)
-        trect[i, 3] = max(min(ty1, by1 // TILE + 1), trect[i, 2])
+    for c in range(ncam):  # no integer division per pair
+        for g in prange(n):
+            i = c * n + g
+            trect[i, 0] = 0
+            trect[i, 1] = 0
+            trect[i, 2] = 0
+            trect[i, 3] = 0
+            if radii[c, g] <= 0:
+                continue
+            mx = np.float64(means2d[c, g, 0])
+            my = np.float64(means2d[c, g, 1])
+            a = np.float64(conics[c, g, 0])
+            b = np.float64(conics[c, g, 1])
+            cc = np.float64(conics[c, g, 2])
+            op = np.float64(opacities[c, g])
+            params[i, 0] = means2d[c, g, 0]
+            params[i, 1] = means2d[c, g, 1]
+            params[i, 2] = conics[c, g, 0]
+            params[i, 3] = conics[c, g, 1]
+            params[i, 4] = conics[c, g, 2]
+            params[i, 5] = opacities[c, g]
+            params[i, 11] = 0.0
+            for k in range(4):
+                params[i, 12 + k] = colors[c, g, k]
+            # gsplat's tile rectangle from the integer radius (this decides membership)
+            r = np.float64(radii[c, g])
+            tx0 = int(min(max(np.floor(mx / TILE - r / TILE), 0.0), tw))
+            tx1 = int(min(max(np.ceil(mx / TILE + r / TILE), 0.0), tw))
+            ty0 = int(min(max(np.floor(my / TILE - r / TILE), 0.0), th))
+            ty1 = int(min(max(np.ceil(my / TILE + r / TILE), 0.0), th))
+            # pixel box outside of which sigma > log(255 opacity): alpha < 1/255 there
+            det = a * cc - b * b
+            ok = np.isfinite(mx) and np.isfinite(my) and det > 0.0 and a > 0.0 and cc > 0.0
+            if not ok or not (op * 255.0 >= 1.0):
+                thr = -1.0
+                bx0, bx1, by0, by1 = 0, -1, 0, -1
+            else:
+                thr = math.log(op * 255.0) + SIGMA_MARGIN
+                ex = math.sqrt(2.0 * thr * cc / det)  # sqrt(2 thr cov_xx)
+                ey = math.sqrt(2.0 * thr * a / det)
+                if not (np.isfinite(ex) and np.isfinite(ey)):
+                    ex = 1e30
+                    ey = 1e30
+                bx0 = int(min(max(np.ceil(mx - ex - 0.5), 0.0), width))
+                bx1 = int(min(max(np.floor(mx + ex - 0.5), -1.0), width - 1))
+                by0 = int(min(max(np.ceil(my - ey - 0.5), 0.0), height))
+                by1 = int(min(max(np.floor(my + ey - 0.5), -1.0), height - 1))
+            params[i, 6] = thr
+            params[i, 7] = bx0
+            params[i, 8] = bx1
+            params[i, 9] = by0
+            params[i, 10] = by1
+            if bx0 > bx1 or by0 > by1:
+                continue
+            trect[i, 0] = max(tx0, bx0 // TILE)
+            trect[i, 1] = max(min(tx1, bx1 // TILE + 1), trect[i, 0])
+            trect[i, 2] = max(ty0, by0 // TILE)
+            trect[i, 3] = max(min(ty1, by1 // TILE + 1), trect[i, 2])
 
 
 @njit(cache=True, nogil=True)
