@@ -11,7 +11,9 @@ docs/rendering.md. The pieces are plain functions:
   same for any thread count (docs/rendering.md "Projection", "Determinism");
 - `eval_sh_colors` (torch): view-dependent colour from SH, + 0.5, clamped at 0 (as 3DGS);
 - `rasterize_projected` (torch.autograd.Function over the numba kernels in splat_kernels.py):
-  tile binning, front-to-back compositing and its backward pass.
+  tile binning, front-to-back compositing and its backward pass. Without autograd (no_grad, or
+  no input needing a gradient) `render_gaussians` calls the kernels directly and composes the
+  images in one numba pass (`splat_kernels.compose`): the same values bit for bit.
 
 On CUDA tensors with gsplat importable, `render_gaussians` calls `gsplat.rasterization` with the
 same settings instead; gsplat is imported lazily there and never sees CPU tensors.
