@@ -426,3 +426,32 @@ def test_cpu_matches_gsplat_on_cuda():
         # uses gsplat 1.4's 3-sigma radius, so a few fringe pixels may differ by <~ 1e-2
         assert diff.mean() < 1e-3
         assert diff.max() < 5e-2
+
+
+@pytest.mark.parametrize("nthreads", [1, 2, 3])
+def test_tile_lists_match_a_direct_listing(nthreads):
+    """The parallel tile lists (bands of tile rows per thread) against a plain listing: for every
+    tile of every camera, the sorted pairs whose tile rectangle covers it, in sorted order."""
+    from dlacli.render.splat_binning import TILE, _tile_lists
+
+    rng = np.random.default_rng(3)
+    ncam, n, width, height = 3, 200, 70, 45  # 5 x 3 tiles per camera, the last ones partial
+    tw, th = -(-width // TILE), -(-height // TILE)
+    trect = np.zeros((ncam * n, 4), dtype=np.int32)
+    visible = rng.random(ncam * n) < 0.8
+    for i in np.flatnonzero(visible):
+        x0, y0 = rng.integers(0, tw), rng.integers(0, th)
+        trect[i] = (x0, rng.integers(x0, tw + 1), y0, rng.integers(y0, th + 1))  # some empty
+    src = np.concatenate([c * n + rng.permutation(np.flatnonzero(visible[c * n : (c + 1) * n])) for c in range(ncam)])
+    offsets, lists = _tile_lists(src, trect, n, ncam, width, height, nthreads)
+    for c in range(ncam):
+        for ty in range(th):
+            for tx in range(tw):
+                t = c * tw * th + ty * tw + tx
+                want = [
+                    i
+                    for i in src
+                    if i // n == c and trect[i, 0] <= tx < trect[i, 1] and trect[i, 2] <= ty < trect[i, 3]
+                ]
+                assert lists[offsets[t] : offsets[t + 1]].tolist() == want, (c, tx, ty)
+    assert offsets[-1] == lists.shape[0]

@@ -10,7 +10,8 @@ docs/rendering.md. The pieces are plain functions:
   torch code (where, on CPU, the world-to-camera transform is a numba kernel); both bitwise the
   same for any thread count (docs/rendering.md "Projection", "Determinism");
 - `eval_sh_colors` (torch): view-dependent colour from SH, + 0.5, clamped at 0 (as 3DGS);
-- `rasterize_projected` (torch.autograd.Function over the numba kernels in splat_kernels.py):
+- `rasterize_projected` (torch.autograd.Function over the numba kernels in splat_binning.py and
+  splat_kernels.py):
   tile binning, front-to-back compositing and its backward pass. Without autograd (no_grad, or
   no input needing a gradient) `render_gaussians` calls the kernels directly and composes the
   images in one numba pass (`splat_kernels.compose`): the same values bit for bit.
@@ -28,13 +29,14 @@ import torch
 
 from dlacli.errors import DlaInputError
 from dlacli.render import camera_kernels
+from dlacli.render import splat_binning as B
 from dlacli.render import splat_kernels as K
 from dlacli.types import Cameras, Gaussians
 
 EPS2D = 0.3
 NEAR = 0.01
 FAR = 1e10
-TILE = K.TILE
+TILE = B.TILE
 
 # Real SH constants (the 3DGS / gsplat sign convention, Condon-Shortley phase included).
 _C0 = 0.28209479177387814
@@ -330,12 +332,12 @@ def _raster_cpu(means2d, conics, colors, opacities, radii, depths, width, height
     rd = arr(radii, np.int64)
     dk = arr(depths, np.float32)
     dk = np.where(rd > 0, dk, np.float32(1.0)).astype(np.float32).view(np.uint32)
-    params, _, offsets, lists, trect = K.bin_gaussians(
+    params, _, offsets, lists, trect = B.bin_gaussians(
         arr(means2d, npd), arr(conics, npd), arr(opacities, npd), arr(colors, npd), rd, dk, width, height
     )
     ncam = means2d.shape[0]
     cost = np.diff(offsets).astype(np.float64)
-    wptr, wtiles = K.assign_workers(cost, K.num_threads())
+    wptr, wtiles = B.assign_workers(cost, K.num_threads())
     acc = np.empty((ncam, height, width, 4), dtype=npd)
     tfin = np.empty((ncam, height, width), dtype=np.float64)
     last = np.empty((ncam, height, width), dtype=np.int64)
@@ -365,11 +367,11 @@ class _RasterizeCPU(torch.autograd.Function):
         ga = np.ascontiguousarray(g_acc.detach().cpu().numpy())
         gl = np.ascontiguousarray(g_alpha.detach().cpu().numpy())
         nw = K.num_threads()
-        wptr, wtiles = K.assign_workers(work, nw)
+        wptr, wtiles = B.assign_workers(work, nw)
         # one gradient row per (Gaussian, tile), summed per Gaussian in a fixed order: the same
         # gradients, bit for bit, for any thread count (docs/rendering.md "Determinism"); rows
         # are stored in the input's precision, like the parameters, and summed in float64
-        sptr = K.isect_rows(trect)
+        sptr = B.isect_rows(trect)
         isect_grad = np.empty((lists.shape[0], K.NGRAD), dtype=params.dtype)
         isect_hit = np.zeros(lists.shape[0], dtype=np.uint8)
         K.raster_backward(
