@@ -109,6 +109,24 @@ def test_cpu_kernel_matches_reference(seed, degree):
         assert rel_err(a, b) < 1e-3, name  # float32 backward: sums over pixels (measured <= 3e-6)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, F64])
+def test_no_grad_render_equals_autograd_render(dtype):
+    """Without autograd the images are composed by one numba pass (splat_kernels.compose) instead
+    of torch operations on the rasteriser's outputs: the same formulas in the same precision and
+    order, so the same values bit for bit (background, alpha, depth and the empty pixels)."""
+    g = random_gaussians(90, 2, seed=5).to(dtype)
+    cams = look_at_cameras([(0.8, -2.4, 0.4), (-2.2, 1.0, -0.3)], 41, 29, 36.0, dtype=dtype)
+    bg = torch.tensor([[0.2, 0.5, 0.9], [0.7, 0.1, 0.3]], dtype=dtype)
+    tracked = render_gaussians(with_grad(g), cams, background=bg)
+    assert tracked.rgb.requires_grad
+    with torch.no_grad():
+        plain = render_gaussians(g, cams, background=bg)
+    assert not plain.rgb.requires_grad
+    assert (tracked.alpha == 0).any() and tracked.alpha.max() > 0.5
+    for name, a, b in zip(("rgb", "alpha", "depth"), plain, tracked):
+        assert a.dtype == dtype and torch.equal(a, b.detach()), name
+
+
 def test_pairs_render_matches_reference():
     """The pure-torch pair renderer used as the benchmark baseline renders the same images."""
     g = random_gaussians(120, 2, seed=11, extent=0.7, scale=(0.02, 0.3), opacity=(0.3, 1.0))
@@ -408,3 +426,32 @@ def test_cpu_matches_gsplat_on_cuda():
         # uses gsplat 1.4's 3-sigma radius, so a few fringe pixels may differ by <~ 1e-2
         assert diff.mean() < 1e-3
         assert diff.max() < 5e-2
+
+
+@pytest.mark.parametrize("nthreads", [1, 2, 3])
+def test_tile_lists_match_a_direct_listing(nthreads):
+    """The parallel tile lists (bands of tile rows per thread) against a plain listing: for every
+    tile of every camera, the sorted pairs whose tile rectangle covers it, in sorted order."""
+    from dlacli.render.splat_binning import TILE, _tile_lists
+
+    rng = np.random.default_rng(3)
+    ncam, n, width, height = 3, 200, 70, 45  # 5 x 3 tiles per camera, the last ones partial
+    tw, th = -(-width // TILE), -(-height // TILE)
+    trect = np.zeros((ncam * n, 4), dtype=np.int32)
+    visible = rng.random(ncam * n) < 0.8
+    for i in np.flatnonzero(visible):
+        x0, y0 = rng.integers(0, tw), rng.integers(0, th)
+        trect[i] = (x0, rng.integers(x0, tw + 1), y0, rng.integers(y0, th + 1))  # some empty
+    src = np.concatenate([c * n + rng.permutation(np.flatnonzero(visible[c * n : (c + 1) * n])) for c in range(ncam)])
+    offsets, lists = _tile_lists(src, trect, n, ncam, width, height, nthreads)
+    for c in range(ncam):
+        for ty in range(th):
+            for tx in range(tw):
+                t = c * tw * th + ty * tw + tx
+                want = [
+                    i
+                    for i in src
+                    if i // n == c and trect[i, 0] <= tx < trect[i, 1] and trect[i, 2] <= ty < trect[i, 3]
+                ]
+                assert lists[offsets[t] : offsets[t + 1]].tolist() == want, (c, tx, ty)
+    assert offsets[-1] == lists.shape[0]

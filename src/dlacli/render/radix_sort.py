@@ -1,5 +1,5 @@
 """A stable argsort of uint32 keys in numba: the depth order of the CPU rasteriser's tile lists
-(`splat_kernels._depth_order` sorts each camera's float32 depth bits with it, as gsplat's radix sort
+(`splat_binning._depth_order` sorts each camera's float32 depth bits with it, as gsplat's radix sort
 orders its (tile, depth) keys)."""
 
 from __future__ import annotations

@@ -10,8 +10,11 @@ docs/rendering.md. The pieces are plain functions:
   torch code (where, on CPU, the world-to-camera transform is a numba kernel); both bitwise the
   same for any thread count (docs/rendering.md "Projection", "Determinism");
 - `eval_sh_colors` (torch): view-dependent colour from SH, + 0.5, clamped at 0 (as 3DGS);
-- `rasterize_projected` (torch.autograd.Function over the numba kernels in splat_kernels.py):
-  tile binning, front-to-back compositing and its backward pass.
+- `rasterize_projected` (torch.autograd.Function over the numba kernels in splat_binning.py and
+  splat_kernels.py):
+  tile binning, front-to-back compositing and its backward pass. Without autograd (no_grad, or
+  no input needing a gradient) `render_gaussians` calls the kernels directly and composes the
+  images in one numba pass (`splat_kernels.compose`): the same values bit for bit.
 
 On CUDA tensors with gsplat importable, `render_gaussians` calls `gsplat.rasterization` with the
 same settings instead; gsplat is imported lazily there and never sees CPU tensors.
@@ -26,13 +29,14 @@ import torch
 
 from dlacli.errors import DlaInputError
 from dlacli.render import camera_kernels
+from dlacli.render import splat_binning as B
 from dlacli.render import splat_kernels as K
 from dlacli.types import Cameras, Gaussians
 
 EPS2D = 0.3
 NEAR = 0.01
 FAR = 1e10
-TILE = K.TILE
+TILE = B.TILE
 
 # Real SH constants (the 3DGS / gsplat sign convention, Condon-Shortley phase included).
 _C0 = 0.28209479177387814
@@ -316,38 +320,37 @@ def eval_sh_colors(
     return col.clamp(min=0.0)
 
 
+def _raster_cpu(means2d, conics, colors, opacities, radii, depths, width, height):
+    """The numba forward pass: binning and compositing -> (acc [C, H, W, 4] numpy in the input's
+    precision, t_final [C, H, W] float64, and what the backward pass needs)."""
+    dtype = means2d.dtype
+    npd = np.float64 if dtype == torch.float64 else np.float32
+
+    def arr(t, np_dtype):
+        return np.ascontiguousarray(t.detach().cpu().numpy().astype(np_dtype, copy=False))
+
+    rd = arr(radii, np.int64)
+    dk = arr(depths, np.float32)
+    dk = np.where(rd > 0, dk, np.float32(1.0)).astype(np.float32).view(np.uint32)
+    params, _, offsets, lists, trect = B.bin_gaussians(
+        arr(means2d, npd), arr(conics, npd), arr(opacities, npd), arr(colors, npd), rd, dk, width, height
+    )
+    ncam = means2d.shape[0]
+    cost = np.diff(offsets).astype(np.float64)
+    wptr, wtiles = B.assign_workers(cost, K.num_threads())
+    acc = np.empty((ncam, height, width, 4), dtype=npd)
+    tfin = np.empty((ncam, height, width), dtype=np.float64)
+    last = np.empty((ncam, height, width), dtype=np.int64)
+    work = np.zeros(cost.shape[0], dtype=np.float64)
+    K.raster_forward(params, offsets, lists, wptr, wtiles, ncam, width, height, acc, tfin, last, work)
+    return acc, tfin, (params, offsets, lists, trect, tfin, last, work)
+
+
 class _RasterizeCPU(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, colors, opacities, radii, depths, width, height):
         dtype = means2d.dtype
-        npd = np.float64 if dtype == torch.float64 else np.float32
-        m2 = means2d.detach().cpu().numpy().astype(npd, copy=False)
-        co = conics.detach().cpu().numpy().astype(npd, copy=False)
-        cl = colors.detach().cpu().numpy().astype(npd, copy=False)
-        op = opacities.detach().cpu().numpy().astype(npd, copy=False)
-        rd = radii.detach().cpu().numpy().astype(np.int64, copy=False)
-        dk = np.ascontiguousarray(depths.detach().cpu().numpy().astype(np.float32))
-        dk = np.where(rd > 0, dk, np.float32(1.0)).astype(np.float32).view(np.uint32)
-        params, _, offsets, lists, trect = K.bin_gaussians(
-            np.ascontiguousarray(m2),
-            np.ascontiguousarray(co),
-            np.ascontiguousarray(op),
-            np.ascontiguousarray(cl),
-            np.ascontiguousarray(rd),
-            dk,
-            width,
-            height,
-        )
-        ncam = means2d.shape[0]
-        nw = K.num_threads()
-        cost = np.diff(offsets).astype(np.float64)
-        wptr, wtiles = K.assign_workers(cost, nw)
-        acc = np.empty((ncam, height, width, 4), dtype=npd)
-        tfin = np.empty((ncam, height, width), dtype=np.float64)
-        last = np.empty((ncam, height, width), dtype=np.int64)
-        work = np.zeros(cost.shape[0], dtype=np.float64)
-        K.raster_forward(params, offsets, lists, wptr, wtiles, ncam, width, height, acc, tfin, last, work)
-        ctx.saved = (params, offsets, lists, trect, tfin, last, work)
+        acc, tfin, ctx.saved = _raster_cpu(means2d, conics, colors, opacities, radii, depths, width, height)
         ctx.meta = (width, height, means2d.shape, dtype, means2d.device)
         alpha = torch.from_numpy(1.0 - tfin).to(dtype=dtype, device=means2d.device)
         return torch.from_numpy(acc).to(means2d.device), alpha
@@ -364,11 +367,11 @@ class _RasterizeCPU(torch.autograd.Function):
         ga = np.ascontiguousarray(g_acc.detach().cpu().numpy())
         gl = np.ascontiguousarray(g_alpha.detach().cpu().numpy())
         nw = K.num_threads()
-        wptr, wtiles = K.assign_workers(work, nw)
+        wptr, wtiles = B.assign_workers(work, nw)
         # one gradient row per (Gaussian, tile), summed per Gaussian in a fixed order: the same
         # gradients, bit for bit, for any thread count (docs/rendering.md "Determinism"); rows
         # are stored in the input's precision, like the parameters, and summed in float64
-        sptr = K.isect_rows(trect)
+        sptr = B.isect_rows(trect)
         isect_grad = np.empty((lists.shape[0], K.NGRAD), dtype=params.dtype)
         isect_hit = np.zeros(lists.shape[0], dtype=np.uint8)
         K.raster_backward(
@@ -492,15 +495,30 @@ def render_gaussians(
         cpu = torch.device("cpu")
         g = gaussians.to(cpu)
         viewmats, Ks, bg = viewmats.to(cpu), Ks.to(cpu), bg.to(cpu)
-    proj = project_gaussians(g.means, g.quats, g.scales, viewmats, Ks, w, h)
-    rgb = eval_sh_colors(g.sh, g.means, viewmats, degree)  # [C, N, 3]
-    colors = torch.cat([rgb, proj.depths[..., None]], dim=-1)  # [C, N, 4]
+    grad = torch.is_grad_enabled() and any(
+        t.requires_grad for t in (g.means, g.quats, g.scales, g.opacities, g.sh, viewmats, Ks)
+    )
+    with torch.set_grad_enabled(grad):
+        proj = project_gaussians(g.means, g.quats, g.scales, viewmats, Ks, w, h)
+        rgb = eval_sh_colors(g.sh, g.means, viewmats, degree)  # [C, N, 3]
+        colors = torch.cat([rgb, proj.depths[..., None]], dim=-1)  # [C, N, 4]
     ncam = viewmats.shape[0]
     opac = g.opacities[None].expand(ncam, -1)
-    acc, alpha = rasterize_projected(proj.means2d, proj.conics, colors, opac, proj.radii, proj.depths.detach(), w, h)
-    out_rgb = acc[..., :3] + (1.0 - alpha)[..., None] * bg[:, None, None, :]
-    depth = acc[..., 3] / alpha.clamp(min=1e-10)
-    out = RenderOutput(out_rgb, alpha, depth)
+    if grad:
+        acc, alpha = rasterize_projected(
+            proj.means2d, proj.conics, colors, opac, proj.radii, proj.depths.detach(), w, h
+        )
+        out_rgb = acc[..., :3] + (1.0 - alpha)[..., None] * bg[:, None, None, :]
+        depth = acc[..., 3] / alpha.clamp(min=1e-10)
+        out = RenderOutput(out_rgb, alpha, depth)
+    else:  # no autograd: the same images from one numba pass over the pixels (`K.compose`)
+        acc_np, tfin, _ = _raster_cpu(proj.means2d, proj.conics, colors, opac, proj.radii, proj.depths, w, h)
+        out = RenderOutput(
+            torch.empty((ncam, h, w, 3), dtype=dtype),
+            torch.empty((ncam, h, w), dtype=dtype),
+            torch.empty((ncam, h, w), dtype=dtype),
+        )
+        K.compose(acc_np, tfin, bg.detach().contiguous().numpy(), *(t.numpy() for t in out))
     if device.type != "cpu":
         out = RenderOutput(*(t.to(device) for t in out))
     return out

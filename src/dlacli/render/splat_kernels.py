@@ -1,4 +1,5 @@
-"""Numba kernels of the CPU Gaussian rasteriser: tile binning, forward and backward compositing.
+"""Numba kernels of the CPU Gaussian rasteriser: forward and backward compositing (the tile binning
+that feeds them is in splat_binning.py).
 
 Conventions (docs/rendering.md): 16 x 16 tiles; pixel centres at (x + 0.5, y + 0.5);
 sigma = 0.5 (a dx^2 + c dy^2) + b dx dy with dx = mean_x - px (conic = (a, b, c));
@@ -32,8 +33,9 @@ import os
 import numba
 import numpy as np
 from numba import njit, prange
+from numba.cpython.unsafe.numbers import leading_zeros, trailing_zeros
 
-from dlacli.render.radix_sort import radix_argsort_u32
+from dlacli.render.splat_binning import NPARAM, TILE
 
 # numba's OpenMP thread pool and torch's are separate runtimes sharing the same few cores; their
 # busy-waiting threads starve each other (2 cores: 2k Gaussians at 128^2 took ~50 ms instead of
@@ -41,14 +43,9 @@ from dlacli.render.radix_sort import radix_argsort_u32
 # starts its pool (torch's reads it when torch is imported, so set it earlier to cover both).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-TILE = 16
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.999
 T_MIN = 1e-4
-# Extra room on the sigma cut-off used for the pixel bounding boxes, far above float32 rounding
-# of sigma, so that the boxes never drop a pixel where alpha >= 1/255.
-SIGMA_MARGIN = 0.05
-NPARAM = 16
 NGRAD = 10  # d mean2d (2), d conic (3), d opacity (1), d colour (4)
 BATCH = 32  # list entries copied at once into a small local buffer (many loads in flight)
 # A Gaussian's pixels in a row are narrowed to its ellipse (`_row_span`: a square root per row)
@@ -56,185 +53,6 @@ BATCH = 32  # list entries copied at once into a small local buffer (many loads 
 # whole, each pixel rejected by its own sigma test (cheaper than the square root for the few
 # pixels the ellipse would cut). Which pixels are tested never changes which Gaussians count.
 SPAN_MIN_WIDTH = 10
-
-
-@njit(parallel=True, cache=True)
-def _prepare(means2d, conics, opacities, colors, radii, width, height, params, trect):
-    """Per (camera, Gaussian) in input order: packed parameters, pixel box, tile rectangle (the
-    kernels read them in place through the tile lists: no gather into depth order)."""
-    ncam, n = radii.shape[0], radii.shape[1]
-    tw = (width + TILE - 1) // TILE
-    th = (height + TILE - 1) // TILE
-    for i in prange(ncam * n):
-        c = i // n
-        g = i - c * n
-        trect[i, 0] = 0
-        trect[i, 1] = 0
-        trect[i, 2] = 0
-        trect[i, 3] = 0
-        if radii[c, g] <= 0:
-            continue
-        mx = np.float64(means2d[c, g, 0])
-        my = np.float64(means2d[c, g, 1])
-        a = np.float64(conics[c, g, 0])
-        b = np.float64(conics[c, g, 1])
-        cc = np.float64(conics[c, g, 2])
-        op = np.float64(opacities[c, g])
-        params[i, 0] = means2d[c, g, 0]
-        params[i, 1] = means2d[c, g, 1]
-        params[i, 2] = conics[c, g, 0]
-        params[i, 3] = conics[c, g, 1]
-        params[i, 4] = conics[c, g, 2]
-        params[i, 5] = opacities[c, g]
-        params[i, 11] = 0.0
-        for k in range(4):
-            params[i, 12 + k] = colors[c, g, k]
-        # gsplat's tile rectangle from the integer radius (this decides membership)
-        r = np.float64(radii[c, g])
-        tx0 = int(min(max(np.floor(mx / TILE - r / TILE), 0.0), tw))
-        tx1 = int(min(max(np.ceil(mx / TILE + r / TILE), 0.0), tw))
-        ty0 = int(min(max(np.floor(my / TILE - r / TILE), 0.0), th))
-        ty1 = int(min(max(np.ceil(my / TILE + r / TILE), 0.0), th))
-        # pixel box outside of which sigma > log(255 opacity): alpha < 1/255 there
-        det = a * cc - b * b
-        ok = np.isfinite(mx) and np.isfinite(my) and det > 0.0 and a > 0.0 and cc > 0.0
-        if not ok or not (op * 255.0 >= 1.0):
-            thr = -1.0
-            bx0, bx1, by0, by1 = 0, -1, 0, -1
-        else:
-            thr = math.log(op * 255.0) + SIGMA_MARGIN
-            ex = math.sqrt(2.0 * thr * cc / det)  # sqrt(2 thr cov_xx)
-            ey = math.sqrt(2.0 * thr * a / det)
-            if not (np.isfinite(ex) and np.isfinite(ey)):
-                ex = 1e30
-                ey = 1e30
-            bx0 = int(min(max(np.ceil(mx - ex - 0.5), 0.0), width))
-            bx1 = int(min(max(np.floor(mx + ex - 0.5), -1.0), width - 1))
-            by0 = int(min(max(np.ceil(my - ey - 0.5), 0.0), height))
-            by1 = int(min(max(np.floor(my + ey - 0.5), -1.0), height - 1))
-        params[i, 6] = thr
-        params[i, 7] = bx0
-        params[i, 8] = bx1
-        params[i, 9] = by0
-        params[i, 10] = by1
-        if bx0 > bx1 or by0 > by1:
-            continue
-        trect[i, 0] = max(tx0, bx0 // TILE)
-        trect[i, 1] = max(min(tx1, bx1 // TILE + 1), trect[i, 0])
-        trect[i, 2] = max(ty0, by0 // TILE)
-        trect[i, 3] = max(min(ty1, by1 // TILE + 1), trect[i, 2])
-
-
-@njit(cache=True, nogil=True)
-def _depth_order(radii, depth_keys):
-    """Flat indices c * N + g of the visible pairs, sorted by camera then depth (stable)."""
-    ncam, n = radii.shape[0], radii.shape[1]
-    nvis = 0
-    for c in range(ncam):
-        for g in range(n):
-            if radii[c, g] > 0:
-                nvis += 1
-    out = np.empty(nvis, dtype=np.int64)
-    s = 0
-    vis = np.empty(n, dtype=np.int64)
-    for c in range(ncam):
-        m = 0
-        for g in range(n):
-            if radii[c, g] > 0:
-                vis[m] = g
-                m += 1
-        keys = np.empty(m, dtype=np.uint32)
-        for i in range(m):
-            keys[i] = depth_keys[c, vis[i]]
-        order = radix_argsort_u32(keys)
-        for i in range(m):
-            out[s] = c * n + vis[order[i]]
-            s += 1
-    return out
-
-
-@njit(cache=True, nogil=True)
-def _tile_lists(src, trect, n, ncam, width, height):
-    tw = (width + TILE - 1) // TILE
-    th = (height + TILE - 1) // TILE
-    ntiles = tw * th
-    counts = np.zeros(ncam * ntiles + 1, dtype=np.int64)
-    m = src.shape[0]
-    for s in range(m):
-        i = src[s]
-        base = (i // n) * ntiles + 1
-        for ty in range(trect[i, 2], trect[i, 3]):
-            for tx in range(trect[i, 0], trect[i, 1]):
-                counts[base + ty * tw + tx] += 1
-    for t in range(ncam * ntiles):
-        counts[t + 1] += counts[t]
-    lists = np.empty(counts[ncam * ntiles], dtype=np.int64)
-    fill = counts[:-1].copy()
-    for s in range(m):  # depth order: each tile's list front to back
-        i = src[s]
-        base = (i // n) * ntiles
-        for ty in range(trect[i, 2], trect[i, 3]):
-            for tx in range(trect[i, 0], trect[i, 1]):
-                t = base + ty * tw + tx
-                lists[fill[t]] = i
-                fill[t] += 1
-    return counts, lists
-
-
-@njit(cache=True, nogil=True)
-def isect_rows(trect):
-    """Row offsets [S + 1] of a per-(Gaussian, tile) array laid out Gaussian by Gaussian: pair s owns
-    rows sptr[s] .. sptr[s + 1] - 1, one per tile of its rectangle trect[s] in row-major order."""
-    m = trect.shape[0]
-    sptr = np.empty(m + 1, dtype=np.int64)
-    sptr[0] = 0
-    for s in range(m):
-        sptr[s + 1] = sptr[s] + (trect[s, 1] - trect[s, 0]) * (trect[s, 3] - trect[s, 2])
-    return sptr
-
-
-def bin_gaussians(means2d, conics, opacities, colors, radii, depth_keys, width, height):
-    """Sort visible Gaussians by (camera, depth) and build per-tile lists.
-
-    means2d [C, N, 2], conics [C, N, 3], opacities [C, N], colors [C, N, 4], radii [C, N] int,
-    depth_keys [C, N] uint32 (float32 bits of positive depths, same order as the depths).
-    Returns params [C * N, 16], src [S], tile_offsets [C*TH*TW + 1], lists [n_isects] (rows
-    c * N + g) and the tile rectangles trect [C * N, 4] int32 (tx0, tx1, ty0, ty1; ends exclusive),
-    all rows in input order (module docstring).
-    """
-    ncam, n = radii.shape
-    params = np.empty((ncam * n, NPARAM), dtype=means2d.dtype)
-    trect = np.empty((ncam * n, 4), dtype=np.int32)
-    _prepare(means2d, conics, opacities, colors, radii, width, height, params, trect)
-    src = _depth_order(radii, depth_keys)
-    offsets, lists = _tile_lists(src, trect, n, ncam, width, height)
-    return params, src, offsets, lists, trect
-
-
-@njit(cache=True, nogil=True)
-def assign_workers(cost, nworkers):
-    """Greedy longest-first split of tiles over workers. cost [T] -> (ptr [W+1], tiles [T])."""
-    nt = cost.shape[0]
-    order = np.argsort(-cost, kind="mergesort")
-    load = np.zeros(nworkers, dtype=np.float64)
-    owner = np.empty(nt, dtype=np.int64)
-    for i in range(nt):
-        t = order[i]
-        w = np.argmin(load)
-        owner[t] = w
-        load[w] += cost[t] + 1.0
-    ptr = np.zeros(nworkers + 1, dtype=np.int64)
-    for t in range(nt):
-        ptr[owner[t] + 1] += 1
-    for w in range(nworkers):
-        ptr[w + 1] += ptr[w]
-    fill = ptr[:-1].copy()
-    tiles = np.empty(nt, dtype=np.int64)
-    for i in range(nt):
-        t = order[i]
-        tiles[fill[owner[t]]] = t
-        fill[owner[t]] += 1
-    return ptr, tiles
 
 
 @njit(cache=True, inline="always")
@@ -264,6 +82,17 @@ def _row_span(inv_a, cb, det, thr2a, mx, dy, xlo, xhi):
     return x0, x1
 
 
+@njit(cache=True, inline="always")
+def _pending_span(mask, lo, hi):
+    """The smallest range inside [lo, hi] holding every set bit of mask in [lo, hi] (bit i = pixel
+    x0 + i of a tile row); empty (1, 0) when there is none. Skips the finished pixels at the ends
+    of a Gaussian's row without visiting them."""
+    m = mask & ((2 << hi) - 1) & ~((1 << lo) - 1)
+    if m == 0:
+        return 1, 0
+    return trailing_zeros(m), 63 - leading_zeros(m)
+
+
 @njit(parallel=True, cache=True)
 def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, height, out_acc, out_t, out_last, out_work):
     """Composite front to back. out_acc [C, H, W, 4] (sum of w_i colour_i, no background),
@@ -278,7 +107,7 @@ def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, heigh
         acc = np.empty((TILE * TILE, 4), dtype=np.float64)
         last = np.empty(TILE * TILE, dtype=np.int64)
         done = np.empty(TILE * TILE, dtype=np.bool_)
-        rowleft = np.empty(TILE, dtype=np.int64)  # pixels of each tile row not finished yet
+        pend = np.empty(TILE, dtype=np.int64)  # bit x - x0 of row y - y0: pixel not finished yet
         buf = np.empty((BATCH, NPARAM), dtype=params.dtype)
         for it in range(wptr[wk], wptr[wk + 1]):
             tid = wtiles[it]
@@ -302,7 +131,7 @@ def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, heigh
             ndone = 0
             work = 0
             for r in range(TILE):
-                rowleft[r] = x1 - x0
+                pend[r] = (1 << (x1 - x0)) - 1 if r < y1 - y0 else 0
             kend = tile_offsets[tid + 1]
             for kb in range(tile_offsets[tid], kend, BATCH):
                 if ndone >= npix:
@@ -335,13 +164,18 @@ def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, heigh
                     det = ca * cc - cb * cb
                     thr2a = 2.0 * ca * thr
                     for y in range(by0, by1 + 1):
-                        if rowleft[y - y0] == 0:
+                        if pend[y - y0] == 0:
                             continue
                         dy = my - (y + 0.5)
                         row = (y - y0) * TILE - x0
                         rx0, rx1 = bx0, bx1
                         if narrow:
                             rx0, rx1 = _row_span(inv_a, cb, det, thr2a, mx, dy, bx0, bx1)
+                            if rx0 > rx1:
+                                continue
+                        rx0, rx1 = _pending_span(pend[y - y0], rx0 - x0, rx1 - x0)
+                        rx0 += x0
+                        rx1 += x0
                         for x in range(rx0, rx1 + 1):
                             p = row + x
                             work += 1
@@ -359,7 +193,7 @@ def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, heigh
                             if nt <= T_MIN:
                                 done[p] = True
                                 ndone += 1
-                                rowleft[y - y0] -= 1
+                                pend[y - y0] &= ~(1 << (x - x0))
                                 continue
                             wgt = alpha * t
                             acc[p, 0] += wgt * c0
@@ -584,3 +418,30 @@ def reduce_grads(isect_grad, isect_hit, sptr, out):
 
 def num_threads() -> int:
     return numba.get_num_threads()
+
+
+@njit(parallel=True, cache=True)
+def compose(acc, t_final, bg, out_rgb, out_alpha, out_depth):
+    """The images of `raster_forward`'s output without autograd, the operations of the torch
+    code in `splat.render_gaussians` in its order and precision (out dtype; no fused
+    multiply-add), so the results are bitwise the same: alpha = 1 - T (float64, then rounded),
+    rgb = acc + (1 - alpha) bg, depth = acc_z / max(alpha, 1e-10). acc [C, H, W, 4],
+    t_final [C, H, W] float64, bg [C, 3] -> out_rgb [C, H, W, 3], out_alpha, out_depth [C, H, W]."""
+    ncam, height, width = t_final.shape
+    ft = out_alpha.dtype.type
+    one = ft(1.0)
+    floor = ft(1e-10)
+    for cy in prange(ncam * height):
+        c = cy // height
+        y = cy - c * height
+        b0 = ft(bg[c, 0])
+        b1 = ft(bg[c, 1])
+        b2 = ft(bg[c, 2])
+        for x in range(width):
+            a = ft(1.0 - t_final[c, y, x])
+            out_alpha[c, y, x] = a
+            rest = one - a
+            out_rgb[c, y, x, 0] = ft(acc[c, y, x, 0]) + rest * b0
+            out_rgb[c, y, x, 1] = ft(acc[c, y, x, 1]) + rest * b1
+            out_rgb[c, y, x, 2] = ft(acc[c, y, x, 2]) + rest * b2
+            out_depth[c, y, x] = ft(acc[c, y, x, 3]) / max(a, floor)
