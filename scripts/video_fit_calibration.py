@@ -1,0 +1,279 @@
+"""Calibration harness of `dla motion from-video`'s fit (issue 24; docs/motion.md, "How well").
+
+Renders synthetic clips of known motions (data.video.render_motion_video, 320 px, as the tests do),
+caches MediaPipe's detections per clip, and reruns only the fit on them, printing PA-MPJPE per clip
+and per joint (the test's 14 joints on the default body, per-frame similarity), the jitter ratio and
+the fit's CPU seconds. Sets: `cal` the built-in motions x subject seeds 0-2; `shrug` idle and
+turnaround with the clavicles lifted 0.15-0.55 rad; `rand` idle plus smooth random flexions of the
+limbs, clavicles and spine (pose-diverse); `test` the held-out CMU clips of the tests (report only,
+never tune on them). EXEC='python' runs code before the fit (to try a constant).
+
+  PYTHONPATH=src python scripts/video_fit_calibration.py prep cal
+  PYTHONPATH=src python scripts/video_fit_calibration.py fit cal TAG
+"""
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+CACHE = Path(os.environ.get("DLA_CALIB_CACHE", "/tmp/dla-video-calib"))
+CACHE.mkdir(parents=True, exist_ok=True)
+TP = Path(__file__).resolve().parents[1] / "tests/data/third_party/motion"
+MAJOR = (
+    "upperleg01.L",
+    "upperleg01.R",
+    "lowerleg01.L",
+    "lowerleg01.R",
+    "foot.L",
+    "foot.R",
+    "upperarm01.L",
+    "upperarm01.R",
+    "lowerarm01.L",
+    "lowerarm01.R",
+    "wrist.L",
+    "wrist.R",
+    "neck01",
+    "head",
+)
+SHORT = ("hipL", "hipR", "kneeL", "kneeR", "ankL", "ankR", "shL", "shR", "elbL", "elbR", "wrL", "wrR", "neck", "head")
+CAL = [(m, s) for m in ("idle", "walk", "turnaround", "wave") for s in (0, 1, 2)]
+RAND = [("rand1", 1), ("rand2", 2), ("rand3", 0), ("rand4", 1)]
+SHRUG = [("idle_shrug", 3), ("turnaround_shrug", 5)]
+TEST = [("131_01", 0), ("131_02", 0), ("01_01", 0)]
+
+
+def rand_motion(k):
+    """idle plus smooth random flexions of the limbs, spine and clavicles (a pose-diverse calibration clip)."""
+    from scipy.spatial.transform import Rotation as R
+
+    from dlacli.stages.motion_source import load_motion
+    from dlacli.types import Motion
+
+    m = load_motion("idle", fps=30)
+    rng = np.random.default_rng(1000 + k)
+    T = m.num_frames
+    t = np.arange(T) / 30.0
+    labels = list(m.bone_labels)
+    rot = {b: R.from_rotvec(np.asarray(m.rotations[:, i], np.float64)) for i, b in enumerate(labels)}
+
+    def osc(lo, hi):
+        f = rng.uniform(0.15, 0.5)
+        ph = rng.uniform(0, 2 * np.pi)
+        return lo + (hi - lo) * 0.5 * (1 + np.sin(2 * np.pi * f * t + ph))
+
+    spec = []
+    for side, sg in (("L", 1.0), ("R", -1.0)):
+        spec += [
+            (f"upperleg01.{side}", osc(-1.0, 0.2), osc(-0.15, 0.15) * sg, osc(-0.2, 0.2)),
+            (f"lowerleg01.{side}", osc(0.0, 1.3), 0, 0),
+            (f"upperarm01.{side}", osc(-1.2, 0.5), sg * osc(-0.6, 0.5), osc(-0.4, 0.4)),
+            (f"lowerarm01.{side}", osc(-0.2, 0.2), sg * osc(-1.3, 0.0), 0),
+            (f"clavicle.{side}", 0, -sg * osc(0.0, 0.6), 0),
+        ]
+    spec += [("spine01", osc(-0.1, 0.4), osc(-0.1, 0.1), osc(-0.2, 0.2)), ("spine05", osc(0.0, 0.3), 0, 0)]
+    for b, x, y, z in spec:
+        e = np.stack([np.broadcast_to(np.asarray(a, np.float64), (T,)) for a in (x, y, z)], 1)
+        r = R.from_euler("ZYX", e[:, ::-1])
+        rot[b] = r * rot[b] if b in rot else r
+    labels = list(rot)
+    rr = np.asarray(m.root_rotation, np.float64).copy()
+    rr[:, 2] += osc(-0.8, 0.8)
+    return Motion(
+        labels,
+        np.stack([rot[b].as_rotvec() for b in labels], 1).astype(np.float32),
+        rr.astype(np.float32),
+        np.asarray(m.root_translation, np.float32),
+        m.fps,
+    )
+
+
+def truth_motion(name):
+    from dlacli.stages.motion_source import load_motion
+
+    if name.startswith("rand"):
+        return rand_motion(int(name[4:]))
+    if name.endswith("_shrug"):
+        from dlacli.types import Motion
+
+        m = load_motion(name[:-6], fps=30)
+        labels = list(m.bone_labels)
+        rot = np.asarray(m.rotations, np.float32).copy()
+        T = rot.shape[0]
+        ph = np.linspace(0, 2 * np.pi, T)
+        lift = (0.35 + 0.2 * np.sin(ph)).astype(np.float32)  # 0.15-0.55 rad, slowly varying
+        for side, sg in (("L", -1.0), ("R", 1.0)):
+            c = np.zeros((T, 1, 3), np.float32)
+            c[:, 0, 1] = sg * lift
+            labels.append(f"clavicle.{side}")
+            rot = np.concatenate([rot, c], 1)
+            ua = f"upperarm01.{side}"
+            if ua in labels:
+                rot[:, labels.index(ua), 1] -= sg * lift
+            else:
+                u = np.zeros((T, 1, 3), np.float32)
+                u[:, 0, 1] = -sg * lift
+                labels.append(ua)
+                rot = np.concatenate([rot, u], 1)
+        return Motion(labels, rot, m.root_rotation, m.root_translation, m.fps)
+    if name in ("idle", "walk", "turnaround", "wave"):
+        return load_motion(name, fps=30)
+    f = {"131_01": "131_01.bvh", "131_02": "131_02.bvh", "01_01": "cmu_01_01.bvh"}[name]
+    return load_motion(TP / f, fps=30)
+
+
+def prep(name, seed):
+    out = CACHE / f"{name}_s{seed}.npz"
+    if out.exists():
+        return
+    from dlacli.data.video import render_motion_video
+    from dlacli.io.video import open_video
+    from dlacli.stages import motion_video as mv
+
+    truth = truth_motion(name)
+    video = CACHE / f"{name}_s{seed}.mp4"
+    t0 = time.process_time()
+    render_motion_video(truth, video, res=320, seed=seed)
+    t1 = time.process_time()
+    # detection, also keeping MediaPipe's raw 33 landmarks (image x,y,z,vis,pres and world)
+    from dlacli.io import detect as D
+
+    raw_img, raw_world = [], []
+    orig = D._detection
+
+    def spy(result, h, w):
+        if result.pose_landmarks is not None:
+            raw_img.append([(lk.x, lk.y, lk.z, lk.visibility, lk.presence) for lk in result.pose_landmarks.landmark])
+        else:
+            raw_img.append(np.zeros((33, 5)).tolist())
+        if getattr(result, "pose_world_landmarks", None) is not None:
+            wl = result.pose_world_landmarks.landmark
+            raw_world.append([(lk.x, lk.y, lk.z, lk.visibility, lk.presence) for lk in wl])
+        else:
+            raw_world.append(np.zeros((33, 5)).tolist())
+        return orig(result, h, w)
+
+    D._detection = spy
+    det = mv.detect_clip(open_video(video))
+    D._detection = orig
+    t2 = time.process_time()
+    np.savez(
+        out,
+        keypoints=det.keypoints,
+        landmarks=det.landmarks,
+        found=det.found,
+        width=det.width,
+        height=det.height,
+        fps=det.fps,
+        times=det.times,
+        raw_img=np.array(raw_img),
+        raw_world=np.array(raw_world),
+    )
+    print(f"prep {name} s{seed}: {truth.num_frames} frames render {t1 - t0:.1f}s detect {t2 - t1:.1f}s", flush=True)
+
+
+def load_det(name, seed):
+    from dlacli.stages.motion_video import ClipDetections
+
+    z = np.load(CACHE / f"{name}_s{seed}.npz")
+    return ClipDetections(
+        z["keypoints"], z["landmarks"], z["found"], int(z["width"]), int(z["height"]), float(z["fps"]), z["times"]
+    ), z
+
+
+def major_joints(motion):
+    from dlacli.body.model import get_body_model
+
+    model = get_body_model()
+    return model.forward_motion({}, motion).bone_heads.numpy()[:, [model.bone_index(b) for b in MAJOR]]
+
+
+def pa_err(fit, truth):
+    from dlacli.geometry import similarity_fit
+
+    out = []
+    for a, b in zip(fit, truth):
+        s, r, t = similarity_fit(a, b)
+        out.append(np.linalg.norm(s * a @ r.T + t - b, axis=1))
+    return np.array(out)  # [T, J]
+
+
+def jitter(j):
+    return float(np.linalg.norm(j[2:] - 2 * j[1:-1] + j[:-2], axis=-1).mean())
+
+
+def run_fit(name, seed, steps=None):
+    from dlacli.stages import motion_video as mv
+
+    det, z = load_det(name, seed)
+    orig = mv.detect_clip
+    mv.detect_clip = lambda clip, progress=None: det
+    try:
+        t0 = time.process_time()
+        res = mv.video_to_motion(None, steps=steps)
+        cpu = time.process_time() - t0
+    finally:
+        mv.detect_clip = orig
+    truth = truth_motion(name)
+    jt, jf = major_joints(truth), major_joints(res.motion)
+    e = pa_err(jf, jt)
+    return e, jitter(jf) / jitter(jt), cpu
+
+
+def main():
+    cmd = sys.argv[1]
+    sets = {
+        "cal": CAL,
+        "test": TEST,
+        "all": CAL + TEST,
+        "shrug": SHRUG,
+        "cal2": CAL + SHRUG,
+        "rand": RAND,
+        "cal3": CAL + SHRUG + RAND,
+    }
+    which = sets[sys.argv[2]] if len(sys.argv) > 2 else CAL
+    if cmd == "prep":
+        for n, s in which:
+            prep(n, s)
+    elif cmd == "fit":
+        import torch
+
+        if os.environ.get("EXEC"):
+            exec(os.environ["EXEC"], globals())
+        torch.set_num_threads(1)
+        tag = sys.argv[3] if len(sys.argv) > 3 else "run"
+        steps = int(os.environ.get("STEPS", "0")) or None
+        rows, per = [], []
+        for n, s in which:
+            e, jr, cpu = run_fit(n, s, steps)
+            rows.append((n, s, e.mean(), jr, cpu))
+            per.append(e.mean(0))
+            print(
+                f"{n:10s} s{s} {1000 * e.mean():6.1f} mm  jitter x{jr:.2f}  cpu {cpu:.1f}s  | "
+                + " ".join(f"{k}:{1000 * v:.0f}" for k, v in zip(SHORT, e.mean(0))),
+                flush=True,
+            )
+        m = np.mean([r[2] for r in rows])
+        print(
+            f"== {tag}: mean {1000 * m:.1f} mm, max jitter x{max(r[3] for r in rows):.2f}, per joint: "
+            + " ".join(f"{k}:{1000 * v:.0f}" for k, v in zip(SHORT, np.mean(per, 0))),
+            flush=True,
+        )
+        with open(CACHE / "log.jsonl", "a") as f:
+            f.write(
+                json.dumps(
+                    {
+                        "tag": tag,
+                        "set": sys.argv[2],
+                        "rows": [(r[0], r[1], float(r[2]), float(r[3]), float(r[4])) for r in rows],
+                    }
+                )
+                + "\n"
+            )
+
+
+if __name__ == "__main__":
+    main()
