@@ -6,7 +6,7 @@ and per joint (the test's 14 joints on the default body, per-frame similarity), 
 the fit's CPU seconds. Sets: `cal` the built-in motions x subject seeds 0-2; `shrug` idle and
 turnaround with the clavicles lifted 0.15-0.55 rad; `rand` idle plus smooth random flexions of the
 limbs, clavicles and spine (pose-diverse); `test` the held-out CMU clips of the tests (report only,
-never tune on them). EXEC='python' runs code before the fit (to try a constant).
+never tune on them).
 
   PYTHONPATH=src python scripts/video_fit_calibration.py prep cal
   PYTHONPATH=src python scripts/video_fit_calibration.py fit cal TAG
@@ -241,8 +241,6 @@ def main():
     elif cmd == "fit":
         import torch
 
-        if os.environ.get("EXEC"):
-            exec(os.environ["EXEC"], globals())
         torch.set_num_threads(1)
         tag = sys.argv[3] if len(sys.argv) > 3 else "run"
         steps = int(os.environ.get("STEPS", "0")) or None
