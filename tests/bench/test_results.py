@@ -81,6 +81,21 @@ def test_points_aggregate_over_subjects():
     assert p["subjects"] == 2 and p["seconds"] == pytest.approx(45.5) and p["value"] == pytest.approx(20.1)
 
 
+def test_points_of_two_kinds_of_subject_keep_apart():
+    """The same method on lit and on albedo subjects are two points with two labels (one table
+    row each); with one kind of subject the labels stay short."""
+    rows = []
+    for appearance, masked in (("lit", 20.0), ("albedo", 18.0)):
+        for subject in (1, 2):
+            config = {"steps": 0, "appearance": appearance, "wardrobe": "heldout", "res": 512}
+            rows.append(make_row("unproject", config, "novel_views", 5.0, None, _metrics(masked), subject=subject))
+    pts = {p["label"]: p for p in points(rows, "novel_views")}
+    assert set(pts) == {"unproject steps=0 (lit, heldout, 512 px)", "unproject steps=0 (albedo, heldout, 512 px)"}
+    assert pts["unproject steps=0 (albedo, heldout, 512 px)"]["value"] == pytest.approx(18.0)
+    assert pts["unproject steps=0 (lit, heldout, 512 px)"]["subjects"] == 2
+    assert [p["label"] for p in points(rows[:2], "novel_views")] == ["unproject steps=0"]
+
+
 def test_pareto_front_on_a_toy_set():
     pts = [
         {"label": k, "seconds": s, "value": v}

@@ -383,15 +383,28 @@ def group(row: dict) -> str:
     return f"{cfg['input']}/{cfg.get('backend', '?')} {row['method']}"
 
 
-def label(row: dict, leave_out: tuple[str, ...] = ()) -> str:
+SUBJECT_KEYS = ("appearance", "wardrobe", "res")  # the protocol keys that say what the subjects were
+
+
+def subjects_of(row: dict) -> tuple:
+    """What the subjects of a row were: its SUBJECT_KEYS values (None where absent)."""
+    return tuple(row["config"].get(k) for k in SUBJECT_KEYS)
+
+
+def label(row: dict, leave_out: tuple[str, ...] = (), subjects: bool = False) -> str:
     """A method and its setting, for tables and legends: "unproject steps=50", "photo/template
     unproject steps=50" (`group`; the protocol's keys, the same for every row of a run, the
     checkpoint's hash, what a stability row measured of its subject (`subject_*`) and `leave_out`
-    are left out)."""
+    are left out). `subjects`: what the subjects were too, "unproject steps=50 (albedo, heldout,
+    512 px)", for rows of several kinds of subject side by side."""
     hidden = PROTOCOL_KEYS + ("input", "backend") + tuple(leave_out)
     shown = [(k, v) for k, v in sorted(row["config"].items()) if k not in hidden]
     cfg = " ".join(f"{k}={v}" for k, v in shown if not k.startswith("subject_"))
-    return f"{group(row)} {cfg}".strip()
+    text = f"{group(row)} {cfg}".strip()
+    if subjects:
+        what = [f"{v} px" if k == "res" else str(v) for k, v in zip(SUBJECT_KEYS, subjects_of(row)) if v is not None]
+        text += f" ({', '.join(what)})" if what else ""
+    return text
 
 
 def level_text(level: float) -> str:
@@ -401,15 +414,17 @@ def level_text(level: float) -> str:
 
 def points(rows: list[dict], split: str, metric: str = "psnr_masked") -> list[dict]:
     """One point per (method, config) on `split`: median seconds, mean metric, subject count
-    (rows whose status is not "ok" left out)."""
+    (rows whose status is not "ok" left out). Where the points' subjects differ (lit and albedo,
+    say) every label says what its subjects were, so no two points share a label."""
     groups: dict[str, list[dict]] = {}
     for row in rows:
         if row["split"] == split and row.get("status", "ok") == "ok":
             key = json.dumps([row["method"], row["config"]], sort_keys=True)  # the full config, not the label
             groups.setdefault(key, []).append(row)
+    mixed = len({subjects_of(rs[0]) for rs in groups.values()}) > 1  # labels then say what the subjects were
     pts = [
         {
-            "label": label(rs[0]),
+            "label": label(rs[0], subjects=mixed),
             "method": rs[0]["method"],
             "group": group(rs[0]),
             "seconds": statistics.median(r["seconds"] for r in rs),
