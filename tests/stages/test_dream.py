@@ -210,7 +210,7 @@ def test_back_colours_are_the_mirrored_front():
     """Where front and back layers are the same part the back takes the front colour; where they
     differ (face over the back of the head) it is filled from the same part's known pixels."""
     from dlacli.body.regions import PARTS
-    from dlacli.stages.dream import back_colours
+    from dlacli.stages.shell import back_colours
 
     h, w = 20, 10
     rgb = np.zeros((h, w, 3))

@@ -178,7 +178,7 @@ def test_no_face_on_the_back_of_the_head(scene):
 
 @pytest.fixture(scope="module")
 def novel(scene):
-    from dlacli.stages.dream import template_views
+    from dlacli.stages.shell import template_views
     from dlacli.stages.texture import body_views
 
     s = scene["pattern"]

@@ -217,6 +217,7 @@ def dream_suite(cfg: SpeedConfig, row, log) -> list[dict]:
     from dlacli.stages.fit import fit_body
     from dlacli.stages.fit_report import overlay_png
     from dlacli.stages.plausibility import plausibility
+    from dlacli.stages.shell import template_views
     from dlacli.stages.texture import body_views
 
     photo, res, steps = D.sample_photo(), cfg.dream_res, cfg.dream_fit_steps
@@ -254,7 +255,7 @@ def dream_suite(cfg: SpeedConfig, row, log) -> list[dict]:
             return make(rgb, alpha, cam, fit.vertices)
 
         stage("views_body", lambda: framed_views(body_views), {"res": res})
-        stage("views_shell", lambda: framed_views(D.template_views), {"res": res})
+        stage("views_shell", lambda: framed_views(template_views), {"res": res})
         images, masks, cams, _ = timed["views_body"]
         stage("plausibility", lambda: plausibility(images, masks, cams, fit.vertices), {"res": res})
         folder = D.build_views(image, mask, fit, res=res)
