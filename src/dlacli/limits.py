@@ -22,8 +22,9 @@ BUDGET_TOLERANCE_DB = 0.2
 
 # --- lift
 FIT_STEPS = 150  # optimisation steps of dream's body fit (docs/fit.md: 300 fitted no better)
-LIFT_STEPS = 30  # refinement steps of the default lift (0 = mesh unprojection only); at lr 0.03 (LiftConfig):
-# as accurate on held-out novel views and poses as 50 at 0.01, in 60 % of the time (docs/lift.md "Cost and accuracy")
+LIFT_STEPS = 30  # refinement steps of the default lift (0 = mesh unprojection only), at LIFT_LR: as accurate on
+# held-out novel views and poses as 50 steps at 0.01, in 60 % of the time (docs/lift.md "Cost and accuracy")
+LIFT_LR = 0.03  # the refinement's Adam learning rate
 LIFT_RESOLUTION = 256  # side of the UV Gaussian map Z
 MAX_LIFT_STEPS = 100_000
 MAX_LIFT_RESOLUTION = 2048  # side of the largest Z (io/avatar.py's MAX_UNPACKED fits it); least: MIN_IMAGE_SIZE

@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 from dlacli.avatar import gaussian_map as gm
 from dlacli.errors import DlaInputError
 from dlacli.geometry import project_points as _project  # points [..., 3] -> (pixels [..., 2], z [...])
-from dlacli.limits import LIFT_GAUSSIANS, LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS, MIN_VIEW_FALLOFF
+from dlacli.limits import LIFT_GAUSSIANS, LIFT_LR, LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS, MIN_VIEW_FALLOFF
 from dlacli.stages.bake import VIEW_SHARPNESS, bake_colours, body_depth_maps, fill_outside_charts, view_falloff
 from dlacli.stages.sheet import contact_sheet as contact_sheet  # re-exported: the sheet lift writes
 from dlacli.stages.sheet import sheet_and_novel_view
@@ -51,7 +51,7 @@ class LiftConfig:
     steps: int = LIFT_STEPS  # refinement steps (0: unprojection only); see `dla bench pipeline`
     gaussians: int = LIFT_GAUSSIANS  # sampled during refinement, and recorded
     render_size: int = 512  # refinement renders views at most this many pixels on the long side
-    lr: float = 0.03  # Adam; with LIFT_STEPS (see limits.py)
+    lr: float = LIFT_LR  # Adam
     w_mask: float = 1.0
     w_ssim: float = 0.2
     seed: int = 0
