@@ -95,8 +95,8 @@ def test_conditioning_is_computed_once_per_body_and_per_camera(bodies, monkeypat
     verts, rest = bodies
     samples = gm.make_samples(N, 1)
     made = []
-    real = codec.pose_conditioning
-    monkeypatch.setattr(codec, "pose_conditioning", lambda *a: made.append(a) or real(*a))
+    real = codec.PoseConditioning.of_body
+    monkeypatch.setattr(codec.PoseConditioning, "of_body", lambda *a: made.append(a) or real(*a))
     dec = Counting()
     decoded = codec.Decoded.of(dec, _z(), rest)
     eyes = _eyes(2, 3)
@@ -107,7 +107,7 @@ def test_conditioning_is_computed_once_per_body_and_per_camera(bodies, monkeypat
     assert len(made) == 2 and len(dec.calls["delta"]) == 6  # pose maps once per body, F_delta per pair
     for k, (p, c) in enumerate(sets):
         pose, rays = dec.calls["delta"][k]
-        assert torch.equal(pose.relative_positions, real(verts[p], rest, R).relative_positions)
+        assert torch.equal(pose.relative_positions, codec.pose_conditioning(verts[p], rest, R).relative_positions)
         assert torch.equal(rays, codec.uv_rays(verts[p], eyes[p, c], R))
         # the set is F = F_c + F_delta of that body and camera, skinned onto that body
         fmap = decoded.f_c + Counting.delta(dec, decoded.z, pose, rays, "trunk")
@@ -118,6 +118,53 @@ def test_conditioning_is_computed_once_per_body_and_per_camera(bodies, monkeypat
     stacked = posed.all(c=1)  # every body from its camera 1
     assert torch.equal(stacked.rgb, torch.cat([sets[0, 1].rgb, sets[1, 1].rgb]))
     assert stacked.delta.shape == (2, gm.CHANNELS, R, R)
+
+
+def test_a_colour_only_delta_reuses_the_geometry_and_changes_nothing(bodies):
+    """A decoder whose F_delta touches colour only (view-cosine) is skinned once per body and
+    looked up per camera for its colours: the same numbers, bit for bit, as skinning F_c + F_delta
+    whole for every camera, and the rays share the body's texel positions."""
+    from dlacli.body.uv import position_map
+
+    verts, rest = bodies
+    samples = gm.make_samples(N, 1)
+    z = torch.cat([_z(), torch.full((1, R, R), 0.6)])  # falloff k = 0.6
+    dec = codec.ViewCosineDecoder()
+    assert not dec.delta_geometry
+    decoded = codec.Decoded.of(dec, z, rest)
+    eyes = _eyes(2, 3)
+    posed = PosedAvatar(decoded, samples, verts, eyes)
+    for p in range(2):
+        pose = decoded.pose(verts[p])
+        assert torch.equal(pose.positions, position_map(verts[p], R))
+        for c in range(3):
+            rays = codec.uv_rays(verts[p], eyes[p, c], R)
+            assert torch.equal(decoded.rays(verts[p], eyes[p, c], pose), rays)
+            fmap = decoded.f_c + dec.delta(z, pose, rays)
+            want = gm.skinned_params_on_body(fmap, samples, verts[p : p + 1])
+            got = posed.placed(p, c)
+            for a, b in zip((got.means, got.quats, got.scales, got.opacities[0], got.rgb[0]), want):
+                assert torch.equal(a, b[0] if a.ndim == b.ndim - 1 and b.shape[0] == 1 else b)
+    assert not torch.equal(posed.placed(0, 0).rgb, posed.placed(0, 1).rgb)  # the colours do follow the camera
+    assert posed.placed(1, 0).means is posed.placed(1, 2).means  # one skinning per body
+
+
+def test_pose_maps_are_made_when_read(bodies):
+    from dlacli.body.uv import normal_map, position_map, relative_position_map, surface_maps
+
+    verts, rest = bodies
+    asked = []
+    pose = codec.PoseConditioning.of_body(verts[1], lambda: asked.append(1) or rest, R)
+    assert torch.equal(pose.normals, normal_map(verts[1], R).permute(2, 0, 1))
+    assert not asked  # the normals alone never ask for the rest pose
+    assert torch.equal(pose.relative_positions, relative_position_map(verts[1], rest, R).permute(2, 0, 1))
+    assert asked == [1]
+    pos, nrm = surface_maps(verts, R)  # one pass of the kernels for both maps
+    assert torch.equal(pos, position_map(verts, R)) and torch.equal(nrm, normal_map(verts, R))
+    v = verts.clone().requires_grad_(True)  # a gradient asked for: the torch path
+    pos, nrm = surface_maps(v, R)
+    assert pos.requires_grad and nrm.requires_grad
+    assert torch.equal(pos, position_map(v, R)) and torch.equal(nrm, normal_map(v, R))
 
 
 def test_canonical_only_places_f_c(bodies):

@@ -17,7 +17,6 @@ the checkpoint resolver.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -26,12 +25,59 @@ from dlacli.errors import DlaInputError
 from dlacli.types import Avatar
 
 
-@dataclass
 class PoseConditioning:
-    """What a pose-conditioned decoder sees of one target pose, as UV maps [3, R, R]."""
+    """What a pose-conditioned decoder sees of one target pose, as UV maps [3, R, R]:
+    `relative_positions` (posed minus rest positions, metres) and `normals` (unit normals of the
+    posed body). Given as tensors, or (`of_body`) computed from the posed vertices when first
+    read, so a decoder pays only for the maps it reads; `positions` (the posed texel positions
+    [R, R, 3], channels last) is what the rays from a camera to the body share with them."""
 
-    relative_positions: torch.Tensor  # [3, R, R] posed minus rest positions, metres
-    normals: torch.Tensor  # [3, R, R] unit normals of the posed body
+    def __init__(self, relative_positions: torch.Tensor | None = None, normals: torch.Tensor | None = None):
+        self._maps: dict[str, torch.Tensor | None] = {"relative_positions": relative_positions, "normals": normals}
+        self._body: tuple | None = None  # (vertices [V, 3], rest vertices () -> [V, 3], R) for `of_body`
+
+    @classmethod
+    def of_body(cls, vertices: torch.Tensor, rest_vertices: Callable[[], np.ndarray], resolution: int):
+        """The maps of posed vertices [V, 3] at resolution R, each computed when first read;
+        rest_vertices() gives the zero-pose vertices [V, 3] (asked for only by the relative
+        positions)."""
+        out = cls()
+        out._body = (vertices, rest_vertices, resolution)
+        return out
+
+    def _surface(self) -> None:
+        from dlacli.body.uv import surface_maps
+
+        vertices, _, resolution = self._body
+        pos, nrm = surface_maps(vertices, resolution)  # [R, R, 3] each
+        self._maps["positions"] = pos
+        if self._maps["normals"] is None:
+            self._maps["normals"] = nrm.permute(2, 0, 1).contiguous()
+
+    @property
+    def relative_positions(self) -> torch.Tensor:
+        if self._maps["relative_positions"] is None and self._body is not None:
+            from dlacli.body.uv import relative_position_map
+
+            vertices, rest, resolution = self._body
+            rel = relative_position_map(vertices, rest(), resolution)  # [R, R, 3]
+            self._maps["relative_positions"] = rel.permute(2, 0, 1).contiguous()
+        return self._maps["relative_positions"]
+
+    @property
+    def normals(self) -> torch.Tensor:
+        if self._maps["normals"] is None and self._body is not None:
+            self._surface()
+        return self._maps["normals"]
+
+    @property
+    def positions(self) -> torch.Tensor | None:
+        """The posed texel positions [R, R, 3] of `of_body` (None for maps given as tensors)."""
+        if self._body is None:
+            return None
+        if "positions" not in self._maps:
+            self._surface()
+        return self._maps["positions"]
 
 
 class Decoder:
@@ -41,6 +87,7 @@ class Decoder:
     pose_conditioned = False  # delta depends on the target pose
     view_conditioned = False  # delta depends on the camera's rays
     linear = False  # F is linear in Z: maps decoded from blended Zs may be blended directly
+    delta_geometry = True  # F_delta may move offsets, rotations or scales; False: opacity and colour only
     resolution: int | None = None  # the resolution of the UV maps `delta` wants (pose, rays)
 
     def canonical(self, z: torch.Tensor) -> torch.Tensor:
@@ -96,6 +143,7 @@ class ViewCosineDecoder(IdentityDecoder):
     pose_conditioned = True  # the posed normals
     view_conditioned = True  # the rays
     linear = True  # F_c = z[:14]; F_delta is not linear in z (rgb times k)
+    delta_geometry = False  # colour only
     FALLOFF = 14  # z's channel of k
 
     def canonical(self, z: torch.Tensor) -> torch.Tensor:
@@ -202,21 +250,18 @@ def resolve_decoder(avatar: Avatar, where: str = "avatar", checkpoint: str | Non
 
 def pose_conditioning(vertices: torch.Tensor, rest_vertices: np.ndarray, resolution: int) -> PoseConditioning:
     """The UV maps a pose-conditioned decoder sees for posed vertices [V, 3] of a body whose
-    zero-pose vertices are rest_vertices [V, 3]."""
-    from dlacli.body.uv import normal_map, relative_position_map
-
-    rel = relative_position_map(vertices, rest_vertices, resolution)  # [R, R, 3]
-    nrm = normal_map(vertices, resolution)  # [R, R, 3]
-    return PoseConditioning(rel.permute(2, 0, 1).contiguous(), nrm.permute(2, 0, 1).contiguous())
+    zero-pose vertices are rest_vertices [V, 3] (each computed when first read)."""
+    return PoseConditioning.of_body(vertices, lambda: rest_vertices, resolution)
 
 
-def uv_rays(vertices: torch.Tensor, eye: torch.Tensor, resolution: int) -> torch.Tensor:
+def uv_rays(vertices: torch.Tensor, eye: torch.Tensor, resolution: int, positions: torch.Tensor | None = None):
     """Plücker rays [6, R, R] from a camera centre eye [3] to each texel's point on the posed
-    body vertices [V, 3] (what a view-conditioned decoder sees of a camera)."""
+    body vertices [V, 3] (what a view-conditioned decoder sees of a camera); `positions`: the
+    body's `position_map` at R, when already made."""
     from dlacli.body.uv import position_map
     from dlacli.geometry import plucker_rays_uv
 
-    pos = position_map(vertices, resolution)  # [R, R, 3]
+    pos = position_map(vertices, resolution) if positions is None else positions  # [R, R, 3]
     return plucker_rays_uv(pos, torch.as_tensor(eye, dtype=pos.dtype)).permute(2, 0, 1).contiguous()
 
 
@@ -267,7 +312,8 @@ class Decoded:
         version = (self.f_c._version, self.z._version)
         if self._sampled is None or self._sampled[0] is not samples or self._sampled[1] != version:
             with torch.no_grad():
-                self._sampled = (samples, version, sampled_params(self.f_c, samples))
+                kept = tuple(x.contiguous() for x in sampled_params(self.f_c, samples))  # as the kernels read them
+                self._sampled = (samples, version, kept)
         return self._sampled[2]
 
     def _shared(self) -> dict:
@@ -288,18 +334,25 @@ class Decoded:
         """Pose conditioning for posed vertices [V, 3], or None when the decoder needs none."""
         if not self.decoder.pose_conditioned:
             return None
+        return PoseConditioning.of_body(vertices, self._rest_vertices, self.resolution)
+
+    def _rest_vertices(self) -> np.ndarray:
         if self._rest is None:
             from dlacli.body.model import get_body_model
 
             self._rest = get_body_model().rest_vertices(self.phenotype)
-        return pose_conditioning(vertices, self._rest, self.resolution)
+        return self._rest
 
-    def rays(self, vertices: torch.Tensor, eye) -> torch.Tensor | None:
+    def rays(self, vertices: torch.Tensor, eye, pose: PoseConditioning | None = None) -> torch.Tensor | None:
         """UV rays from camera centre eye [3] for posed vertices [V, 3], or None when the
-        decoder is not view-conditioned."""
+        decoder is not view-conditioned; `pose`: these vertices' `pose`, whose texel positions
+        the rays then share."""
         if not self.decoder.view_conditioned:
             return None
-        return uv_rays(vertices, eye, self.resolution)
+        positions = None if pose is None or pose.positions is None else pose.positions
+        if positions is not None and positions.shape[0] != self.resolution:
+            positions = None
+        return uv_rays(vertices, eye, self.resolution, positions)
 
     def delta(self, pose: PoseConditioning | None = None, rays: torch.Tensor | None = None) -> torch.Tensor | None:
         """F_delta [14, R, R] for a pose and a camera's UV rays (each passed on only when the

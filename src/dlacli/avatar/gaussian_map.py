@@ -107,6 +107,14 @@ def sampled_params(fmap: torch.Tensor, samples: Samples) -> tuple[torch.Tensor, 
     return params[..., OFFSET], dquat, ds, _Sigmoid.apply(params[..., 0]), params[..., RGB].clamp(0.0, 1.0)
 
 
+def sampled_appearance(fmap: torch.Tensor, samples: Samples) -> tuple[torch.Tensor, torch.Tensor]:
+    """(opacity, rgb) of `sampled_params`, from F's opacity and colour channels alone (the
+    same numbers, bit for bit: the lookup weighs each channel on its own): what a map whose
+    F_delta changes only appearance recomputes per camera."""
+    params = lookup(fmap[..., : RGB.stop, :, :], samples.uv)  # [(P,) N, 4]: opacity, rgb
+    return _Sigmoid.apply(params[..., 0]), params[..., RGB].clamp(0.0, 1.0)
+
+
 def skinned_params(
     fmap: torch.Tensor,  # [14, R, R] one map F for all frames, or [P, 14, R, R] one per frame
     samples: Samples,

@@ -106,6 +106,7 @@ class PosedAvatar:
         self.conditioned = decoded.conditioned and not canonical_only
         self._poses: dict[int, object] = {}  # pose conditioning per body
         self._all: Placed | None = None  # F_c on every body (unconditioned)
+        self._geometry: dict[int, tuple] = {}  # F_c's skinned geometry per body (`_appearance_only`)
 
     def __len__(self) -> int:
         return self.vertices.shape[0]
@@ -144,11 +145,26 @@ class PosedAvatar:
         dec = self.decoded
         if p not in self._poses:
             self._poses[p] = dec.pose(self.vertices[p])
-        rays = dec.rays(self.vertices[p], self.eyes[p, c]) if self.eyes is not None else None
-        delta = dec.delta(self._poses[p], rays)
+        pose = self._poses[p]
+        rays = dec.rays(self.vertices[p], self.eyes[p, c], pose) if self.eyes is not None else None
+        delta = dec.delta(pose, rays)
         fmap = dec.f_c if delta is None else dec.f_c + delta
-        means, quats, scales, opacities, rgb = self._skin(fmap, p)
+        means, quats, scales, opacities, rgb = self._appearance_only(fmap, p) or self._skin(fmap, p)
         return Placed(means, quats, scales, opacities[None], rgb[None], None if delta is None else delta[None])
+
+    def _appearance_only(self, fmap: torch.Tensor, p: int) -> tuple[torch.Tensor, ...] | None:
+        """`_skin(fmap, p)` for fmap = F_c + F_delta when F_delta changes only opacity and colour
+        (the decoder's `delta_geometry` is off) and no gradient is asked for: the geometry is
+        F_c's, skinned once per body, and only the appearance is looked up per camera (the same
+        numbers, bit for bit). None where this does not apply."""
+        dec = self.decoded
+        if dec.decoder.delta_geometry or not gm.fast_skinning(fmap, self.vertices):
+            return None
+        if dec.sampled_canonical(self.samples) is None:
+            return None
+        if p not in self._geometry:
+            self._geometry[p] = self._skin(dec.f_c, p)[:3]
+        return (*self._geometry[p], *gm.sampled_appearance(fmap, self.samples))
 
     def all(self, c: int = 0) -> Placed:
         """Every body, seen from its camera c: Placed with P = len(self)."""

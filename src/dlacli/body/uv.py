@@ -251,6 +251,17 @@ def _texel_samples(resolution: int) -> tuple[np.ndarray, np.ndarray]:
     return face_id, bary
 
 
+def surface_maps(vertices, resolution: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(`position_map`, `normal_map`) of the same vertices, from one pass over the texels when
+    the numba kernels serve (`fast_surface`): what a posed body's conditioning and rays share."""
+    v, single = _as_vertices(vertices)
+    if not fast_surface(v):
+        return position_map(vertices, resolution), normal_map(vertices, resolution)
+    f, b = _texel_samples(resolution)
+    maps = tuple(_scatter_map(x, resolution) for x in _surface_fast(v, f, b))
+    return tuple(m[0] for m in maps) if single else maps
+
+
 def position_map(vertices, resolution: int) -> torch.Tensor:
     """World position of each texel's surface point: [V, 3] -> [R, R, 3] or [T, V, 3] ->
     [T, R, R, 3]; zero on empty texels."""

@@ -92,6 +92,7 @@ class ResidualNet(nn.Module, Decoder):
 
     name = "residual-gain"
     linear = False
+    delta_geometry = False  # F_delta: colour only (the gain and the view falloff)
 
     def __init__(self, config: ResidualNetConfig):
         nn.Module.__init__(self)
