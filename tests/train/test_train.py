@@ -161,23 +161,25 @@ def test_tiny_model_overfits_two_subjects(data64, tmp_path):
 
 @pytest.mark.slow
 def test_tiny_decoder_renders_better_than_an_empty_image(data64, tmp_path):
-    """The decoder's own image loss, overfitting 2 subjects for 40 steps of stage full (every
+    """The decoder's own image loss, overfitting 2 subjects for 80 steps of stage full (every
     loss, mask included): its L1 ends well below the L1 of an empty (black) render of the same
-    kind of targets, the level a decoder that learned nothing but transparency reaches.
-    Measured: 0.087 -> 0.015 against 0.022."""
+    kind of targets, the level a decoder that learned nothing but transparency reaches. One
+    step's L1 swings by +-40 % with the targets drawn, so the end is the mean of the last 10
+    steps (after 40 steps the level was within that noise of 0.8 x empty, and flipped with
+    gradients that differed by 1e-6). Measured: 0.087 -> 0.014-0.016 against 0.022."""
     from dlacli.train.data import TrainingData
     from dlacli.train.loop import train
 
     rec = train(
         data64,
         tmp_path / "run",
-        _cfg(batch=2, targets=2, steps_low=0, steps_full=40, validation=1, lr_g=3e-3),
+        _cfg(batch=2, targets=2, steps_low=0, steps_full=80, validation=1, lr_g=3e-3),
         log=lambda s: None,
     )
     data = TrainingData(data64, 64, SIZE, 2, subjects=rec["train_subjects"], include_inputs=False)
     empty = np.mean([float(data.item(i % 2, np.random.default_rng(i)).target_rgb.mean()) for i in range(20)])
     l1 = [h["l1"] for h in rec["history"]]
-    assert np.mean(l1[-3:]) < 0.8 * empty < 0.8 * np.mean(l1[:3]), (l1[:3], l1[-3:], empty)
+    assert np.mean(l1[-10:]) < 0.8 * empty < 0.8 * np.mean(l1[:3]), (l1[:3], l1[-10:], empty)
 
 
 def test_run_folder_pictures_and_record(data64, tmp_path):
