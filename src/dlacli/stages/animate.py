@@ -97,12 +97,16 @@ def pose_avatar(
     for start in range(0, t_total, batch):
         sel = np.arange(start, min(start + batch, t_total))
         body = model.forward_motion(avatar.body.phenotype, motion, frames=sel)
-        placed = PosedAvatar(decoded, samples, body.vertices, usd_view_eyes(body.bone_heads[:, 0])).all()
-        parts = {"pos": placed.means, "quat": placed.quats, "scale": placed.scales}
-        if decoded.conditioned:  # colours and opacities per frame too
-            parts.update(rgb=placed.rgb, alpha=placed.opacities)
-        for key, x in parts.items():
-            out[key][sel] = x.numpy()
+        posed = PosedAvatar(decoded, samples, body.vertices, usd_view_eyes(body.bone_heads[:, 0]))
+        # frame by frame into the arrays when each frame has its own map (no stacked copy)
+        sets = (posed.placed(p) for p in range(len(sel))) if decoded.conditioned else [posed.all()]
+        for k, placed in enumerate(sets):
+            parts = {"pos": placed.means, "quat": placed.quats, "scale": placed.scales}
+            if decoded.conditioned:  # colours and opacities per frame too
+                parts.update(rgb=placed.rgb, alpha=placed.opacities)
+            rows = sel[k : k + 1] if decoded.conditioned else sel
+            for key, x in parts.items():
+                out[key][rows] = x.numpy()
         pelvis[sel] = body.bone_heads[:, 0].numpy()
         if progress is not None:
             progress(int(sel[-1]) + 1, t_total)
