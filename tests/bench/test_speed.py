@@ -60,6 +60,22 @@ def test_ratios_pair_rows_of_one_run():
     assert "Run b" in md and "Run a" not in md  # only the latest run of a suite is shown
 
 
+def test_the_render_table_keeps_the_latest_run_of_each_gaussian_count():
+    rows = [
+        speed_row("render", case, "cpu", {"gaussians": n, "size": 512, "frames": 30}, s, 3, run, "cpu")
+        for run, n, case, s in (
+            ("r1", 32768, "playback_frame", 0.050),
+            ("r2", 32768, "playback_frame", 0.040),
+            ("r3", 131072, "playback_frame", 0.080),
+            ("r3", 131072, "animation_frame", 0.050),
+        )
+    ]
+    md = "\n".join(speed_markdown(rows))
+    assert "Runs r2, r3 on cpu." in md and "r1" not in md
+    assert "| playback_frame | frames=30 gaussians=32768 size=512 | cpu | 40.0 | - | 25.0 fps |" in md
+    assert "| animation_frame | frames=30 gaussians=131072 size=512 | cpu | 50.0 | - | 20.0 fps |" in md
+
+
 def test_a_tiny_splat_run():
     cfg = S.SpeedConfig(splat_cases=((256, 32),), splat_paths=("numba", "torch"), repeats=1)
     rows = S.run(["splat"], cfg, log=lambda s: None)

@@ -229,7 +229,7 @@ def speed_markdown(rows: list[dict], intro: bool = True) -> list[str]:
         "## Speed",
         "",
         "`dla bench speed`: medians per call after a warm-up (repeats = 1: one timed run); the latest run of each",
-        "suite. Ratios pair rows of the same run.",
+        "suite (render: of each Gaussian count). Ratios pair rows of the same run.",
         "",
     ]
     lines = lines if intro else []
@@ -246,12 +246,16 @@ def speed_markdown(rows: list[dict], intro: bool = True) -> list[str]:
         {r["suite"] for r in speed} - set(SUITES)
     ):
         sel = [r for r in speed if r["suite"] == suite]
-        latest = max(r["run"] for r in sel)
-        sel = [r for r in sel if r["run"] == latest]
+        if suite == "render":  # playback at each Gaussian count: the latest run of each
+            counts = {r["config"].get("gaussians") for r in sel}
+            runs = sorted({max(r["run"] for r in sel if r["config"].get("gaussians") == n) for n in counts})
+        else:
+            runs = [max(r["run"] for r in sel)]
+        sel = [r for r in sel if r["run"] in runs]
         lines += [
             f"### {suite}",
             "",
-            f"Run {latest} on {', '.join(sorted({r['device'] for r in sel}))}.",
+            f"Run{'s' if len(runs) > 1 else ''} {', '.join(runs)} on {', '.join(sorted({r['device'] for r in sel}))}.",
             "",
             "| case | setting | method | median ms | min ms | more |",
             "|---|---|---|---|---|---|",
@@ -277,7 +281,7 @@ def speed_markdown(rows: list[dict], intro: bool = True) -> list[str]:
                     more.append(fmt.format(r[name] * (1e3 if name == "first_seconds" else 1)))
             if suite == "usd" and r.get("items"):
                 more.append(f"{r['items'] / r['seconds'] / 1e6:.1f} M Gaussian-frames/s")
-            if suite == "render" and r["case"] == "animation_frame":
+            if suite == "render" and r["case"] in ("animation_frame", "playback_frame"):
                 more.append(f"{1 / r['seconds']:.1f} fps")
             if "torch_loaded" in r:
                 more.append("loads torch" if r["torch_loaded"] else "no torch")
