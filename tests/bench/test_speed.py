@@ -3,6 +3,8 @@ tiny real runs of the splat and USD suites (what they record, never how fast it 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -182,3 +184,31 @@ def test_a_tiny_motion_run(monkeypatch):
     frames = int(round(cfg.motion_seconds * 30)) + 1
     assert all(r["items"] == frames and r["config"]["frames"] == frames and r["seconds"] > 0 for r in rows)
     assert by_case["from_video_command"]["seconds"] == 2.0
+
+
+@pytest.mark.slow
+def test_a_tiny_render_run_against_a_baseline_copy():
+    """The render suite with --baseline: this package and the baseline (here the same source)
+    alternate in fresh interpreters, pose + splat = playback per frame, and the report's
+    baseline / current pairs them."""
+    from pathlib import Path
+
+    import dlacli
+    from dlacli.bench.speed_config import quick_config
+
+    src = str(Path(dlacli.__file__).parent.parent)
+    cfg = replace(quick_config(), baseline=src, rounds=2, repeats=1)
+    rows = S.run(["render"], cfg, log=lambda s: None)
+    assert all(check_row(dict(r)) == r for r in rows)
+    timed = [r for r in rows if r["case"] in ("pose_frame", "animation_frame", "playback_frame")]
+    assert {(r["method"], r["config"]["round"]) for r in timed} == {
+        (m, k) for m in ("cpu", "cpu_baseline") for k in (0, 1)
+    }
+    for method in ("cpu", "cpu_baseline"):
+        for k in (0, 1):
+            got = {r["case"]: r["seconds"] for r in timed if r["method"] == method and r["config"]["round"] == k}
+            assert got["playback_frame"] == pytest.approx(got["pose_frame"] + got["animation_frame"], rel=1e-12)
+            assert min(got.values()) > 0
+    md = "\n".join(speed_markdown(rows))
+    assert md.count("baseline / current") == 3 * 2  # the current rows of both rounds
+    assert "turntable_image" in md

@@ -237,10 +237,11 @@ def speed_markdown(rows: list[dict], intro: bool = True) -> list[str]:
         (q["run"], q["case"], json.dumps(q["config"], sort_keys=True), q["method"]): q["ratio"]
         for q in ratios(speed, "torch")
     }
-    ratio_base = {
+    ratio_base = {  # current against a baseline copy of the package, in the same run
         (q["run"], q["case"], json.dumps(q["config"], sort_keys=True)): q["ratio"]
-        for q in ratios(speed, "numba_baseline")
-        if q["method"] == "numba"
+        for suite, current in (("splat", "numba"), ("render", "cpu"))
+        for q in ratios(speed, f"{current}_baseline", suite)
+        if q["method"] == current
     }
     for suite in [s for s in SUITES if any(r["suite"] == s for r in speed)] + sorted(
         {r["suite"] for r in speed} - set(SUITES)
@@ -270,7 +271,7 @@ def speed_markdown(rows: list[dict], intro: bool = True) -> list[str]:
             key = json.dumps(cfg, sort_keys=True)
             if (r["run"], r["case"], key, r["method"]) in ratio_torch:
                 more.append(f"{ratio_torch[(r['run'], r['case'], key, r['method'])]:.3g}x torch")
-            if r["method"] == "numba" and (r["run"], r["case"], key) in ratio_base:
+            if r["method"] in ("numba", "cpu") and (r["run"], r["case"], key) in ratio_base:
                 more.append(f"baseline / current {ratio_base[(r['run'], r['case'], key)]:.3f}")
             for name, fmt in (
                 ("first_seconds", "first call {:.0f} ms"),

@@ -39,19 +39,16 @@ Times are medians over `repeats` calls after one warm-up call, unless a row says
 
 from __future__ import annotations
 
-import inspect
 import json
 import os
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from dlacli.bench.speed_config import DENSE_MAX_PAIRS, SUITES, SpeedConfig, cli_seconds, median_min
+from dlacli.bench.speed_config import DENSE_MAX_PAIRS, SUITES, SpeedConfig, cli_seconds, median_min, run_isolated
 from dlacli.bench.speed_stages import (
     animate_suite,
     dream_suite,
@@ -207,26 +204,8 @@ def _splat_case(path: str, n: int, res: int, repeats: int, sh_degree: int, budge
 def _run_splat_case(
     path: str, n: int, res: int, cfg: SpeedConfig, pythonpath: str | None = None, numba_cache: str | None = None
 ) -> dict:
-    src = "from __future__ import annotations\nimport statistics\nimport time\n\n" + "\n\n".join(
-        inspect.getsource(f) for f in (median_min, _splat_scene, _splat_case)
-    )
-    src += "\n\nimport json, sys\nprint(json.dumps(_splat_case(*json.loads(sys.argv[1]))))\n"
-    env = dict(
-        os.environ, OMP_WAIT_POLICY=os.environ.get("OMP_WAIT_POLICY", "PASSIVE"), MALLOC_MMAP_THRESHOLD_=str(128 * 1024)
-    )  # big blocks from / back to the OS: the sampled RSS follows them
-    if numba_cache:
-        env["NUMBA_CACHE_DIR"] = numba_cache
-    if pythonpath:
-        env["PYTHONPATH"] = os.pathsep.join(
-            [pythonpath, *[p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]]
-        )
-    args = json.dumps(
-        [path if path != "numba_baseline" else "numba", n, res, cfg.repeats, cfg.sh_degree, cfg.torch_budget_s]
-    )
-    done = subprocess.run([sys.executable, "-c", src, args], capture_output=True, text=True, env=env, check=False)
-    if done.returncode != 0:
-        return {"skipped": "failed: " + (done.stderr.strip().splitlines() or ["no output"])[-1][:200]}
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    args = [path if path != "numba_baseline" else "numba", n, res, cfg.repeats, cfg.sh_degree, cfg.torch_budget_s]
+    return run_isolated((_splat_scene, _splat_case), args, pythonpath, numba_cache)
 
 
 def _gsplat_note() -> str | None:

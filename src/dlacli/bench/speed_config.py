@@ -1,10 +1,14 @@
 """The speed suites' settings and timers (`dla bench speed`, bench/speed.py): one SpeedConfig per
 run, its smoke-test size, the one median-of-repeats timer every suite uses (also sent, as
 source, to the fresh interpreter of each splat case), and the timer of one `dla` command in a
-fresh interpreter (the startup and dream suites)."""
+fresh interpreter (the startup and dream suites), and `run_isolated`, which runs a case in a fresh
+interpreter, from this package or a baseline copy (the splat and render suites)."""
 
 from __future__ import annotations
 
+import inspect
+import json
+import os
 import statistics
 import subprocess
 import sys
@@ -28,7 +32,7 @@ class SpeedConfig:
     repeats: int = 5
     torch_budget_s: float = 150.0  # a torch / dense case whose runs would take longer is skipped
     sh_degree: int = 0
-    baseline: str | None = None  # another src folder holding a dlacli package, for splat ratios
+    baseline: str | None = None  # another src folder holding a dlacli package, for splat and render ratios
     cold: bool = False  # splat: also time one first call with an empty numba cache (the JIT compile)
     rounds: int = 1
     gaussians: int = DEFAULT_GAUSSIANS  # body, animate, render
@@ -100,3 +104,28 @@ def cli_seconds(argv: list[str]) -> tuple[float, bool]:
     if "torch-loaded=" not in done.stderr or any(line.startswith("error:") for line in done.stderr.splitlines()):
         raise RuntimeError(f"dla {' '.join(argv[:2])} failed: {done.stderr.strip()[-300:]}")
     return sec, "torch-loaded=True" in done.stderr
+
+
+def run_isolated(
+    funcs: tuple[Callable, ...], args: list, pythonpath: str | None = None, numba_cache: str | None = None
+) -> dict:
+    """Call funcs[-1](*args) in a fresh interpreter (the functions' source is sent with `python
+    -c`, with median_min), importing dlacli from `pythonpath` first when given (a baseline copy of
+    the package): -> the JSON dict it prints, or {"skipped": why} when it failed."""
+    src = "from __future__ import annotations\nimport statistics\nimport time\n\n" + "\n\n".join(
+        inspect.getsource(f) for f in (median_min, *funcs)
+    )
+    src += f"\n\nimport json, sys\nprint(json.dumps({funcs[-1].__name__}(*json.loads(sys.argv[1]))))\n"
+    env = dict(
+        os.environ, OMP_WAIT_POLICY=os.environ.get("OMP_WAIT_POLICY", "PASSIVE"), MALLOC_MMAP_THRESHOLD_=str(128 * 1024)
+    )  # big blocks from / back to the OS: the sampled RSS follows them
+    if numba_cache:
+        env["NUMBA_CACHE_DIR"] = numba_cache
+    if pythonpath:
+        env["PYTHONPATH"] = os.pathsep.join(
+            [pythonpath, *[p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]]
+        )
+    done = subprocess.run([sys.executable, "-c", src, json.dumps(args)], capture_output=True, text=True, env=env)
+    if done.returncode != 0:
+        return {"skipped": "failed: " + (done.stderr.strip().splitlines() or ["no output"])[-1][:200]}
+    return json.loads(done.stdout.strip().splitlines()[-1])

@@ -8,7 +8,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from dlacli.bench.speed_config import USD_LIMBS, SpeedConfig, cli_seconds, median_min
+from dlacli.bench.speed_config import USD_LIMBS, SpeedConfig, cli_seconds, median_min, run_isolated
 
 
 def _subject_and_avatar(cfg: SpeedConfig, log):
@@ -152,37 +152,71 @@ def usd_suite(cfg: SpeedConfig, row, log) -> list[dict]:
     return out
 
 
+def _playback_case(avatar_path: str, gaussians: int, frames: int, res: int, repeats: int) -> dict:
+    """Per frame: posing the built-in walk (`pose_avatar`) and splatting it from the following
+    camera (`animation_preview_frames`), (median, min) seconds over `repeats` passes each. Sent as
+    source to a fresh interpreter (`run_isolated`): it imports only APIs a baseline shares."""
+    import numpy as np
+
+    from dlacli.body.builtin_motions import builtin_motion
+    from dlacli.io.avatar import read_avatar
+    from dlacli.stages.animate import animation_preview_frames, pose_avatar
+    from dlacli.types import Motion
+
+    avatar = read_avatar(avatar_path)
+    walk = builtin_motion("walk")
+    idx = np.arange(frames) % walk.num_frames
+    clip = Motion(walk.bone_labels, walk.rotations[idx], walk.root_rotation[idx], walk.root_translation[idx], walk.fps)
+    pose = median_min(lambda: pose_avatar(avatar, clip, gaussians), repeats)
+    anim = pose_avatar(avatar, clip, gaussians)
+    splat = median_min(lambda: sum(1 for _ in animation_preview_frames(anim, res)), repeats)
+    return {"pose": [t / frames for t in pose], "splat": [t / frames for t in splat]}
+
+
 def render_suite(cfg: SpeedConfig, row, log) -> list[dict]:
     """Playback on the CPU: posing the walk (body, tangent frames, skinning, the decoder's
     per-frame colour) and splatting its frames from the following camera, each a median over
     cfg.repeats passes, and their sum per frame (what a player that poses and draws each frame
-    spends); then a turntable of the resting avatar."""
-    from dlacli.stages.animate import animation_preview_frames, pose_avatar
+    spends); with cfg.baseline, this package and the baseline copy alternate for cfg.rounds rounds,
+    each in a fresh interpreter (methods "cpu" and "cpu_baseline"); then a turntable of the
+    resting avatar."""
+    from dlacli.io.avatar import write_avatar
     from dlacli.stages.render import render_avatar, turntable_cameras
 
     _, avatar = _subject_and_avatar(cfg, log)
-    walk = _walk(cfg.frames)
-    c = {"gaussians": cfg.gaussians, "size": cfg.res}
-    pose_s, pose_lo = median_min(lambda: pose_avatar(avatar, walk, cfg.gaussians), cfg.repeats)
-    anim = pose_avatar(avatar, walk, cfg.gaussians)
-    frame_s, frame_lo = median_min(lambda: sum(1 for _ in animation_preview_frames(anim, cfg.res)), cfg.repeats)
-    per_pose, per_frame, k = pose_s / cfg.frames, frame_s / cfg.frames, cfg.frames
+    k = cfg.frames
+    f = {"gaussians": cfg.gaussians, "size": cfg.res, "frames": k}
+    path = Path(cfg._cache["tmp"]) / "playback.npz"
+    write_avatar(avatar, path)
+    todo = [("cpu", None, 0)]
+    if cfg.baseline:
+        pairs = [(("cpu", None), ("cpu_baseline", cfg.baseline))] * max(1, cfg.rounds)
+        todo = [(m, src, r) for r, pair in enumerate(pairs) for m, src in (pair if r % 2 == 0 else pair[::-1])]
+    out = []
+    for method, src, rnd in todo:
+        rec = run_isolated((_playback_case,), [str(path), cfg.gaussians, k, cfg.res, cfg.repeats], src)
+        c = {**f, **({"round": rnd} if cfg.baseline else {})}
+        if "skipped" in rec:
+            log(f"render {method}: skipped ({rec['skipped']})")
+            out.append(row("render", "playback_frame", method, c, None, 0, skipped=rec["skipped"]))
+            continue
+        (pose, pose_lo), (splat, splat_lo) = rec["pose"], rec["splat"]
+        log(
+            f"render {method} {cfg.gaussians} Gaussians at {cfg.res} px: pose {pose * 1e3:.1f} ms + splat "
+            f"{splat * 1e3:.1f} ms per frame = playback {1 / (pose + splat):.1f} fps (splat alone {1 / splat:.1f} fps)"
+        )
+        out += [
+            row("render", "pose_frame", method, c, pose, cfg.repeats, min_seconds=pose_lo, items=1),
+            row("render", "animation_frame", method, c, splat, cfg.repeats, min_seconds=splat_lo, items=1),
+            row("render", "playback_frame", method, c, pose + splat, cfg.repeats, items=1),
+        ]
     cams = turntable_cameras(avatar, 8, cfg.res)
     t0 = time.perf_counter()
     list(render_avatar(avatar, cams, [None] * 8, n_gaussians=cfg.gaussians))
     per_image = (time.perf_counter() - t0) / 8
-    log(
-        f"render {cfg.gaussians} Gaussians at {cfg.res} px: pose {per_pose * 1e3:.1f} ms + splat "
-        f"{per_frame * 1e3:.1f} ms per frame = playback {1 / (per_pose + per_frame):.1f} fps (splat alone "
-        f"{1 / per_frame:.1f} fps); turntable {per_image * 1e3:.0f} ms/image"
-    )
-    f = {**c, "frames": k}
-    return [
-        row("render", "pose_frame", "cpu", f, per_pose, cfg.repeats, min_seconds=pose_lo / k, items=1),
-        row("render", "animation_frame", "cpu", f, per_frame, cfg.repeats, min_seconds=frame_lo / k, items=1),
-        row("render", "playback_frame", "cpu", f, per_pose + per_frame, cfg.repeats, items=1),
-        row("render", "turntable_image", "cpu", {**c, "cameras": 8}, per_image, 8, items=1),
-    ]
+    log(f"render {cfg.gaussians} Gaussians at {cfg.res} px: turntable {per_image * 1e3:.0f} ms/image")
+    turntable = {"gaussians": cfg.gaussians, "size": cfg.res, "cameras": 8}
+    return out + [row("render", "turntable_image", "cpu", turntable, per_image, 8, items=1)]
 
 
 def view_suite(cfg: SpeedConfig, row, log) -> list[dict]:

@@ -343,8 +343,8 @@ def speed(
         None,
         "--baseline",
         help=(
-            "splat: also time another copy of the package (a src folder holding dlacli), alternated with this one; "
-            "the report shows baseline / current."
+            "splat and render: also time another copy of the package (a src folder holding dlacli), alternated "
+            "with this one; the report shows baseline / current."
         ),
     ),
     cold: bool = typer.Option(
