@@ -205,7 +205,7 @@ def _run_splat_case(
     path: str, n: int, res: int, cfg: SpeedConfig, pythonpath: str | None = None, numba_cache: str | None = None
 ) -> dict:
     args = [path if path != "numba_baseline" else "numba", n, res, cfg.repeats, cfg.sh_degree, cfg.torch_budget_s]
-    return run_isolated((_splat_scene, _splat_case), args, pythonpath, numba_cache)
+    return run_isolated((_splat_scene, _splat_case), args, pythonpath, numba_cache, sampled_rss=True)
 
 
 def _gsplat_note() -> str | None:

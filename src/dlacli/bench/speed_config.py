@@ -107,18 +107,24 @@ def cli_seconds(argv: list[str]) -> tuple[float, bool]:
 
 
 def run_isolated(
-    funcs: tuple[Callable, ...], args: list, pythonpath: str | None = None, numba_cache: str | None = None
+    funcs: tuple[Callable, ...],
+    args: list,
+    pythonpath: str | None = None,
+    numba_cache: str | None = None,
+    sampled_rss: bool = False,
 ) -> dict:
     """Call funcs[-1](*args) in a fresh interpreter (the functions' source is sent with `python
     -c`, with median_min), importing dlacli from `pythonpath` first when given (a baseline copy of
-    the package): -> the JSON dict it prints, or {"skipped": why} when it failed."""
+    the package): -> the JSON dict it prints, or {"skipped": why} when it failed. `sampled_rss`:
+    big blocks go to and from the OS at once (glibc's mmap threshold at 128 KiB), so that a
+    sampled RSS follows them; slower, and only for a case that samples its peak memory."""
     src = "from __future__ import annotations\nimport statistics\nimport time\n\n" + "\n\n".join(
         inspect.getsource(f) for f in (median_min, *funcs)
     )
     src += f"\n\nimport json, sys\nprint(json.dumps({funcs[-1].__name__}(*json.loads(sys.argv[1]))))\n"
-    env = dict(
-        os.environ, OMP_WAIT_POLICY=os.environ.get("OMP_WAIT_POLICY", "PASSIVE"), MALLOC_MMAP_THRESHOLD_=str(128 * 1024)
-    )  # big blocks from / back to the OS: the sampled RSS follows them
+    env = dict(os.environ, OMP_WAIT_POLICY=os.environ.get("OMP_WAIT_POLICY", "PASSIVE"))
+    if sampled_rss:
+        env["MALLOC_MMAP_THRESHOLD_"] = str(128 * 1024)
     if numba_cache:
         env["NUMBA_CACHE_DIR"] = numba_cache
     if pythonpath:
