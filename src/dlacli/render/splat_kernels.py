@@ -251,7 +251,7 @@ def raster_backward(
         gc = np.zeros((TILE * TILE, 4), dtype=np.float64)
         ga = np.zeros(TILE * TILE, dtype=np.float64)
         last = np.empty(TILE * TILE, dtype=np.int64)
-        live = np.empty(TILE, dtype=np.int64)  # bit x - x0 of row y - y0: the pixel's last >= k
+        rowlast = np.empty(TILE, dtype=np.int64)  # largest last index of each tile row
         buf = np.empty((BATCH, NPARAM), dtype=params.dtype)
         gb = np.zeros((BATCH, NGRAD), dtype=np.float64)
         hits = np.zeros(BATCH, dtype=np.bool_)
@@ -269,7 +269,7 @@ def raster_backward(
             for p in range(TILE * TILE):
                 last[p] = -1
             for r in range(TILE):
-                live[r] = 0
+                rowlast[r] = -1
             for y in range(y0, y1):
                 for x in range(x0, x1):
                     p = (y - y0) * TILE + (x - x0)
@@ -278,13 +278,13 @@ def raster_backward(
                     last[p] = last_ids[c, y, x]
                     if last[p] > kmax:
                         kmax = last[p]
+                    if last[p] > rowlast[y - y0]:
+                        rowlast[y - y0] = last[p]
                     for ch in range(4):
                         behind[p, ch] = 0.0
                         gc[p, ch] = g_acc[c, y, x, ch]
                     ga[p] = g_alpha[c, y, x]
             kstart = tile_offsets[tid]
-            order = np.argsort(-last)  # pixels by last contributor, back to front: live from k = last on
-            nlive = 0
             for kb_end in range(kmax + 1, kstart, -BATCH):
                 kb = max(kb_end - BATCH, kstart)
                 nb = kb_end - kb
@@ -292,10 +292,6 @@ def raster_backward(
                 for j in range(nb - 1, -1, -1):
                     k = kb + j
                     hits[j] = False
-                    while nlive < TILE * TILE and last[order[nlive]] >= k:
-                        q = order[nlive]
-                        live[q // TILE] |= 1 << (q % TILE)
-                        nlive += 1
                     bx0 = max(int(buf[j, 7]), x0)
                     bx1 = min(int(buf[j, 8]), x1 - 1)
                     by0 = max(int(buf[j, 9]), y0)
@@ -329,20 +325,17 @@ def raster_backward(
                     g3 = 0.0
                     hit = False
                     for y in range(by0, by1 + 1):
-                        if live[y - y0] == 0:
+                        if k > rowlast[y - y0]:
                             continue
                         dy = my - (y + 0.5)
                         row = (y - y0) * TILE - x0
                         rx0, rx1 = bx0, bx1
                         if narrow:
                             rx0, rx1 = _row_span(inv_a, cb, det, thr2a, mx, dy, bx0, bx1)
-                            if rx0 > rx1:
-                                continue
-                        m = live[y - y0] & ((2 << (rx1 - x0)) - 1) & ~((1 << (rx0 - x0)) - 1)
-                        while m != 0:  # the live pixels of the span, left to right
-                            x = x0 + trailing_zeros(m)
-                            m &= m - 1
+                        for x in range(rx0, rx1 + 1):
                             p = row + x
+                            if k > last[p]:
+                                continue
                             dx = mx - (x + 0.5)
                             sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
                             if sigma < 0.0 or sigma > thr:
