@@ -349,7 +349,7 @@ class Decoded:
         the rays then share."""
         if not self.decoder.view_conditioned:
             return None
-        positions = None if pose is None or pose.positions is None else pose.positions
+        positions = None if pose is None else pose.positions
         if positions is not None and positions.shape[0] != self.resolution:
             positions = None
         return uv_rays(vertices, eye, self.resolution, positions)

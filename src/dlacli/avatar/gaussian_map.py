@@ -155,15 +155,19 @@ def sampled_params(fmap: torch.Tensor, samples: Samples) -> tuple[torch.Tensor, 
     dquat = params[..., ROTATION]
     dquat = dquat / dquat.norm(dim=-1, keepdim=True).clamp_min(1e-8)
     ds = params[..., LOG_SCALE].exp()
-    return params[..., OFFSET], dquat, ds, _Sigmoid.apply(params[..., 0]), params[..., RGB].clamp(0.0, 1.0)
+    return params[..., OFFSET], dquat, ds, *_appearance(params)
+
+
+def _appearance(params: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Activated opacity [(P,) N] and rgb [(P,) N, 3] of looked-up channels [(P,) N, >= 4]."""
+    return _Sigmoid.apply(params[..., 0]), params[..., RGB].clamp(0.0, 1.0)
 
 
 def sampled_appearance(fmap: torch.Tensor, samples: Samples) -> tuple[torch.Tensor, torch.Tensor]:
     """(opacity, rgb) of `sampled_params`, from F's opacity and colour channels alone (the
     same numbers, bit for bit: the lookup weighs each channel on its own): what a map whose
     F_delta changes only appearance recomputes per camera."""
-    params = lookup(fmap[..., : RGB.stop, :, :], samples.uv)  # [(P,) N, 4]: opacity, rgb
-    return _Sigmoid.apply(params[..., 0]), params[..., RGB].clamp(0.0, 1.0)
+    return _appearance(lookup(fmap[..., : RGB.stop, :, :], samples.uv))  # opacity and rgb channels
 
 
 def skinned_params(

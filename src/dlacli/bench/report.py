@@ -219,6 +219,11 @@ def budget_markdown(rows: list[dict], chart_name: str | None = None, intro: bool
     return lines
 
 
+# suites that `dla bench speed --baseline` times twice: the method of this package's rows (the
+# baseline copy's are METHOD_baseline)
+BASELINED = {"splat": "numba", "render": "cpu"}
+
+
 def speed_markdown(rows: list[dict], intro: bool = True) -> list[str]:
     """The speed section: the latest run of each suite, medians per case with the same-run ratios
     (splat: how many times faster than the pure-torch renderer, and current / baseline)."""
@@ -239,7 +244,7 @@ def speed_markdown(rows: list[dict], intro: bool = True) -> list[str]:
     }
     ratio_base = {  # current against a baseline copy of the package, in the same run
         (q["run"], q["case"], json.dumps(q["config"], sort_keys=True)): q["ratio"]
-        for suite, current in (("splat", "numba"), ("render", "cpu"))
+        for suite, current in BASELINED.items()
         for q in ratios(speed, f"{current}_baseline", suite)
         if q["method"] == current
     }
@@ -271,7 +276,7 @@ def speed_markdown(rows: list[dict], intro: bool = True) -> list[str]:
             key = json.dumps(cfg, sort_keys=True)
             if (r["run"], r["case"], key, r["method"]) in ratio_torch:
                 more.append(f"{ratio_torch[(r['run'], r['case'], key, r['method'])]:.3g}x torch")
-            if r["method"] in ("numba", "cpu") and (r["run"], r["case"], key) in ratio_base:
+            if r["method"] == BASELINED.get(suite) and (r["run"], r["case"], key) in ratio_base:
                 more.append(f"baseline / current {ratio_base[(r['run'], r['case'], key)]:.3f}")
             for name, fmt in (
                 ("first_seconds", "first call {:.0f} ms"),

@@ -155,18 +155,13 @@ def usd_suite(cfg: SpeedConfig, row, log) -> list[dict]:
 def _playback_case(avatar_path: str, gaussians: int, frames: int, res: int, repeats: int) -> dict:
     """Per frame: posing the built-in walk (`pose_avatar`) and splatting it from the following
     camera (`animation_preview_frames`), (median, min) seconds over `repeats` passes each. Sent as
-    source to a fresh interpreter (`run_isolated`): it imports only APIs a baseline shares."""
-    import numpy as np
-
-    from dlacli.body.builtin_motions import builtin_motion
+    source to a fresh interpreter with `_walk` (`run_isolated`): it imports only APIs a baseline
+    shares."""
     from dlacli.io.avatar import read_avatar
     from dlacli.stages.animate import animation_preview_frames, pose_avatar
-    from dlacli.types import Motion
 
     avatar = read_avatar(avatar_path)
-    walk = builtin_motion("walk")
-    idx = np.arange(frames) % walk.num_frames
-    clip = Motion(walk.bone_labels, walk.rotations[idx], walk.root_rotation[idx], walk.root_translation[idx], walk.fps)
+    clip = _walk(frames)
     pose = median_min(lambda: pose_avatar(avatar, clip, gaussians), repeats)
     anim = pose_avatar(avatar, clip, gaussians)
     splat = median_min(lambda: sum(1 for _ in animation_preview_frames(anim, res)), repeats)
@@ -194,7 +189,7 @@ def render_suite(cfg: SpeedConfig, row, log) -> list[dict]:
         todo = [(m, src, r) for r, pair in enumerate(pairs) for m, src in (pair if r % 2 == 0 else pair[::-1])]
     out = []
     for method, src, rnd in todo:
-        rec = run_isolated((_playback_case,), [str(path), cfg.gaussians, k, cfg.res, cfg.repeats], src)
+        rec = run_isolated((_walk, _playback_case), [str(path), cfg.gaussians, k, cfg.res, cfg.repeats], src)
         c = {**f, **({"round": rnd} if cfg.baseline else {})}
         if "skipped" in rec:
             log(f"render {method}: skipped ({rec['skipped']})")
