@@ -115,3 +115,5 @@ def test_texel_maps_without_gradients_match_the_torch_path(bodies):
         assert fast.shape == ref.shape == (2, R, R, 3)
         assert ((fast == 0) == (ref == 0)).all()  # the same empty texels
         assert (fast - ref).abs().max() <= 8 * EPS * ref.abs().max()
+    both = U.surface_maps(bodies, R)  # one pass for the two maps: the same numbers as each alone
+    assert torch.equal(both[0], U.position_map(bodies, R)) and torch.equal(both[1], U.normal_map(bodies, R))

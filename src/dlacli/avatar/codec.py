@@ -262,7 +262,15 @@ def uv_rays(vertices: torch.Tensor, eye: torch.Tensor, resolution: int, position
     from dlacli.geometry import plucker_rays_uv
 
     pos = position_map(vertices, resolution) if positions is None else positions  # [R, R, 3]
-    return plucker_rays_uv(pos, torch.as_tensor(eye, dtype=pos.dtype)).permute(2, 0, 1).contiguous()
+    eye = torch.as_tensor(eye, dtype=pos.dtype, device=pos.device)
+    grad = torch.is_grad_enabled() and (pos.requires_grad or eye.requires_grad)
+    if pos.device.type == "cpu" and pos.dtype == torch.float32 and not grad:  # numba, the same float32 steps
+        from dlacli.avatar.ray_kernels import uv_plucker
+
+        out = torch.empty((6, *pos.shape[:2]), dtype=pos.dtype)
+        uv_plucker(pos.contiguous().numpy(), eye.contiguous().numpy(), out.numpy())
+        return out
+    return plucker_rays_uv(pos, eye).permute(2, 0, 1).contiguous()
 
 
 class Decoded:

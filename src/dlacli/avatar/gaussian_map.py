@@ -18,6 +18,7 @@ identity decoder's F = Z, or a learned GPD's F_c + F_delta) is the codec's busin
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +26,7 @@ import torch
 import torch.nn.functional as nnf
 
 from dlacli.errors import DlaInputError
+from dlacli.geometry import vector_norm
 from dlacli.limits import DEFAULT_GAUSSIANS, MIN_GAUSSIANS
 from dlacli.types import F_CHANNELS, F_LOG_SCALE, F_OFFSET, F_OPACITY, F_RGB, F_ROTATION, Gaussians
 
@@ -32,10 +34,11 @@ from dlacli.types import F_CHANNELS, F_LOG_SCALE, F_OFFSET, F_OPACITY, F_RGB, F_
 CHANNELS, OPACITY, RGB, OFFSET, ROTATION, LOG_SCALE = F_CHANNELS, F_OPACITY, F_RGB, F_OFFSET, F_ROTATION, F_LOG_SCALE
 
 
-@dataclass
+@dataclass(frozen=True)
 class Samples:
     """Fixed surface sample points that carry one Gaussian each (numpy; `lookup` and
-    `sample_frames` move them to the device and dtype of the map or vertices they meet)."""
+    `sample_frames` move them to the device and dtype of the map or vertices they meet).
+    `make_samples` hands the same object to every caller asking for the same set: read only."""
 
     face_id: np.ndarray  # [N] int64 triangle of the body mesh
     bary: np.ndarray  # [N, 3] float32 barycentrics
@@ -46,15 +49,27 @@ class Samples:
 
 
 def make_samples(n: int = DEFAULT_GAUSSIANS, seed: int = 0) -> Samples:
-    """n samples: n // 2 uniform over the covered UV texels, the rest uniform by surface area."""
-    from dlacli.body.uv import sample_surface, sample_uv, sample_uv_points
-
+    """`_make_samples`, the last few sets kept (drawing 131,072 takes about 50 ms; a render, an
+    animation and a refinement each ask for theirs again)."""
     if n < MIN_GAUSSIANS:
         raise DlaInputError("--gaussians", f"needs at least {MIN_GAUSSIANS} Gaussians, got {n}")
+    return _make_samples(int(n), int(seed))
+
+
+@functools.lru_cache(maxsize=2)
+def _make_samples(n: int, seed: int) -> Samples:
+    """n samples: n // 2 uniform over the covered UV texels, the rest uniform by surface area,
+    ordered by face (a stable sort): samples next to each other in memory lie next to each
+    other on the body, so the skinning kernels' per-sample gathers of face and vertex data stay
+    in cache (the posing of 131,072 Gaussians took about a quarter longer in draw order)."""
+    from dlacli.body.uv import sample_surface, sample_uv, sample_uv_points
+
     f_uv, b_uv = sample_uv(n // 2, seed=seed)
     f_s, b_s = sample_surface(n - n // 2, seed=seed + 1)
     face_id = np.concatenate([f_uv, f_s])
     bary = np.concatenate([b_uv, b_s]).astype(np.float32)
+    order = np.argsort(face_id, kind="stable")
+    face_id, bary = face_id[order], np.ascontiguousarray(bary[order])
     return Samples(face_id, bary, sample_uv_points(face_id, bary).astype(np.float32))
 
 
@@ -153,7 +168,7 @@ def sampled_params(fmap: torch.Tensor, samples: Samples) -> tuple[torch.Tensor, 
     places; it depends on F and the samples alone, not on the pose)."""
     params = lookup(fmap, samples.uv)  # [(P,) N, 14]
     dquat = params[..., ROTATION]
-    dquat = dquat / dquat.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+    dquat = dquat / vector_norm(dquat).clamp_min(1e-8)
     ds = params[..., LOG_SCALE].exp()
     return params[..., OFFSET], dquat, ds, *_appearance(params)
 

@@ -81,7 +81,8 @@ def skin_samples(verts, faces, vn, dpdu, scale, face_id, bary, dxyz, dquat, ds, 
     for g in prange(n):
         f = face_id[g]
         p0, p1, p2, n0, n1, n2, norm = _point_and_normal(verts, faces, vn, f, bary, g)
-        n0, n1, n2 = n0 / norm, n1 / norm, n2 / norm
+        inv = 1.0 / norm  # one division, then products (float64: far below float32 rounding)
+        n0, n1, n2 = n0 * inv, n1 * inv, n2 * inv
         # tangent: dP/du orthonormalised against n; a unit vector orthogonal to n if degenerate
         d = dpdu[f, 0] * n0 + dpdu[f, 1] * n1 + dpdu[f, 2] * n2
         t0, t1, t2 = dpdu[f, 0] - d * n0, dpdu[f, 1] - d * n1, dpdu[f, 2] - d * n2
@@ -92,7 +93,8 @@ def skin_samples(verts, faces, vn, dpdu, scale, face_id, bary, dxyz, dquat, ds, 
             else:
                 t0, t1, t2 = -n1 * n0, 1.0 - n1 * n1, -n1 * n2
             tn = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-        t0, t1, t2 = t0 / tn, t1 / tn, t2 / tn
+        inv = 1.0 / tn
+        t0, t1, t2 = t0 * inv, t1 * inv, t2 * inv
         b0 = n1 * t2 - n2 * t1
         b1 = n2 * t0 - n0 * t2
         b2 = n0 * t1 - n1 * t0
@@ -121,10 +123,10 @@ def skin_samples(verts, faces, vn, dpdu, scale, face_id, bary, dxyz, dquat, ds, 
             qw, qx, qy, qz = m02 - m20, m10 + m01, piv * piv, m12 + m21
         else:
             qw, qx, qy, qz = m10 - m01, m20 + m02, m21 + m12, piv * piv
-        qn = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        inv = 1.0 / np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
         if qw < 0:
-            qn = -qn
-        qw, qx, qy, qz = qw / qn, qx / qn, qy / qn, qz / qn
+            inv = -inv
+        qw, qx, qy, qz = qw * inv, qx * inv, qy * inv, qz * inv
         # skinning
         x0, x1, x2 = np.float64(dxyz[g, 0]), np.float64(dxyz[g, 1]), np.float64(dxyz[g, 2])
         means[g, 0] = p0 + m00 * x0 + m01 * x1 + m02 * x2
@@ -136,11 +138,11 @@ def skin_samples(verts, faces, vn, dpdu, scale, face_id, bary, dxyz, dquat, ds, 
         rx = qw * bx + qx * bw + qy * bz - qz * by
         ry = qw * by - qx * bz + qy * bw + qz * bx
         rz = qw * bz + qx * by - qy * bx + qz * bw
-        rn = max(np.sqrt(rw * rw + rx * rx + ry * ry + rz * rz), 1e-12)
-        quats[g, 0] = rw / rn
-        quats[g, 1] = rx / rn
-        quats[g, 2] = ry / rn
-        quats[g, 3] = rz / rn
+        inv = 1.0 / max(np.sqrt(rw * rw + rx * rx + ry * ry + rz * rz), 1e-12)
+        quats[g, 0] = rw * inv
+        quats[g, 1] = rx * inv
+        quats[g, 2] = ry * inv
+        quats[g, 3] = rz * inv
         s = scale[f]
         scales[g, 0] = s * ds[g, 0]
         scales[g, 1] = s * ds[g, 1]
@@ -148,16 +150,18 @@ def skin_samples(verts, faces, vn, dpdu, scale, face_id, bary, dxyz, dquat, ds, 
 
 
 @njit(parallel=True, cache=True)
-def surface_points_normals(verts, faces, vn, face_id, bary, pos, nrm):
-    """Points pos [N, 3] and unit interpolated vertex normals nrm [N, 3] (float32) at the surface
-    samples face_id [N], bary [N, 3] of one body (verts [V, 3], `face_frames`' vn): body/uv.py
-    `surface_points` and `tangent_frames`' normal."""
+def surface_points_normals(verts, faces, vn, face_id, bary, dest, pos, nrm):
+    """Points and unit interpolated vertex normals (float32) at the surface samples face_id [N],
+    bary [N, 3] of one body (verts [V, 3], `face_frames`' vn), written to rows dest[g] of pos and
+    nrm [M, 3] (M >= N; other rows untouched: a UV map's covered texels, or dest = arange(N)):
+    body/uv.py `surface_points` and `tangent_frames`' normal."""
     for g in prange(face_id.shape[0]):
         f = face_id[g]
         p0, p1, p2, n0, n1, n2, norm = _point_and_normal(verts, faces, vn, f, bary, g)
-        pos[g, 0] = p0
-        pos[g, 1] = p1
-        pos[g, 2] = p2
-        nrm[g, 0] = n0 / norm
-        nrm[g, 1] = n1 / norm
-        nrm[g, 2] = n2 / norm
+        row = dest[g]
+        pos[row, 0] = p0
+        pos[row, 1] = p1
+        pos[row, 2] = p2
+        nrm[row, 0] = n0 / norm
+        nrm[row, 1] = n1 / norm
+        nrm[row, 2] = n2 / norm

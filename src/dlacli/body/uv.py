@@ -134,28 +134,40 @@ def face_uv_terms() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
 
 
 def fast_surface(vertices: torch.Tensor) -> bool:
-    """Whether `surface_points` / `position_map` / `normal_map` take the numba kernels
+    """Whether `surface_maps` / `position_map` / `normal_map` take the numba kernels
     (body/skin_kernels.py): float32 CPU vertices and no gradient asked for."""
     if vertices.device.type != "cpu" or vertices.dtype != torch.float32:
         return False
     return not (torch.is_grad_enabled() and vertices.requires_grad)
 
 
-def _surface_fast(v: torch.Tensor, f: np.ndarray, b: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-    """Points and unit interpolated normals [T, N, 3] at samples f [N], b [N, 3] of bodies v
-    [T, V, 3], by `skin_kernels.surface_points_normals` (float64 inside, float32 out)."""
+def _surface_maps_fast(v: torch.Tensor, resolution: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Position and unit normal maps [T, R, R, 3] of bodies v [T, V, 3] (zero on empty texels),
+    the kernels writing each covered texel in place (`skin_kernels.surface_points_normals`,
+    float64 inside, float32 out)."""
     from dlacli.body import skin_kernels as sk
 
     faces, uv_d, inv_det, abs_inv_det = face_uv_terms()
+    fid, bar, dest = _texel_kernel_args(resolution)
     verts = np.ascontiguousarray(v.detach().numpy(), np.float32)
-    fid, bar = np.ascontiguousarray(f, np.int64), np.ascontiguousarray(b, np.float32)
-    pos, nrm = (np.empty((verts.shape[0], len(fid), 3), np.float32) for _ in range(2))
+    pos, nrm = (np.zeros((verts.shape[0], resolution * resolution, 3), np.float32) for _ in range(2))
     vn = np.empty((verts.shape[1], 3), np.float64)
     dpdu, scale = np.empty((faces.shape[0], 3), np.float64), np.empty(faces.shape[0], np.float64)
     for t in range(verts.shape[0]):
         sk.face_frames(verts[t], faces, uv_d, inv_det, abs_inv_det, 1.0, vn, dpdu, scale)
-        sk.surface_points_normals(verts[t], faces, vn, fid, bar, pos[t], nrm[t])
-    return torch.from_numpy(pos), torch.from_numpy(nrm)
+        sk.surface_points_normals(verts[t], faces, vn, fid, bar, dest, pos[t], nrm[t])
+    shape = (verts.shape[0], resolution, resolution, 3)
+    return torch.from_numpy(pos.reshape(shape)), torch.from_numpy(nrm.reshape(shape))
+
+
+@functools.lru_cache(maxsize=8)
+def _texel_kernel_args(resolution: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`_texel_samples` as the kernels take them (face_id int64, bary float32) and each covered
+    texel's row-major index in the R x R map (kept: read-only)."""
+    rows, cols, _ = valid_texels(resolution)
+    f, b = _texel_samples(resolution)
+    dest = (rows.astype(np.int64) * resolution + cols).astype(np.int64)
+    return np.ascontiguousarray(f, np.int64), np.ascontiguousarray(b, np.float32), dest
 
 
 def _check_samples(face_id, bary, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -257,8 +269,7 @@ def surface_maps(vertices, resolution: int) -> tuple[torch.Tensor, torch.Tensor]
     v, single = _as_vertices(vertices)
     if not fast_surface(v):
         return position_map(vertices, resolution), normal_map(vertices, resolution)
-    f, b = _texel_samples(resolution)
-    maps = tuple(_scatter_map(x, resolution) for x in _surface_fast(v, f, b))
+    maps = _surface_maps_fast(v, resolution)
     return tuple(m[0] for m in maps) if single else maps
 
 
@@ -266,18 +277,21 @@ def position_map(vertices, resolution: int) -> torch.Tensor:
     """World position of each texel's surface point: [V, 3] -> [R, R, 3] or [T, V, 3] ->
     [T, R, R, 3]; zero on empty texels."""
     v, single = _as_vertices(vertices)
-    f, b = _texel_samples(resolution)
-    points = _surface_fast(v, f, b)[0] if fast_surface(v) else surface_points(v, f, b)
-    out = _scatter_map(points, resolution)
+    if fast_surface(v):
+        out = _surface_maps_fast(v, resolution)[0]
+    else:
+        out = _scatter_map(surface_points(v, *_texel_samples(resolution)), resolution)
     return out[0] if single else out
 
 
 def normal_map(vertices, resolution: int) -> torch.Tensor:
     """Unit interpolated vertex normal per texel ([R, R, 3] or [T, R, R, 3]); zero when empty."""
     v, single = _as_vertices(vertices)
-    f, b = _texel_samples(resolution)
-    normals = _surface_fast(v, f, b)[1] if fast_surface(v) else tangent_frames(v, f, b, resolution)[1][..., 2]
-    out = _scatter_map(normals, resolution)
+    if fast_surface(v):
+        out = _surface_maps_fast(v, resolution)[1]
+    else:
+        f, b = _texel_samples(resolution)
+        out = _scatter_map(tangent_frames(v, f, b, resolution)[1][..., 2], resolution)
     return out[0] if single else out
 
 

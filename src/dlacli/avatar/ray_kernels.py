@@ -1,0 +1,31 @@
+"""UV-space Plücker rays without gradients (numba): what a view-conditioned decoder reads of a
+camera, once per posed body and camera (`codec.uv_rays`). The same float32 operations as
+geometry.py's `plucker_rays_uv` (direction p - o, its length as the square root of the sum of
+squares, floored at 1e-12, the moment o x d), element by element, written channels first; torch
+stays the reference and the path for gradients (tests/avatar/test_rays.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+
+@njit(parallel=True, cache=True)
+def uv_plucker(positions, eye, out):
+    """positions [H, W, 3] float32 (a point per texel), eye [3] float32 (the camera centre) ->
+    out [6, H, W] float32: the unit direction d from eye to each point, then eye x d."""
+    o0, o1, o2 = eye[0], eye[1], eye[2]
+    tiny = np.float32(1e-12)
+    for i in prange(positions.shape[0]):
+        for j in range(positions.shape[1]):
+            d0 = positions[i, j, 0] - o0
+            d1 = positions[i, j, 1] - o1
+            d2 = positions[i, j, 2] - o2
+            n = max(np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), tiny)
+            d0, d1, d2 = d0 / n, d1 / n, d2 / n
+            out[0, i, j] = d0
+            out[1, i, j] = d1
+            out[2, i, j] = d2
+            out[3, i, j] = o1 * d2 - o2 * d1
+            out[4, i, j] = o2 * d0 - o0 * d2
+            out[5, i, j] = o0 * d1 - o1 * d0
