@@ -14,8 +14,9 @@ R = 32
 
 
 def _grid_sample64(fmap: torch.Tensor, uv: np.ndarray) -> torch.Tensor:
-    """The same lookup as gm.lookup, in float64, by grid_sample with its own backward."""
-    u = torch.from_numpy(uv).double()
+    """The same lookup as gm.lookup, in fmap's dtype (float64 for a reference), by grid_sample
+    with its own backward."""
+    u = torch.from_numpy(uv).to(fmap.dtype)
     grid = torch.stack([2.0 * u[:, 0] - 1.0, 1.0 - 2.0 * u[:, 1]], dim=-1)[None, None]
     maps = fmap.reshape(-1, *fmap.shape[-3:])
     grid = grid.expand(maps.shape[0], 1, -1, 2)
@@ -41,7 +42,27 @@ def test_texel_centres_give_the_texel_and_the_border_is_clamped():
     assert torch.equal(far[0], fmap[:, 0, 0])
 
 
-def test_the_sparse_gradient_is_grid_samples_and_the_values_are_unchanged():
+def test_the_lookup_without_a_gradient_is_the_float64_lookup_rounded():
+    """The numba gather: each value is the float64 lookup rounded once to float32, for a batch of
+    maps and for a channel slice (a strided view) alike."""
+    g = torch.Generator().manual_seed(3)
+    for shape in ((gm.CHANNELS, R, R), (3, gm.CHANNELS, R, R)):
+        uv = _points(5000, 4)
+        fmap = torch.randn(*shape, generator=g)
+        with torch.no_grad():
+            got = gm.lookup(fmap, uv)
+            part = gm.lookup(fmap[..., 1:5, :, :], uv)
+        want = _grid_sample64(fmap.double(), uv)
+        assert got.dtype == torch.float32 and got.shape == want.shape
+        assert ((got.double() - want).abs() <= 2.0**-24 * want.abs() + 2.0**-40 * float(fmap.abs().max())).all()
+        assert torch.equal(part, got[..., 1:5])
+    # a map that asks for a gradient, read where none is recorded, takes the gather too
+    x = fmap.clone().requires_grad_(True)
+    with torch.no_grad():
+        assert torch.equal(gm.lookup(x, uv), got)
+
+
+def test_the_sparse_gradient_is_grid_samples_and_the_values_the_gathers():
     g = torch.Generator().manual_seed(1)
     for shape in ((gm.CHANNELS, R, R), (3, gm.CHANNELS, R, R)):
         uv = _points(5000, 2)
@@ -50,8 +71,8 @@ def test_the_sparse_gradient_is_grid_samples_and_the_values_are_unchanged():
         x = fmap.clone().requires_grad_(True)
         out = gm.lookup(x, uv)
         (grad,) = torch.autograd.grad((out * weights).sum(), x)
-        with torch.no_grad():
-            assert torch.equal(out, gm.lookup(fmap, uv))  # grid_sample's own values
+        with torch.no_grad():  # the same values as the lookup without a gradient
+            assert torch.equal(out.detach(), gm.lookup(fmap, uv))
         x64 = fmap.double().requires_grad_(True)
         (want,) = torch.autograd.grad((_grid_sample64(x64, uv) * weights.double()).sum(), x64)
         # each texel sums about 4 N / R^2 (~20) products in float64, stored as float32

@@ -82,14 +82,17 @@ def lookup(fmap: torch.Tensor, uv: np.ndarray | torch.Tensor) -> torch.Tensor:
     assert fmap.ndim >= 3, f"fmap must be [..., C, R, R], got {tuple(fmap.shape)}"
     lead, (c, r1, r2) = fmap.shape[:-3], fmap.shape[-3:]
     maps = fmap.reshape(-1, c, r1, r2)  # [B, C, R, R]
-    points = uv
+    if isinstance(uv, np.ndarray) and _sparse_ok(maps):  # numba, at taps kept per point set
+        from dlacli.avatar import lookup_kernels as lk
+
+        at = _kept(uv, r1, r2, lk.corners)
+        if maps.requires_grad and torch.is_grad_enabled():
+            return _Lookup.apply(maps, at, _kept(uv, r1, r2, lk.transpose)).reshape(*lead, -1, c)
+        return _gather(maps.detach(), at).reshape(*lead, -1, c)
     uv = torch.as_tensor(uv, dtype=fmap.dtype, device=fmap.device)
     grid = torch.stack([2.0 * uv[:, 0] - 1.0, 1.0 - 2.0 * uv[:, 1]], dim=-1)  # [N, 2] in [-1, 1]
     grid = grid[None, None].expand(maps.shape[0], 1, -1, 2)  # [B, 1, N, 2]
-    if isinstance(points, np.ndarray) and maps.requires_grad and torch.is_grad_enabled() and _sparse_ok(maps):
-        out = _Lookup.apply(maps, grid, _transpose(points, r1, r2))  # grid_sample's values, a sparse backward
-    else:
-        out = nnf.grid_sample(maps, grid, mode="bilinear", padding_mode="border", align_corners=False)
+    out = nnf.grid_sample(maps, grid, mode="bilinear", padding_mode="border", align_corners=False)
     return out[:, :, 0].transpose(1, 2).reshape(*lead, -1, c)  # [B, C, 1, N] -> [..., N, C]
 
 
@@ -97,46 +100,57 @@ def _sparse_ok(maps: torch.Tensor) -> bool:
     return maps.device.type == "cpu" and maps.dtype == torch.float32
 
 
-_TRANSPOSES: dict[int, tuple] = {}  # id(uv) -> (weakref to uv, H, W, `lookup_kernels.transpose`)
+_KEPT: dict[tuple, tuple] = {}  # (id(uv), what) -> (weakref to uv, H, W, what(uv, H, W))
 
 
-def _transpose(uv: np.ndarray, height: int, width: int) -> tuple:
-    """`lookup_kernels.transpose` of points uv, kept while uv lives (the samples of a refinement
-    or a training run are looked up every step; a few sets are kept)."""
+def _kept(uv: np.ndarray, height: int, width: int, what):
+    """what(uv, height, width) (`lookup_kernels.corners` or `transpose`) of points uv, kept while uv
+    lives: samples are looked up every frame of an animation and every step of a refinement or a
+    training run (`make_samples` hands out the same arrays again); the last few are kept."""
     import weakref
 
-    from dlacli.avatar.lookup_kernels import transpose
-
-    hit = _TRANSPOSES.get(id(uv))
+    key = (id(uv), what.__name__)
+    hit = _KEPT.get(key)
     if hit is not None and hit[0]() is uv and hit[1:3] == (height, width):
         return hit[3]
-    made = transpose(uv, height, width)
-    if len(_TRANSPOSES) >= 4:
-        _TRANSPOSES.pop(next(iter(_TRANSPOSES)))
-    _TRANSPOSES[id(uv)] = (weakref.ref(uv), height, width, made)
+    made = what(uv, height, width)
+    if len(_KEPT) >= 8:
+        _KEPT.pop(next(iter(_KEPT)))
+    _KEPT[key] = (weakref.ref(uv), height, width, made)
     return made
 
 
+def _gather(maps: torch.Tensor, at: tuple) -> torch.Tensor:
+    """`lookup_kernels.gather` of maps [B, C, H, W] (CPU float32) at points whose `corners` are
+    `at` -> [B, N, C]."""
+    from dlacli.avatar.lookup_kernels import gather
+
+    b, c, h, w = maps.shape
+    out = torch.empty((b, at[0].shape[0], c), dtype=maps.dtype)
+    gather(maps.reshape(b, c, h * w).transpose(1, 2).contiguous().numpy(), *at, h, w, out.numpy())  # channels last
+    return out
+
+
 class _Lookup(torch.autograd.Function):
-    """grid_sample (bilinear, border, align_corners False) of maps [B, C, H, W] at a fixed grid
-    [B, 1, N, 2], whose gradient to the maps is the sparse transpose of the lookup
-    (avatar/lookup_kernels.py): the same gradient as grid_sample's, to float32 rounding, not
-    depending on the thread count; no gradient to the grid (fixed points)."""
+    """The lookup of maps [B, C, H, W] at fixed points (their `corners` and the lookup's sparse
+    transpose, avatar/lookup_kernels.py) -> [B, N, C], with float64 weights both ways: the values
+    are `_gather`'s (grid_sample's bilinear, border, align_corners False, rounded once to float32)
+    and the gradient to the maps is the transpose times the gradient, not depending on the thread
+    count; no gradient to the points."""
 
     @staticmethod
-    def forward(ctx, maps, grid, transposed):
+    def forward(ctx, maps, at, transposed):
         ctx.transposed, ctx.shape = transposed, maps.shape
-        return nnf.grid_sample(maps, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        return _gather(maps.detach(), at)
 
     @staticmethod
-    def backward(ctx, grad):  # grad [B, C, 1, N]
+    def backward(ctx, grad):  # grad [B, N, C]
         from dlacli.avatar.lookup_kernels import texel_grads
 
         b, c, h, w = ctx.shape
         out = np.empty((b, h * w, c), np.float32)
         for k in range(b):
-            g = np.ascontiguousarray(grad[k, :, 0].T.detach().numpy(), np.float32)  # [N, C]
-            texel_grads(*ctx.transposed, g, out[k])
+            texel_grads(*ctx.transposed, np.ascontiguousarray(grad[k].detach().numpy(), np.float32), out[k])
         return torch.from_numpy(out).transpose(1, 2).reshape(b, c, h, w), None, None
 
 

@@ -16,25 +16,60 @@ import numpy as np
 from numba import njit, prange
 
 
-def transpose(uv: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The lookup of an H x W map at points uv [N, 2] (u right, v up) as its transpose in CSR form:
-    (indptr [H W + 1], points [4 N], weights [4 N] float64), texel t's entries at
-    indptr[t]:indptr[t + 1], in point order."""
+def corners(uv: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where each point uv [N, 2] (u right, v up) falls in an H x W map: its top-left texel
+    (x0, y0) [N, 2] int32 and the fractions (wx, wy) [N, 2] float64 toward the next column and
+    row (grid_sample's bilinear, align_corners False, border padding)."""
     u = np.asarray(uv[:, 0], np.float64)
     v = np.asarray(uv[:, 1], np.float64)
     ix = np.clip(u * width - 0.5, 0.0, width - 1)  # grid x = 2u - 1, unnormalised as grid_sample does
     iy = np.clip((1.0 - v) * height - 0.5, 0.0, height - 1)  # grid y = 1 - 2v
     x0, y0 = np.floor(ix), np.floor(iy)
-    wx, wy = ix - x0, iy - y0
-    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+    return np.stack([x0, y0], axis=1).astype(np.int32), np.stack([ix - x0, iy - y0], axis=1)
+
+
+def taps(uv: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """The four texels of each point uv [N, 2] and their bilinear weights (`corners`):
+    (texels [N, 4] row-major indices, weights [N, 4] float64), in the order (x0, y0), (x1, y0),
+    (x0, y1), (x1, y1)."""
+    xy, frac = corners(uv, height, width)
+    x0, y0 = xy[:, 0].astype(np.int64), xy[:, 1].astype(np.int64)
+    wx, wy = frac[:, 0], frac[:, 1]
     x1, y1 = np.minimum(x0 + 1, width - 1), np.minimum(y0 + 1, height - 1)
-    texels = np.concatenate([y0 * width + x0, y0 * width + x1, y1 * width + x0, y1 * width + x1])
-    weights = np.concatenate([(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy])
-    points = np.tile(np.arange(len(u), dtype=np.int64), 4)
-    order = np.argsort(texels * len(u) + points, kind="stable")  # by texel, then point
+    texels = np.stack([y0 * width + x0, y0 * width + x1, y1 * width + x0, y1 * width + x1], axis=1)
+    weights = np.stack([(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy], axis=1)
+    return texels, weights
+
+
+def transpose(uv: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The lookup of an H x W map at points uv [N, 2] (u right, v up) as its transpose in CSR form:
+    (indptr [H W + 1], points [4 N], weights [4 N] float64), texel t's entries at
+    indptr[t]:indptr[t + 1], in point order."""
+    t4, w4 = taps(uv, height, width)
+    n = t4.shape[0]
+    texels, weights = t4.T.reshape(-1), w4.T.reshape(-1)  # tap by tap, each in point order
+    points = np.tile(np.arange(n, dtype=np.int64), 4)
+    order = np.argsort(texels * n + points, kind="stable")  # by texel, then point
     indptr = np.zeros(height * width + 1, np.int64)
     np.cumsum(np.bincount(texels, minlength=height * width), out=indptr[1:])
     return indptr, points[order], weights[order]
+
+
+@njit(parallel=True, cache=True)
+def gather(maps, xy, frac, height, width, out):
+    """The lookup without a gradient: out [B, N, C] (float32) = for each point its four texels
+    of maps [B, H W, C] (channels last: one texel's channels share a cache line) weighed as
+    `taps` weighs them (from `corners`' xy, frac), summed in float64."""
+    nb, nc = maps.shape[0], maps.shape[2]
+    for n in prange(xy.shape[0]):
+        x0, y0 = np.int64(xy[n, 0]), np.int64(xy[n, 1])
+        wx, wy = frac[n, 0], frac[n, 1]
+        x1, y1 = min(x0 + 1, width - 1), min(y0 + 1, height - 1)
+        t0, t1, t2, t3 = y0 * width + x0, y0 * width + x1, y1 * width + x0, y1 * width + x1
+        w0, w1, w2, w3 = (1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy
+        for b in range(nb):
+            for c in range(nc):
+                out[b, n, c] = w0 * maps[b, t0, c] + w1 * maps[b, t1, c] + w2 * maps[b, t2, c] + w3 * maps[b, t3, c]
 
 
 @njit(parallel=True, cache=True)
