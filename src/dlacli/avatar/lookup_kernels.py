@@ -1,13 +1,17 @@
-"""The gradient of `gaussian_map.lookup` at fixed points as a sparse product (numba).
+"""`gaussian_map.lookup` at fixed points on the CPU (numba): the values and their gradient.
 
-Refinement and training look F up at the same surface samples every step; torch's grid_sample
-backward scatters each point's four bilinear weights into the map serially (about 20 ms a step
-for 32,768 points x 14 channels on 2 cores). Here the weights are gathered once per set of points
-into the transpose of the lookup, row by texel (`transpose`), and the gradient of the map is
-that matrix times the gradient of the points (`texel_grads`): one thread per texel, each summing
-its entries in a fixed order in float64, so the result does not depend on the thread count
-(docs/rendering.md "Determinism"). The bilinear weights are grid_sample's own (align_corners
-False, border padding; docs/conventions.md "UV space").
+Refinement and training look F up at the same surface samples every step, and posing looks
+the colour channels up every frame. Each set of points is reduced once to where its points fall
+(`corners`: the top-left texel and the fractions; float64 weights from them, `taps`), and the
+lookup is a gather of the four texels per point from a channels-last copy of the map (`gather`:
+grid_sample read one cache line per channel and tap, and rounded its weights in float32).
+The gradient: torch's grid_sample backward scatters each point's four weights into the map
+serially (about 20 ms a step for 32,768 points x 14 channels on 2 cores); here the weights are
+gathered into the transpose of the lookup, row by texel (`transpose`), and the gradient of the
+map is that matrix times the gradient of the points (`texel_grads`): one thread per texel, each
+summing its entries in a fixed order in float64, so the result does not depend on the thread
+count (docs/rendering.md "Determinism"). The bilinear weights are grid_sample's (align_corners
+False, border padding; docs/conventions.md "UV space"), in float64.
 """
 
 from __future__ import annotations
