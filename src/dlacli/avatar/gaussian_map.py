@@ -78,6 +78,8 @@ def lookup(fmap: torch.Tensor, uv: np.ndarray | torch.Tensor) -> torch.Tensor:
     (differentiable in fmap; the points move to fmap's device and dtype).
 
     Texel centres follow docs/conventions.md: u = (j + 0.5) / R, v = 1 - (i + 0.5) / R.
+    Points given as a numpy array are taken as fixed: where they fall in the map is kept while
+    the array lives (`_kept`), so do not write to an array once it has been looked up at.
     """
     assert fmap.ndim >= 3, f"fmap must be [..., C, R, R], got {tuple(fmap.shape)}"
     lead, (c, r1, r2) = fmap.shape[:-3], fmap.shape[-3:]
