@@ -258,13 +258,12 @@ def uv_rays(vertices: torch.Tensor, eye: torch.Tensor, resolution: int, position
     """Plücker rays [6, R, R] from a camera centre eye [3] to each texel's point on the posed
     body vertices [V, 3] (what a view-conditioned decoder sees of a camera); `positions`: the
     body's `position_map` at R, when already made."""
-    from dlacli.body.uv import position_map
+    from dlacli.body.uv import fast_surface, position_map
     from dlacli.geometry import plucker_rays_uv
 
     pos = position_map(vertices, resolution) if positions is None else positions  # [R, R, 3]
     eye = torch.as_tensor(eye, dtype=pos.dtype, device=pos.device)
-    grad = torch.is_grad_enabled() and (pos.requires_grad or eye.requires_grad)
-    if pos.device.type == "cpu" and pos.dtype == torch.float32 and not grad:  # numba, the same float32 steps
+    if fast_surface(pos, eye):  # numba, the same float32 steps
         from dlacli.avatar.ray_kernels import uv_plucker
 
         out = torch.empty((6, *pos.shape[:2]), dtype=pos.dtype)

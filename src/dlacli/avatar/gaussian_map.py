@@ -225,10 +225,10 @@ def skinned_params(
 def fast_skinning(fmap: torch.Tensor, vertices: torch.Tensor) -> bool:
     """Whether `skinned_params_on_body` takes the numba path (body/skinning.py
     `skin_gaussians_on_body_fast`): float32 CPU tensors and no gradient asked for (the torch
-    path keeps the gradients of training and refinement)."""
-    if any(t.device.type != "cpu" or t.dtype != torch.float32 for t in (fmap, vertices)):
-        return False
-    return not (torch.is_grad_enabled() and (fmap.requires_grad or vertices.requires_grad))
+    path keeps the gradients of training and refinement): `uv.fast_surface` of both."""
+    from dlacli.body.uv import fast_surface
+
+    return fast_surface(fmap, vertices)
 
 
 def skinned_params_on_body(

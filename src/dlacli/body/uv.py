@@ -133,12 +133,14 @@ def face_uv_terms() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return np.ascontiguousarray(faces, np.int64), uv_d, 1.0 / safe, 1.0 / np.abs(safe)
 
 
-def fast_surface(vertices: torch.Tensor) -> bool:
-    """Whether `surface_maps` / `position_map` / `normal_map` take the numba kernels
-    (body/skin_kernels.py): float32 CPU vertices and no gradient asked for."""
-    if vertices.device.type != "cpu" or vertices.dtype != torch.float32:
+def fast_surface(*tensors: torch.Tensor) -> bool:
+    """Whether the numba kernels serve these tensors: float32 on the CPU, and no gradient asked
+    for (the torch code keeps the gradients of training and refinement). What `surface_maps` /
+    `position_map` / `normal_map` (body/skin_kernels.py), the skinning (`gaussian_map.fast_skinning`)
+    and the UV rays (`codec.uv_rays`) ask before taking their kernels."""
+    if any(t.device.type != "cpu" or t.dtype != torch.float32 for t in tensors):
         return False
-    return not (torch.is_grad_enabled() and vertices.requires_grad)
+    return not (torch.is_grad_enabled() and any(t.requires_grad for t in tensors))
 
 
 def _surface_maps_fast(v: torch.Tensor, resolution: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -166,7 +168,7 @@ def _texel_kernel_args(resolution: int) -> tuple[np.ndarray, np.ndarray, np.ndar
     texel's row-major index in the R x R map (kept: read-only)."""
     rows, cols, _ = valid_texels(resolution)
     f, b = _texel_samples(resolution)
-    dest = (rows.astype(np.int64) * resolution + cols).astype(np.int64)
+    dest = rows.astype(np.int64) * resolution + cols
     return np.ascontiguousarray(f, np.int64), np.ascontiguousarray(b, np.float32), dest
 
 
