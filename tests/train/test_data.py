@@ -326,3 +326,35 @@ def test_resuming_remakes_entries_without_seconds_and_bytes(tmp_path):
     assert manifest == read_manifest(root / "manifest.json")
     (entry,) = manifest["subjects"]
     assert entry["seed"] == 7 and entry["seconds"] is None and entry["bytes"] > 0
+
+
+def test_a_mixed_dataset_holds_the_subjects_of_the_single_appearance_datasets(tmp_path):
+    """`--appearance mixed`: each subject is, file for file, the subject a lit or an albedo dataset
+    writes for its seed, and the manifest says which; over a few seeds both kinds occur."""
+    from dlacli.data.dataset import DatasetSettings, subject_appearance, synth_dataset
+
+    seeds = list(range(6))
+    drawn = {s: subject_appearance(s, "mixed") for s in seeds}
+    assert set(drawn.values()) == {"lit", "albedo"}
+    manifest = synth_dataset(
+        seeds, tmp_path / "mixed", DatasetSettings(res=16, novel_views=0, novel_poses=0, appearance="mixed")
+    )
+    assert manifest["settings"]["appearance"] == "mixed"
+    assert {e["seed"]: e["appearance"] for e in manifest["subjects"]} == drawn
+    for appearance in ("lit", "albedo"):
+        chosen = [s for s in seeds if drawn[s] == appearance][:1]
+        settings = DatasetSettings(res=16, novel_views=0, novel_poses=0, appearance=appearance)
+        synth_dataset(chosen, tmp_path / appearance, settings)
+        for seed in chosen:
+            one, other = tmp_path / appearance / f"subject_{seed}", tmp_path / "mixed" / f"subject_{seed}"
+            files = sorted(p.relative_to(one) for p in one.rglob("*") if p.is_file())
+            assert files == sorted(p.relative_to(other) for p in other.rglob("*") if p.is_file())
+            assert all((one / f).read_bytes() == (other / f).read_bytes() for f in files)
+
+
+def test_an_unknown_dataset_appearance_is_one_line(tmp_path):
+    from dlacli.data.dataset import DatasetSettings, synth_dataset
+
+    with pytest.raises(DlaInputError, match="--appearance: must be one of albedo, lit, mixed"):
+        synth_dataset([1], tmp_path / "d", DatasetSettings(res=16, appearance="sunny"))
+    assert not (tmp_path / "d").exists()

@@ -61,7 +61,8 @@ def synth(
         None,
         "--appearance",
         help="albedo: headlight shading, the same colour in every pose (default); lit: lights fixed in the world, "
-        "ambient occlusion per pose, specular highlights (default with --seeds).",
+        "ambient occlusion per pose, specular highlights (default with --seeds); mixed (dataset mode): each "
+        "subject lit or albedo, drawn from its seed.",
     ),
     wardrobe: Optional[str] = typer.Option(
         None,

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dlacli.data.appearance import APPEARANCES
 from dlacli.data.cameras import POSE_AZIMUTHS
 from dlacli.data.synth import SUBJECT_LAYOUT, _check_options, synth
 from dlacli.errors import DlaInputError, excerpt, one_line
@@ -20,6 +21,8 @@ from dlacli.errors import DlaInputError, excerpt, one_line
 Progress = Callable[[str], None]
 
 DATASET_FORMAT = "dla.dataset/1"
+# a dataset's appearance: one for every subject, or "mixed" (each subject's drawn from its seed)
+DATASET_APPEARANCES = (*APPEARANCES, "mixed")
 MANIFEST = "manifest.json"
 MOTION_SUFFIXES = (".bvh", ".amc", ".npz")
 
@@ -84,6 +87,15 @@ def motion_files(paths: Sequence[str | os.PathLike]) -> tuple[str, ...]:
         else:
             raise DlaInputError(path, "no such motion file or folder")
     return tuple(out)
+
+
+def subject_appearance(seed: int, appearance: str) -> str:
+    """The appearance subject `seed` of a dataset with `appearance` is drawn in: the dataset's own,
+    or for "mixed" lit or albedo with equal odds from a stream of the seed's own
+    (`default_rng([seed, 6])`), so the subject is the one `dla synth --seed` draws in it."""
+    if appearance != "mixed":
+        return appearance
+    return APPEARANCES[int(np.random.default_rng([int(seed), 6]).integers(len(APPEARANCES)))]
 
 
 def subject_name(seed: int) -> str:
@@ -258,7 +270,12 @@ def synth_dataset(
         raise DlaInputError("--seeds", "must be distinct non-negative integers")
     if not isinstance(jobs, int) or jobs < 1:
         raise DlaInputError("--jobs", f"must be an integer >= 1, got {jobs!r}")
-    _check_options(settings.res, settings.novel_views, settings.novel_poses, settings.appearance, settings.wardrobe)
+    if settings.appearance not in DATASET_APPEARANCES:
+        raise DlaInputError(
+            "--appearance", f"must be one of {', '.join(DATASET_APPEARANCES)}, got {settings.appearance!r}"
+        )
+    concrete = subject_appearance(0, settings.appearance)
+    _check_options(settings.res, settings.novel_views, settings.novel_poses, concrete, settings.wardrobe)
     say = progress or (lambda msg: None)
     out = Path(out)
     layout = [MANIFEST, "subject_*", *(f"subject_*/{p}" for p in SUBJECT_LAYOUT)]
@@ -296,11 +313,13 @@ def synth_dataset(
         res=settings.res,
         novel_views=settings.novel_views,
         novel_poses=settings.novel_poses,
-        appearance=settings.appearance,
         wardrobe=settings.wardrobe,
         motions=settings.clips(),
     )
-    tasks = [(seed, str(out / subject_name(seed)), kw) for seed in todo]
+    tasks = [
+        (seed, str(out / subject_name(seed)), {**kw, "appearance": subject_appearance(seed, settings.appearance)})
+        for seed in todo
+    ]
     manifest = None
 
     def finished(n: int, seed: int, seconds: float, error: tuple[str | None, str] | None) -> None:
