@@ -42,13 +42,16 @@ def untrained(tmp_path_factory):
     return path
 
 
-def test_untrained_residual_lift_is_unprojection_bit_for_bit(subject, untrained):
+@pytest.mark.parametrize("steps", [0, 2])
+def test_untrained_residual_lift_is_unprojection_bit_for_bit(subject, untrained, steps):
+    """Also with refinement steps: the colours are re-baked after them, as unprojection's are, and
+    the untrained network's colour correction leaves them as they are."""
     from dlacli.io.views import read_views
     from dlacli.stages.methods import make_spec
 
     views = read_views(subject)
-    a = make_spec("residual", checkpoint=str(untrained)).lift(views).avatar
-    b = make_spec("unproject", steps=0, resolution=RES, gaussians=GAUSSIANS).lift(views).avatar
+    a = make_spec("residual", checkpoint=str(untrained), steps=steps).lift(views).avatar
+    b = make_spec("unproject", steps=steps, resolution=RES, gaussians=GAUSSIANS).lift(views).avatar
     assert torch.equal(torch.from_numpy(a.z), torch.from_numpy(b.z))
     assert a.decoder == b.decoder and a.encoder == "residual" and b.encoder == "unproject"
     assert a.extra["samples"] == b.extra["samples"] == {"count": GAUSSIANS, "seed": 0}
@@ -79,6 +82,33 @@ def test_corrections_stay_in_their_bounds_at_any_weights():
     assert float((out[:, gm.LOG_SCALE] - fmap[:, gm.LOG_SCALE]).abs().max()) <= cfg.max_log_scale + eps
     assert float((out[:, gm.OPACITY] - fmap[:, gm.OPACITY]).abs().max()) <= cfg.max_opacity + 4 * eps
     assert torch.equal(out[:, gm.ROTATION], fmap[:, gm.ROTATION])
+
+
+def test_colour_correction_of_a_rebake_is_the_networks_own_on_its_bake(subject):
+    """What the lift applies to colours re-baked after refinement: on the bake the network read it
+    gives the network's own colours bit for bit; on any map it changes the colours only, by the
+    same t (toward 1 where t > 0, toward 0 where t < 0)."""
+    from dlacli.avatar import gaussian_map as gm
+    from dlacli.io.views import read_views
+    from dlacli.nn.residual import ResidualNet
+    from dlacli.stages.lift import LiftConfig
+    from dlacli.stages.residual import colour_correction, corrected_map, residual_inputs
+
+    torch.manual_seed(2)
+    net = ResidualNet(_config()).eval()
+    torch.nn.init.normal_(net.head.weight, std=3.0)
+    inputs = residual_inputs(read_views(subject), LiftConfig(steps=0, resolution=RES, gaussians=GAUSSIANS))
+    corrected, t = corrected_map(net, inputs)
+    recolour = colour_correction(net, t)
+    np.testing.assert_array_equal(recolour(inputs.base.fmap)[gm.RGB], corrected[gm.RGB])
+    other = inputs.base.fmap.copy()
+    other[gm.RGB] = 0.5
+    out = recolour(other)
+    rest = [c for c in range(gm.CHANNELS) if c not in range(gm.CHANNELS)[gm.RGB]]
+    np.testing.assert_array_equal(out[rest], other[rest])
+    t = t[0, 1:4].numpy()
+    assert float(np.abs(t).max()) > 0.5
+    np.testing.assert_allclose(out[gm.RGB], 0.5 + 0.5 * t, atol=1e-6)
 
 
 def test_checkpoint_round_trip_gives_the_same_corrections(tmp_path):

@@ -442,12 +442,13 @@ def finish_lift(
     progress=None,
     novel: ViewSet | None = None,
     encoder: str = ENCODER,
-    rebake: bool = True,
     extra: dict | None = None,
     code=None,
+    recolour=None,
 ) -> LiftResult:
     """The lift's end from a Gaussian map F [14, R, R] on the body of `base`: cfg.steps of
-    refinement (colours re-baked after it when `rebake`), the contact sheet, and the avatar
+    refinement (colours re-baked after it, then passed through `recolour(F) -> F` when given:
+    a correction of the baked colours), the contact sheet, and the avatar
     that records `encoder` and `extra` beside the lift's own. Its decoder is identity or
     view-cosine (z = F, or F and the falloff), unless `code(F)` -> (z, decoder name, checkpoint
     hash, render(cameras) -> rgb [C, H, W, 3] numpy) says otherwise."""
@@ -458,8 +459,9 @@ def finish_lift(
     history: list[float] = []
     if cfg.steps > 0:
         fmap, history = refine(fmap, views, vertices, cfg, progress, samples, falloff)
-        if rebake:
-            fmap = bake_colours(fmap, views, vertices, depth, falloff)  # colours where the refined geometry puts them
+        fmap = bake_colours(fmap, views, vertices, depth, falloff)  # colours where the refined geometry puts them
+        if recolour is not None:
+            fmap = recolour(fmap)
     if code is None:
         z, decoder, checkpoint = fmap, DECODER, ""
         if falloff:  # colour depends on the view: the view-cosine decoder, k in z's last channel

@@ -3,8 +3,9 @@ UV-space network (nn/residual.py) that corrects its Gaussian map from observatio
 (stages/observations.py), then optionally `steps` of the lift's own refinement.
 
     views --stages/lift.unprojection--> F, body, depths --observation_features--> features
-        --ResidualNet--> F' = F + bounded corrections --(refine, steps)--> avatar (identity or
-        view-cosine decoder: F' is a Gaussian map like any unprojected one)
+        --ResidualNet--> F' = F + bounded corrections --(steps > 0: refine the geometry, re-bake
+        the colours, the network's colour correction again)--> avatar (identity or view-cosine
+        decoder: F' is a Gaussian map like any unprojected one)
 
 The untrained network returns F bit for bit, so with an untrained checkpoint this lift writes
 the same avatar z as `unproject` (tests/nn/test_residual.py).
@@ -65,13 +66,30 @@ def load_residual(checkpoint: str | None, where: str = "--method residual"):
     return loaded.module.eval(), loaded.hash
 
 
-def corrected_map(net, inputs: ResidualInputs) -> np.ndarray:
-    """The network's F' [14, R, R] float32 for one view folder's inputs (no gradient)."""
+def corrected_map(net, inputs: ResidualInputs) -> tuple[np.ndarray, torch.Tensor]:
+    """The network's F' [14, R, R] float32 for one view folder's inputs and its corrections t
+    [1, 10, R, R] (no gradient)."""
     with torch.no_grad():
-        fmap = torch.from_numpy(inputs.base.fmap)[None]
-        feats = torch.from_numpy(inputs.features)[None]
-        out, _ = net(fmap, feats)
-    return out[0].numpy()
+        out, t = net(torch.from_numpy(inputs.base.fmap)[None], torch.from_numpy(inputs.features)[None])
+    return out[0].numpy(), t
+
+
+def colour_correction(net, t: torch.Tensor):
+    """F -> F with the colour part of the network's corrections t [1, 10, R, R] applied to F's
+    colours, the rest of F as it is: what the lift does to colours re-baked after refinement."""
+    from dlacli.avatar import gaussian_map as gm
+
+    colour = torch.zeros_like(t)
+    colour[:, 1:4] = t[:, 1:4]  # opacity, offset and scale are refinement's to change
+
+    def recolour(fmap: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            out = net.apply_corrections(torch.from_numpy(np.ascontiguousarray(fmap, np.float32))[None], colour)[0]
+        corrected = fmap.copy()
+        corrected[gm.RGB] = out[gm.RGB].numpy()
+        return corrected
+
+    return recolour
 
 
 def lift_residual(
@@ -84,7 +102,8 @@ def lift_residual(
 ):
     """views -> stages.lift.LiftResult: unprojection at the network's resolution and Gaussian
     count (unless `lift_options` set resolution / gaussians / render_size / seed), the network's
-    corrections, `steps` of refinement of the geometry (colours stay the network's)."""
+    corrections, `steps` of refinement of the geometry, then the colours re-baked where the refined
+    geometry puts the Gaussians and corrected by the network again (`colour_correction`)."""
     from dlacli.stages.lift import LiftConfig, finish_lift
 
     net, digest = load_residual(checkpoint)
@@ -93,12 +112,16 @@ def lift_residual(
     inputs = residual_inputs(views, cfg)
     extra = {"residual": {"checkpoint": digest, "gain": bool(net.config.gain)}}
     if not net.config.gain:
-        fmap = corrected_map(net, inputs)
-        return finish_lift(views, cfg, inputs.base, fmap, progress, novel, encoder=ENCODER, rebake=False, extra=extra)
+        fmap, t = corrected_map(net, inputs)
+        recolour = colour_correction(net, t)
+        return finish_lift(
+            views, cfg, inputs.base, fmap, progress, novel, encoder=ENCODER, extra=extra, recolour=recolour
+        )
     with torch.no_grad():
-        z, _ = net.encode(
+        z, t = net.encode(
             torch.from_numpy(inputs.base.fmap)[None], torch.from_numpy(inputs.features)[None], inputs.base.falloff
         )
+    recolour = colour_correction(net, t)
     z = z[0].numpy()
     fmap = z[:14].copy()
 
@@ -109,7 +132,7 @@ def lift_residual(
         return out, net.name, digest, render
 
     return finish_lift(
-        views, cfg, inputs.base, fmap, progress, novel, encoder=ENCODER, rebake=False, extra=extra, code=code
+        views, cfg, inputs.base, fmap, progress, novel, encoder=ENCODER, extra=extra, code=code, recolour=recolour
     )
 
 
