@@ -102,7 +102,7 @@ def test_colour_correction_of_a_rebake_is_the_networks_own_on_its_bake(subject):
     torch.nn.init.normal_(net.head.weight, std=3.0)
     inputs = residual_inputs(read_views(subject), LiftConfig(steps=0, resolution=RES, gaussians=GAUSSIANS))
     corrected, t = corrected_map(net, inputs)
-    recolour = colour_correction(net, t)
+    recolour = colour_correction(t)
     np.testing.assert_array_equal(recolour(inputs.base.fmap)[gm.RGB], corrected[gm.RGB])
     other = inputs.base.fmap.copy()
     other[gm.RGB] = 0.5

@@ -92,7 +92,7 @@ def motion_files(paths: Sequence[str | os.PathLike]) -> tuple[str, ...]:
 def subject_appearance(seed: int, appearance: str) -> str:
     """The appearance subject `seed` of a dataset with `appearance` is drawn in: the dataset's own,
     or for "mixed" lit or albedo with equal odds from a stream of the seed's own
-    (`default_rng([seed, 6])`), so the subject is the one `dla synth --seed` draws in it."""
+    (`default_rng([seed, 6])`); the subject is then the one a dataset of that appearance holds."""
     if appearance != "mixed":
         return appearance
     return APPEARANCES[int(np.random.default_rng([int(seed), 6]).integers(len(APPEARANCES)))]

@@ -40,6 +40,14 @@ from dlacli.avatar.codec import Decoder, PoseConditioning, shading, view_cosine
 from dlacli.errors import DlaInputError
 
 CORRECTIONS = 10  # opacity 1, rgb 3, offset 3, log scale 3
+T_RGB = slice(1, 4)  # the colour's corrections among them
+
+
+def corrected_colour(rgb: torch.Tensor, t_rgb: torch.Tensor) -> torch.Tensor:
+    """Colours in [0, 1] moved by t in (-1, 1): toward 1 where t > 0, toward 0 where t < 0."""
+    return rgb + t_rgb * torch.where(t_rgb > 0, 1.0 - rgb, rgb)
+
+
 _IN_F = (0, 1, 2, 3, 4, 5, 6, 11, 12, 13)  # F's channels the net reads (rotation is identity after unprojection)
 
 
@@ -158,10 +166,10 @@ class ResidualNet(nn.Module, Decoder):
         """F [B, 14, R, R] moved by t [B, 10, R, R] within the config's bounds (module doc)."""
         c = self.config
         rgb = fmap[:, gm.RGB]
-        t_rgb = t[:, 1:4]
+        t_rgb = t[:, T_RGB]
         parts = [
             fmap[:, gm.OPACITY] + c.max_opacity * t[:, 0:1],
-            rgb + t_rgb * torch.where(t_rgb > 0, 1.0 - rgb, rgb),
+            corrected_colour(rgb, t_rgb),
             fmap[:, gm.OFFSET] + c.max_offset * t[:, 4:7],
             fmap[:, gm.ROTATION],
             fmap[:, gm.LOG_SCALE] + c.max_log_scale * t[:, 7:10],

@@ -74,19 +74,19 @@ def corrected_map(net, inputs: ResidualInputs) -> tuple[np.ndarray, torch.Tensor
     return out[0].numpy(), t
 
 
-def colour_correction(net, t: torch.Tensor):
+def colour_correction(t: torch.Tensor):
     """F -> F with the colour part of the network's corrections t [1, 10, R, R] applied to F's
-    colours, the rest of F as it is: what the lift does to colours re-baked after refinement."""
+    colours, the rest of F as it is: what the lift does to colours re-baked after refinement
+    (opacity, offset and scale are refinement's to change)."""
     from dlacli.avatar import gaussian_map as gm
+    from dlacli.nn.residual import T_RGB, corrected_colour
 
-    colour = torch.zeros_like(t)
-    colour[:, 1:4] = t[:, 1:4]  # opacity, offset and scale are refinement's to change
+    t_rgb = t[0, T_RGB]
 
     def recolour(fmap: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            out = net.apply_corrections(torch.from_numpy(np.ascontiguousarray(fmap, np.float32))[None], colour)[0]
         corrected = fmap.copy()
-        corrected[gm.RGB] = out[gm.RGB].numpy()
+        with torch.no_grad():
+            corrected[gm.RGB] = corrected_colour(torch.from_numpy(fmap[gm.RGB]), t_rgb).numpy()
         return corrected
 
     return recolour
@@ -113,7 +113,7 @@ def lift_residual(
     extra = {"residual": {"checkpoint": digest, "gain": bool(net.config.gain)}}
     if not net.config.gain:
         fmap, t = corrected_map(net, inputs)
-        recolour = colour_correction(net, t)
+        recolour = colour_correction(t)
         return finish_lift(
             views, cfg, inputs.base, fmap, progress, novel, encoder=ENCODER, extra=extra, recolour=recolour
         )
@@ -121,7 +121,7 @@ def lift_residual(
         z, t = net.encode(
             torch.from_numpy(inputs.base.fmap)[None], torch.from_numpy(inputs.features)[None], inputs.base.falloff
         )
-    recolour = colour_correction(net, t)
+    recolour = colour_correction(t)
     z = z[0].numpy()
     fmap = z[:14].copy()
 
