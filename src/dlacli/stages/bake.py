@@ -10,6 +10,8 @@ how colour falls off with the viewing angle (the view-cosine decoder, avatar/cod
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 from scipy.ndimage import distance_transform_edt
@@ -57,9 +59,26 @@ def body_depth_maps(vertices: np.ndarray, views: ViewSet) -> np.ndarray:
     return rasterize(vertices, get_body_model().faces, views.cameras).depth
 
 
-def _texel_points(fmap: np.ndarray, vertices: np.ndarray):
-    """Each covered texel's point on the body in the input pose (T + R dx, its own offset) and
-    the body normal there: (valid [R, R], points [M, 3], normals [M, 3])."""
+@dataclass
+class TexelViews:
+    """What the views show of each covered texel's point on the body in the input pose (T + R dx,
+    the texel's own offset): computed once per map geometry (`texel_views`) and read by the
+    falloff, the bake and the residual lift's observation features."""
+
+    valid: np.ndarray  # [R, R] bool: the texels the UV layout covers
+    points: np.ndarray  # [M, 3] float64: their points
+    normals: np.ndarray  # [M, 3] float64: the body's unit normal there
+    rgb: np.ndarray  # [V, M, 3] straight colour per view
+    mask: np.ndarray  # [V, M] the view's mask there
+    cosine: np.ndarray  # [V, M] cosine toward the camera
+    seen: np.ndarray  # [V, M] bool: the view sees the point
+
+
+def texel_views(fmap: np.ndarray, vertices: np.ndarray, views: ViewSet, body_depth: np.ndarray) -> TexelViews:
+    """Each covered texel's point of the map F [14, R, R] on the body (vertices [V, 3]) and what
+    every view shows of it. A view sees a point that falls inside its image and mask (> 0.5),
+    faces it (cos > 0.05) and is not hidden by the body (camera depth at most VISIBLE_DEPTH behind
+    the body's depth there, `body_depth` [V, H, W] from `body_depth_maps`)."""
     from dlacli.body.uv import FRAME_RESOLUTION, texel_frames, uv_raster
 
     res = fmap.shape[-1]
@@ -67,15 +86,9 @@ def _texel_points(fmap: np.ndarray, vertices: np.ndarray):
     t_map, r_map, _ = texel_frames(torch.from_numpy(np.asarray(vertices, dtype=np.float64)), res, FRAME_RESOLUTION)
     pos, rot = t_map.numpy()[valid], r_map.numpy()[valid]  # [M, 3], [M, 3, 3]
     points = pos + np.einsum("mij,mj->mi", rot, fmap[gm.OFFSET][:, valid].T.astype(np.float64))
-    return valid, points, rot[:, :, 2]
-
-
-def _observations(points: np.ndarray, normals: np.ndarray, views: ViewSet, body_depth: np.ndarray):
-    """Per view, what it shows of texel points [M, 3] with normals [M, 3]: (rgb [M, 3] straight
-    colour, mask [M], cos [M] toward the camera, seen [M] bool). A view sees a point that falls
-    inside its image and mask (> 0.5), faces it (cos > 0.05) and is not hidden by the body (camera
-    depth at most VISIBLE_DEPTH behind the body's depth there)."""
+    normals = rot[:, :, 2]
     h, w = views.masks.shape[1:]
+    per_view = []
     for v in range(len(views)):
         w2c = views.cameras.viewmats[v].double().numpy()
         px, z = _project(points, w2c, views.cameras.Ks[v].double().numpy())
@@ -88,10 +101,12 @@ def _observations(points: np.ndarray, normals: np.ndarray, views: ViewSet, body_
         row = np.clip(np.floor(px[:, 1]).astype(np.int64), 0, h - 1)
         inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h) & (z > 0)
         seen = inside & (z <= body_depth[v][row, col] + VISIBLE_DEPTH) & (cosine > 0.05) & (mask > 0.5)
-        yield sampled[:, :3] / np.maximum(mask, 1e-6)[:, None], mask, cosine, seen
+        per_view.append((sampled[:, :3] / np.maximum(mask, 1e-6)[:, None], mask, cosine, seen))
+    rgb, mask, cosine, seen = (np.stack(parts) for parts in zip(*per_view))
+    return TexelViews(valid, points, normals, rgb, mask, cosine, seen)
 
 
-def view_falloff(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_depth: np.ndarray | None = None) -> float:
+def view_falloff(texels: TexelViews) -> float:
     """How much the views' colours depend on the angle they see the surface at: the falloff k of
     colour = albedo (1 - k + k cos) that best explains the texels two views see at different
     angles (cos differing by > 0.2, both > 0.35, well inside both masks; at more grazing angles
@@ -99,13 +114,10 @@ def view_falloff(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_de
     log(L_i / L_j) = log(shading(k, cos_i) / shading(k, cos_j)) for the luminances L; k is the
     value in FALLOFF_RANGE (steps of 0.01) with the least median absolute residual, robust to
     the pairs a geometry error misregisters. 0 when fewer than 200 pairs exist (too few texels
-    seen twice to tell)."""
-    if body_depth is None:
-        body_depth = body_depth_maps(vertices, views)
-    _, points, normals = _texel_points(fmap, vertices)
+    seen twice to tell). `texels`: what the views show of the map's texels (`texel_views`)."""
     obs = [
         (rgb.mean(axis=1), cos, seen & (mask > 0.95))
-        for rgb, mask, cos, seen in _observations(points, normals, views, body_depth)
+        for rgb, mask, cos, seen in zip(texels.rgb, texels.mask, texels.cosine, texels.seen)
     ]
     ratios, ci, cj = [], [], []
     for i in range(len(obs)):
@@ -123,28 +135,22 @@ def view_falloff(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_de
     return float(ks[int(np.argmin(cost))])
 
 
-def bake_colours(
-    fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, body_depth: np.ndarray | None = None, falloff: float = 0.0
-) -> np.ndarray:
+def bake_colours(fmap: np.ndarray, texels: TexelViews, falloff: float = 0.0) -> np.ndarray:
     """F [14, R, R] with its colour channels baked from the views: each texel's point on the body
     in the input pose (T + R dx, its own offset) is projected into every view that sees it
-    (`_observations`); the texel takes the bilinear colour of those views weighted by
-    cos ** VIEW_SHARPNESS x mask, each divided by the view's shading (`shading(falloff, cos)`,
-    so the texel holds the colour seen head-on). Texels no view sees keep their colour. Gathering
-    at the texel's own point keeps colour and geometry aligned to the pixel, where scattering
-    pixel Gaussians to their nearest texel (step b) leaves holes and shifts of up to a texel.
-    `body_depth` [V, H, W]: the body's depth in the views (`body_depth_maps`), when the caller
-    has it already."""
-    if body_depth is None:
-        body_depth = body_depth_maps(vertices, views)
-    valid, points, normals = _texel_points(fmap, vertices)
+    (`texels`, from `texel_views` of this F's geometry); the texel takes the bilinear colour of
+    those views weighted by cos ** VIEW_SHARPNESS x mask, each divided by the view's shading
+    (`shading(falloff, cos)`, so the texel holds the colour seen head-on). Texels no view sees
+    keep their colour. Gathering at the texel's own point keeps colour and geometry aligned to
+    the pixel, where scattering pixel Gaussians to their nearest texel (step b) leaves holes and
+    shifts of up to a texel."""
+    valid = texels.valid
+    if valid.shape != fmap.shape[-2:]:
+        raise ValueError(f"bake_colours: texels of a {valid.shape} map for a {fmap.shape[-2:]} map")
     res = fmap.shape[-1]
-    acc = np.zeros((len(points), 3))
-    wsum = np.zeros(len(points))
-    for rgb, mask, cosine, seen in _observations(points, normals, views, body_depth):
-        weight = np.where(seen, np.clip(cosine, 0.05, 1.0) ** VIEW_SHARPNESS * mask, 0.0)
-        acc += weight[:, None] * rgb / shading(falloff, cosine)[:, None]
-        wsum += weight
+    weight = np.where(texels.seen, np.clip(texels.cosine, 0.05, 1.0) ** VIEW_SHARPNESS * texels.mask, 0.0)  # [V, M]
+    acc = np.einsum("vm,vmc->mc", weight / shading(falloff, texels.cosine), texels.rgb)
+    wsum = weight.sum(axis=0)
     out = fmap.copy()
     rgb = out[gm.RGB][:, valid].T.astype(np.float64)  # [M, 3]
     got = wsum > 0

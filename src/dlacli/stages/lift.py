@@ -29,7 +29,15 @@ from dlacli.avatar import gaussian_map as gm
 from dlacli.errors import DlaInputError
 from dlacli.geometry import project_points as _project  # points [..., 3] -> (pixels [..., 2], z [...])
 from dlacli.limits import LIFT_GAUSSIANS, LIFT_LR, LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS, MIN_VIEW_FALLOFF
-from dlacli.stages.bake import VIEW_SHARPNESS, bake_colours, body_depth_maps, fill_outside_charts, view_falloff
+from dlacli.stages.bake import (
+    VIEW_SHARPNESS,
+    TexelViews,
+    bake_colours,
+    body_depth_maps,
+    fill_outside_charts,
+    texel_views,
+    view_falloff,
+)
 from dlacli.stages.sheet import contact_sheet as contact_sheet  # re-exported: the sheet lift writes
 from dlacli.stages.sheet import sheet_and_novel_view
 from dlacli.types import Avatar, Cameras, Gaussians, ViewSet, rgb_to_sh0
@@ -402,6 +410,7 @@ class Unprojected:
     unstructured: Gaussians  # step a's pose-space Gaussians
     depth: np.ndarray  # [V, H, W] the body's camera depth in the views (inf off it)
     hull: HullDepth  # step a's visual-hull depths
+    texels: TexelViews  # what the views show of F's texels (its geometry is the bake's)
     fmap: np.ndarray  # [14, R, R] float32: F, colours baked
     falloff: float  # the views' view falloff k (0: the identity decoder)
 
@@ -418,10 +427,11 @@ def unprojection(views: ViewSet, cfg: LiftConfig) -> Unprojected:
     unstructured, _, eyes, hull = _unstructured(views, vertices, cfg.grid)
     depth = body_depth_maps(vertices, views)  # for the bakes and the falloff
     fmap = unproject_to_uv(unstructured, eyes, vertices, cfg.resolution)
-    falloff = view_falloff(fmap, views, vertices, depth) if cfg.view_colour else 0.0
+    texels = texel_views(fmap, vertices, views, depth)
+    falloff = view_falloff(texels) if cfg.view_colour else 0.0
     falloff = falloff if abs(falloff) >= MIN_FALLOFF else 0.0
-    fmap = bake_colours(fmap, views, vertices, depth, falloff)
-    return Unprojected(vertices, unstructured, depth, hull, fmap, falloff)
+    fmap = bake_colours(fmap, texels, falloff)
+    return Unprojected(vertices, unstructured, depth, hull, texels, fmap, falloff)
 
 
 def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: ViewSet | None = None) -> LiftResult:
@@ -459,7 +469,7 @@ def finish_lift(
     history: list[float] = []
     if cfg.steps > 0:
         fmap, history = refine(fmap, views, vertices, cfg, progress, samples, falloff)
-        fmap = bake_colours(fmap, views, vertices, depth, falloff)  # colours where the refined geometry puts them
+        fmap = bake_colours(fmap, texel_views(fmap, vertices, views, depth), falloff)  # where refinement put them
         if recolour is not None:
             fmap = recolour(fmap)
     if code is None:

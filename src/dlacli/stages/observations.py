@@ -5,7 +5,7 @@ tell where unprojection had good evidence and where it guessed. Numpy, no networ
 per lift at the map's resolution R (docs/lift.md "Observation features" says what each means):
 
     0      coverage          1 on texels the UV layout covers, 0 elsewhere
-    1      seen              fraction of the views that see the texel (`bake._observations`)
+    1      seen              fraction of the views that see the texel (`bake.texel_views`)
     2      best_cos          the most frontal viewing cosine among them (0: none sees it)
     3      colour_std        spread of the views' colours at the texel (std over the views that
                              see it, mean over r, g, b; 0 when fewer than 2 see it)
@@ -52,30 +52,27 @@ def _lookup(image: np.ndarray, px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return image[np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)], inside
 
 
-def observation_features(fmap: np.ndarray, views: ViewSet, vertices: np.ndarray, depth: np.ndarray, hull) -> np.ndarray:
-    """Features [feature_count(), R, R] float32 of the unprojected map F [14, R, R] (module doc)
-    from the views, the body in their pose (vertices [V, 3]), its depth in the views
-    (depth [V, H, W], `bake.body_depth_maps`) and step a's hull depths (`lift.HullDepth`)."""
+def observation_features(texels, views: ViewSet, depth: np.ndarray, hull) -> np.ndarray:
+    """Features [feature_count(), R, R] float32 of an unprojected map F (module doc) from what the
+    views show of its texels (`bake.texel_views`: F's texel points on the body in the views'
+    pose), the views, the body's depth in them (depth [V, H, W], `bake.body_depth_maps`) and
+    step a's hull depths (`lift.HullDepth`)."""
     from dlacli.body.regions import segmentation_onehot
-    from dlacli.stages.bake import VISIBLE_DEPTH, _observations, _texel_points
+    from dlacli.stages.bake import VISIBLE_DEPTH
 
-    res = fmap.shape[-1]
-    valid, points, normals = _texel_points(fmap, vertices)
+    valid, points, normals = texels.valid, texels.points, texels.normals
+    res = valid.shape[-1]
     m, n_views = len(points), len(views)
     h = views.masks.shape[1]
-    seen_n = np.zeros(m)
-    best_cos = np.zeros(m)
-    best_view = np.full(m, -1)
-    colour_sum, colour_sq = np.zeros((m, 3)), np.zeros((m, 3))
-    for v, (rgb, _, cosine, seen) in enumerate(_observations(points, normals, views, depth)):
-        seen_n += seen
-        better = seen & (cosine > best_cos)
-        best_cos[better], best_view[better] = cosine[better], v
-        colour_sum += np.where(seen[:, None], rgb, 0.0)
-        colour_sq += np.where(seen[:, None], rgb * rgb, 0.0)
+    seen = texels.seen
+    seen_n = seen.sum(axis=0).astype(np.float64)
+    cos_seen = np.where(seen, texels.cosine, 0.0)
+    best_view = np.where(seen.any(axis=0), np.argmax(cos_seen, axis=0), -1)
+    best_cos = cos_seen.max(axis=0).clip(0.0, None)
+    colour = np.where(seen[..., None], texels.rgb, 0.0)
     two = seen_n >= 2
-    mean = colour_sum / np.maximum(seen_n, 1)[:, None]
-    var = colour_sq / np.maximum(seen_n, 1)[:, None] - mean * mean
+    mean = colour.sum(axis=0) / np.maximum(seen_n, 1)[:, None]
+    var = (colour * colour).sum(axis=0) / np.maximum(seen_n, 1)[:, None] - mean * mean
     colour_std = np.where(two, np.sqrt(np.clip(var, 0.0, None)).mean(axis=1), 0.0)
 
     sdf_sum, sdf_n, gap = np.zeros(m), np.zeros(m), np.zeros(m)

@@ -41,7 +41,7 @@ def residual_inputs(views: ViewSet, cfg) -> ResidualInputs:
     from dlacli.stages.observations import observation_features
 
     base = unprojection(views, cfg)
-    return ResidualInputs(base, observation_features(base.fmap, views, base.vertices, base.depth, base.hull))
+    return ResidualInputs(base, observation_features(base.texels, views, base.depth, base.hull))
 
 
 def load_residual(checkpoint: str | None, where: str = "--method residual"):
