@@ -193,6 +193,17 @@ def test_cli_refuses_learned_only_options_in_one_line(dataset, tmp_path, capsys)
     assert not (tmp_path / "r").exists()
 
 
+def test_cli_trains_at_the_datas_image_size_by_default(dataset, tmp_path):
+    """Without --full-size the targets render at the views' own size (the corrections hold only
+    at the scale the loss sees: docs/train.md run 5), and the run records it."""
+    out = _train_cli("--data", dataset, "--preset", "tiny", "--steps-full", 1, "--validation", 1, "--targets", 1,
+                     "--batch", 1, "-o", tmp_path / "run", env={**os.environ, "OMP_NUM_THREADS": "1"})  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    settings = json.loads((tmp_path / "run" / "train.json").read_text())["settings"]
+    first = json.loads((Path(dataset) / "manifest.json").read_text())["settings"]["res"]
+    assert settings["size"] == first == SIZE
+
+
 def test_training_with_the_gain_moves_it_and_lifts(dataset, tmp_path):
     """`gain=True`: the run trains F_delta too (its head leaves zero) and its checkpoint is the
     residual-gain decoder; with supersampled targets."""

@@ -61,7 +61,8 @@ def train(
         None, "--low-size", min=8, max=2048, help="Target render size of stage low, pixels (default: the preset's)."
     ),
     full_size: Optional[int] = typer.Option(
-        None, "--full-size", min=8, max=2048, help="Target render size of stage full, pixels (default: the preset's)."
+        None, "--full-size", min=8, max=2048, help="Target render size of stage full, pixels (default: the preset's; residual: the data's image size, "
+        "as its corrections only hold at the size they were trained at).",
     ),
     batch: Optional[int] = typer.Option(
         None, "--batch", min=1, max=1024, help="Items per process per step (default: the preset's)."
@@ -179,7 +180,7 @@ def train(
         typer.echo(str(output / record["checkpoint"] / "generator"))
 
 
-_RESIDUAL = dict(steps=2000, size=128, batch=2, targets=4, lr=1e-3)  # docs/train.md "The residual lift"
+_RESIDUAL = dict(steps=2000, batch=2, targets=4, lr=1e-3)  # docs/train.md "The residual lift"
 
 
 def _train_residual(
@@ -188,8 +189,10 @@ def _train_residual(
 ) -> None:  # fmt: skip
     import os
 
+    from dlacli.train.data import image_size
     from dlacli.train.residual import ResidualTrainConfig, net_config, train_residual
 
+    size = image_size(data) if size is None else size  # the scale the loss sees is the scale that holds
     given = dict(steps=steps, size=size, batch=batch, targets=targets, lr=lr)
     cfg = ResidualTrainConfig(
         preset=preset,

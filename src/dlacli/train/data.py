@@ -87,6 +87,16 @@ def _discover(root: Path) -> list[tuple[int | None, str, Path]]:
     )
 
 
+def image_size(root: str | Path) -> int:
+    """The long side in pixels of the views of the first subject under `root` (a dataset or
+    subject folder): the size its targets hold their detail at."""
+    from dlacli.io.views import read_transforms
+
+    _, _, folder = _discover(Path(root))[0]
+    t = read_transforms(folder)
+    return int(max(t["width"], t["height"]))
+
+
 def split_subjects(root: str | Path, validation: int) -> tuple[list[str], list[str]]:
     """(train, validation) subject names: the `validation` lowest seeds validate (so the split
     stays when a dataset grows by higher seeds), the rest train; both in seed order."""
