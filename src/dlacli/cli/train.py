@@ -61,7 +61,11 @@ def train(
         None, "--low-size", min=8, max=2048, help="Target render size of stage low, pixels (default: the preset's)."
     ),
     full_size: Optional[int] = typer.Option(
-        None, "--full-size", min=8, max=2048, help="Target render size of stage full, pixels (default: the preset's; residual: the data's image size, "
+        None,
+        "--full-size",
+        min=8,
+        max=2048,
+        help="Target render size of stage full, pixels (default: the preset's; residual: the data's image size, "
         "as its corrections only hold at the size they were trained at).",
     ),
     batch: Optional[int] = typer.Option(
