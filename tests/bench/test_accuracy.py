@@ -75,25 +75,29 @@ def test_a_small_run_scores_every_split(tmp_path):
 
 def test_a_residual_row_names_its_network_by_hash(tmp_path):
     """The residual lift's network is no decoder (the avatar records no checkpoint): its row
-    names the weights by the hash the lift records, and no empty preset / variant fields."""
+    names the weights by the hash the lift records, given or shipped (rows of two networks must
+    not pool under one label), and no empty preset / variant fields."""
     from dlacli.avatar.checkpoint import save_checkpoint
     from dlacli.bench.accuracy import run
     from dlacli.nn.residual import ResidualNet, ResidualNetConfig
     from dlacli.stages.methods import parse_methods
     from dlacli.stages.observations import feature_count
+    from dlacli.stages.residual import load_residual
 
     cfg = ResidualNetConfig(features=feature_count(), width=8, resolution=32, gaussians=4096)
     digest = save_checkpoint(tmp_path / "ck", ResidualNet(cfg), cfg)
     rows = run(
         [8102],
-        parse_methods(f"residual:checkpoint={tmp_path / 'ck'}"),
+        parse_methods(f"residual:checkpoint={tmp_path / 'ck'},residual"),
         res=48,
         novel_views=1,
         novel_poses=1,
         log=lambda s: None,
     )
-    for r in rows:
-        assert r["config"]["checkpoint"] == digest[:16]
+    shipped = load_residual(None)[1]
+    assert shipped != digest and len(rows) == 6
+    for r, expected in zip(rows, [digest] * 3 + [shipped] * 3):
+        assert r["config"]["checkpoint"] == expected[:16]
         assert "preset" not in r["config"] and "variant" not in r["config"]
 
 

@@ -183,11 +183,12 @@ def run(
                 avatar = read_avatar(path)
                 result = score_avatar(avatar, folder)
                 config = {**spec.options(), "res": res, "appearance": appearance, "wardrobe": wardrobe}
-                if "checkpoint" in config:  # the weights by hash, not by local path; what they are
-                    lift = avatar.extra.get("lift", {})
-                    digest = avatar.checkpoint or avatar.extra.get("residual", {}).get("checkpoint", "")
-                    named = {"checkpoint": digest[:16], "preset": lift.get("preset"), "variant": lift.get("variant")}
-                    config.update({k: v for k, v in named.items() if v})
+                # the weights by hash, not by local path (shipped ones too: rows of two networks
+                # must not pool); what they are
+                lift = avatar.extra.get("lift", {})
+                digest = avatar.checkpoint or avatar.extra.get("residual", {}).get("checkpoint", "")
+                named = {"checkpoint": digest[:16], "preset": lift.get("preset"), "variant": lift.get("variant")}
+                config.update({k: v for k, v in named.items() if v})
                 for split in SPLITS:
                     rows.append(make_row(spec.name, config, split, seconds, peak, result[split], subject=seed))
                 log(
