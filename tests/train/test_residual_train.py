@@ -204,6 +204,49 @@ def test_cli_trains_at_the_datas_image_size_by_default(dataset, tmp_path):
     assert settings["size"] == first == SIZE
 
 
+def test_gain_only_training_keeps_the_init_networks_corrections(dataset, tmp_path):
+    """--init with --gain --gain-only: F_delta learns (its head leaves zero) while every other
+    parameter stays the init network's bit for bit (F_c is that network's), and the run records
+    the weights it started from by hash."""
+    from dlacli.avatar.checkpoint import load_checkpoint, save_checkpoint
+    from dlacli.nn.residual import ResidualNet
+    from dlacli.train.residual import GAIN_MODULES, net_config, train_residual
+
+    torch.manual_seed(3)
+    first = ResidualNet(net_config(_cfg()))
+    torch.nn.init.normal_(first.head.weight, std=0.05)  # corrections that are not zero
+    digest = save_checkpoint(tmp_path / "init", first, first.config)
+    cfg = _cfg(gain=True, gain_only=True, init=str(tmp_path / "init"), steps=2, lr=1e-2)
+    rec = train_residual(dataset, tmp_path / "run", cfg, log=lambda s: None)
+    assert rec["settings"]["init_hash"] == digest
+    trained = load_checkpoint(tmp_path / "run" / rec["checkpoint"] / "generator").module
+    theirs = first.state_dict()
+    gain = [k for k in trained.state_dict() if k.split(".")[0] in GAIN_MODULES]
+    assert gain and set(trained.state_dict()) - set(gain) == set(theirs)
+    for k, v in trained.state_dict().items():
+        if k not in gain:
+            assert torch.equal(v, theirs[k]), k
+    assert float(trained.gain_head.weight.detach().abs().max()) > 0
+
+
+def test_cli_refuses_an_init_that_does_not_fit_in_one_line(dataset, tmp_path):
+    from dlacli.avatar.checkpoint import save_checkpoint
+    from dlacli.nn.residual import ResidualNet
+    from dlacli.train.residual import net_config
+
+    tiny = ResidualNet(net_config(_cfg()))
+    save_checkpoint(tmp_path / "tiny", tiny, tiny.config)
+    common = ["--data", dataset, "--steps-full", 1, "--validation", 1, "-o", tmp_path / "r"]
+    for extra, flag in (
+        (["--preset", "small", "--init", tmp_path / "tiny"], "--init"),  # width 8 into a width-32 run
+        (["--preset", "tiny", "--gain", "--gain-only"], "--gain-only"),  # nothing to keep
+    ):
+        out = _train_cli(*common, *extra)
+        err = out.stderr.strip()
+        assert out.returncode == 2 and len(err.splitlines()) == 1 and flag in err, err
+    assert not (tmp_path / "r").exists()
+
+
 def test_training_with_the_gain_moves_it_and_lifts(dataset, tmp_path):
     """`gain=True`: the run trains F_delta too (its head leaves zero) and its checkpoint is the
     residual-gain decoder; with supersampled targets."""

@@ -105,6 +105,17 @@ def train(
         "--gain",
         help="Residual only: also train F_delta, a colour gain conditioned on the target pose and rays.",
     ),
+    init: Optional[str] = typer.Option(
+        None,
+        "--init",
+        help="Residual only: start from this residual network (a checkpoint folder, its hash, or 'shipped': "
+        "the weights in the package) instead of from scratch.",
+    ),
+    gain_only: bool = typer.Option(
+        False,
+        "--gain-only",
+        help="Residual only, with --gain and --init: train F_delta alone; the corrections stay the init network's.",
+    ),
     supersample: int = typer.Option(
         1,
         "--supersample",
@@ -136,11 +147,13 @@ def train(
             raise DlaInputError(flag, "applies to --method learned only (residual trains one stage)")
         _train_residual(
             data, output, preset or "small", resume, steps_full, full_size, batch, targets, lr_g, validation,
-            eval_every, checkpoint_every, seed, gain, supersample,
+            eval_every, checkpoint_every, seed, gain, supersample, init, gain_only,
         )  # fmt: skip
         return
-    if gain or supersample != 1:
-        raise DlaInputError("--gain" if gain else "--supersample", "applies to --method residual only")
+    residual_only = {"--gain": gain, "--supersample": supersample != 1, "--init": init, "--gain-only": gain_only}
+    for flag, given in residual_only.items():
+        if given:
+            raise DlaInputError(flag, "applies to --method residual only")
     preset = preset or "tiny"
     if preset not in PRESET_NAMES:
         raise DlaInputError("--preset", f"unknown preset {preset!r} (available: {', '.join(PRESET_NAMES)})")
@@ -189,12 +202,12 @@ _RESIDUAL = dict(steps=2000, batch=2, targets=4, lr=1e-3)  # docs/train.md "The 
 
 def _train_residual(
     data, output, preset, resume, steps, size, batch, targets, lr, validation, eval_every, checkpoint_every, seed, gain,
-    supersample,
+    supersample, init, gain_only,
 ) -> None:  # fmt: skip
     import os
 
     from dlacli.train.data import image_size
-    from dlacli.train.residual import ResidualTrainConfig, net_config, train_residual
+    from dlacli.train.residual import ResidualTrainConfig, check_init, net_config, train_residual
 
     size = image_size(data) if size is None else size  # the scale the loss sees is the scale that holds
     given = dict(steps=steps, size=size, batch=batch, targets=targets, lr=lr)
@@ -206,9 +219,12 @@ def _train_residual(
         seed=seed,
         gain=gain,
         supersample=supersample,
+        init=init or "",
+        gain_only=gain_only,
         **{**_RESIDUAL, **{k: v for k, v in given.items() if v is not None}},
     )
     net_config(cfg)  # an unknown preset is refused before any work
+    check_init(cfg)
     if cfg.total_steps == 0:
         raise DlaInputError("--steps-full", "no steps to train")
     record = train_residual(data, output, cfg, resume=resume)

@@ -74,6 +74,8 @@ class ResidualTrainConfig:
     seed: int = 0
     include_inputs: bool = False  # the input views may also be drawn as targets
     gain: bool = False  # train F_delta, the pose- and view-conditioned colour gain (nn/residual.py)
+    init: str = ""  # start from this residual network's weights (folder, hash or "shipped"; "": from scratch)
+    gain_only: bool = False  # train F_delta alone on the `init` network's frozen corrections
     # render targets this many times larger and box-filter them (1: at `size`). At 1 the network
     # learns corrections that only hold at the training render size: trained at 128 px it beat
     # unprojection by 2 dB at 128 px and lost 5-8 dB at 256-512 px (docs/train.md)
@@ -347,6 +349,41 @@ def _settings(cfg: ResidualTrainConfig, data: str) -> dict:
     return d
 
 
+GAIN_MODULES = ("light", "gain_net", "gain_head")  # F_delta's parameters in ResidualNet
+# what a run's network and its --init network must share
+_SAME = ("features", "width", "internal", "groups", "max_opacity", "max_offset", "max_log_scale")
+_SAME += ("resolution", "gaussians")
+
+
+def check_init(cfg: ResidualTrainConfig):
+    """The `init` network and its hash (None without one); one-line errors for `init` /
+    `gain_only` that cannot work, before any work is done."""
+    if cfg.gain_only and not (cfg.gain and cfg.init):
+        raise DlaInputError("--gain-only", "needs --gain and --init (F_delta on a trained network's corrections)")
+    return _init_network(cfg.init, net_config(cfg)) if cfg.init else None
+
+
+def _init_network(init: str, ncfg):
+    """(ResidualNet, hash) of checkpoint `init` (folder, hash, or "shipped": the weights in the
+    package), checked to fit a run of config ncfg."""
+    from dlacli.avatar.checkpoint import load_checkpoint, resolve_checkpoint
+    from dlacli.nn.residual import ResidualNet
+    from dlacli.stages.residual import SHIPPED
+
+    loaded = load_checkpoint(SHIPPED if init == "shipped" else resolve_checkpoint(init))
+    theirs = loaded.module
+    if not isinstance(theirs, ResidualNet):
+        raise DlaInputError("--init", f"{init} holds a {type(theirs).__name__}, not a residual lift network")
+    for key in _SAME:
+        if getattr(theirs.config, key) != getattr(ncfg, key):
+            raise DlaInputError(
+                "--init", f"{init} has {key} {getattr(theirs.config, key)}, this run {getattr(ncfg, key)}"
+            )
+    if theirs.config.gain and not ncfg.gain:
+        raise DlaInputError("--init", f"{init} has a gain branch (F_delta): train it with --gain")
+    return theirs, loaded.hash
+
+
 def _setup(data, cfg: ResidualTrainConfig):
     from dlacli.train.data import TrainingData, _discover, split_subjects
 
@@ -380,14 +417,23 @@ def train_residual(
     out = Path(out)
     record_path = out / "train.json"
     ncfg = net_config(cfg)
+    init = check_init(cfg)
     settings = _settings(cfg, str(data))
+    if init is not None:
+        settings["init_hash"] = init[1]  # the weights it started from, wherever they lie
     record = resumed_record(record_path, settings) if resume else None
     if not resume:
         start_run(out)
     train_ids, val_ids, folders, full, val = _setup(data, cfg)
     torch.manual_seed(cfg.seed)
     net = ResidualNet(ncfg).to(world.device)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, betas=tuple(cfg.betas))
+    if init is not None:  # a gain branch init lacks keeps its initialisation (zero head: gain 1)
+        missing, unexpected = net.load_state_dict(init[0].state_dict(), strict=False)
+        assert not unexpected and all(k.split(".")[0] in GAIN_MODULES for k in missing), (missing, unexpected)
+    if cfg.gain_only:  # F_c stays the init network's: only the gain branch learns
+        for name, p in net.named_parameters():
+            p.requires_grad_(name.split(".")[0] in GAIN_MODULES)
+    opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr, betas=tuple(cfg.betas))
     if record is None:
         record = new_record(settings, world, train_ids, val_ids)
     if record["checkpoint"]:
