@@ -21,11 +21,16 @@ per lift at the map's resolution R (docs/lift.md "Observation features" says wha
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
 from dlacli.geometry import project_points
 from dlacli.types import ViewSet
+
+if TYPE_CHECKING:
+    from dlacli.stages.bake import TexelViews
 
 SDF_UNIT = 0.1  # the mask SDF is measured in tenths of the image height
 HULL_GAP_MAX = 0.3  # metres
@@ -52,7 +57,7 @@ def _lookup(image: np.ndarray, px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return image[np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)], inside
 
 
-def observation_features(texels, views: ViewSet, depth: np.ndarray, hull) -> np.ndarray:
+def observation_features(texels: TexelViews, views: ViewSet, depth: np.ndarray, hull) -> np.ndarray:
     """Features [feature_count(), R, R] float32 of an unprojected map F (module doc) from what the
     views show of its texels (`bake.texel_views`: F's texel points on the body in the views'
     pose), the views, the body's depth in them (depth [V, H, W], `bake.body_depth_maps`) and
