@@ -42,7 +42,8 @@ def draw_chart(
     splits: tuple[str, ...] = ("novel_views", "novel_poses", "novel_view_pose", "dreamed_views"),
 ) -> Path:
     """Time (log) against `metric`, one panel per split present, one marker per point, the Pareto
-    frontier as a line; written to a PNG (matplotlib, extra `bench`)."""
+    frontier as a line with its points' settings beside them (the tables name every point);
+    written to a PNG (matplotlib, extra `bench`)."""
     plt = _pyplot()
     import matplotlib.ticker
 
@@ -56,6 +57,8 @@ def draw_chart(
     style = {g: (marker, f"C{k % 10}") for k, (g, marker) in enumerate(zip(groups, "osD^v<>ph*"))}
     for ax, split in zip(axes[0], present):
         pts = points(rows, split, metric)
+        front = pareto_front(pts)
+        named = {id(p) for p in front}  # the frontier's points carry their settings; the tables name the rest
         for m in sorted({p["group"] for p in pts} & set(style)):
             marker, colour = style[m]
             sel = [p for p in pts if p["group"] == m]
@@ -71,14 +74,15 @@ def draw_chart(
             words = [p["label"][len(m) :].split() for p in sel]
             shared = set.intersection(*map(set, words)) if len(sel) > 1 else set()  # said once, in the legend's sense
             for k, (p, w) in enumerate(zip(sel, words)):
+                if id(p) not in named:
+                    continue
                 ax.annotate(
-                    " ".join(x for x in w if x not in shared),
+                    " ".join(x.strip("(),") for x in w if x not in shared),
                     (p["seconds"], p["value"]),
                     fontsize=7,
                     xytext=(4, 3 - 9 * (k % 3)),
                     textcoords="offset points",
                 )
-        front = pareto_front(pts)
         ax.step(
             [p["seconds"] for p in front],
             [p["value"] for p in front],
