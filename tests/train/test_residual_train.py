@@ -209,8 +209,8 @@ def test_gain_only_training_keeps_the_init_networks_corrections(dataset, tmp_pat
     parameter stays the init network's bit for bit (F_c is that network's), and the run records
     the weights it started from by hash."""
     from dlacli.avatar.checkpoint import load_checkpoint, save_checkpoint
-    from dlacli.nn.residual import ResidualNet
-    from dlacli.train.residual import GAIN_MODULES, net_config, train_residual
+    from dlacli.nn.residual import GAIN_MODULES, ResidualNet
+    from dlacli.train.residual import net_config, train_residual
 
     torch.manual_seed(3)
     first = ResidualNet(net_config(_cfg()))

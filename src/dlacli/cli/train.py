@@ -207,7 +207,7 @@ def _train_residual(
     import os
 
     from dlacli.train.data import image_size
-    from dlacli.train.residual import ResidualTrainConfig, check_init, net_config, train_residual
+    from dlacli.train.residual import ResidualTrainConfig, net_config, train_residual
 
     size = image_size(data) if size is None else size  # the scale the loss sees is the scale that holds
     given = dict(steps=steps, size=size, batch=batch, targets=targets, lr=lr)
@@ -224,7 +224,6 @@ def _train_residual(
         **{**_RESIDUAL, **{k: v for k, v in given.items() if v is not None}},
     )
     net_config(cfg)  # an unknown preset is refused before any work
-    check_init(cfg)
     if cfg.total_steps == 0:
         raise DlaInputError("--steps-full", "no steps to train")
     record = train_residual(data, output, cfg, resume=resume)

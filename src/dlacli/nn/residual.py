@@ -41,6 +41,7 @@ from dlacli.errors import DlaInputError
 
 CORRECTIONS = 10  # opacity 1, rgb 3, offset 3, log scale 3
 T_RGB = slice(1, 4)  # the colour's corrections among them
+GAIN_MODULES = ("light", "gain_net", "gain_head")  # F_delta's submodules of ResidualNet (config.gain)
 
 
 def corrected_colour(rgb: torch.Tensor, t_rgb: torch.Tensor) -> torch.Tensor:

@@ -349,7 +349,6 @@ def _settings(cfg: ResidualTrainConfig, data: str) -> dict:
     return d
 
 
-GAIN_MODULES = ("light", "gain_net", "gain_head")  # F_delta's parameters in ResidualNet
 # what a run's network and its --init network must share
 _SAME = ("features", "width", "internal", "groups", "max_opacity", "max_offset", "max_log_scale")
 _SAME += ("resolution", "gaussians")
@@ -410,7 +409,7 @@ def train_residual(
     checkpoint) after that many steps in all, to be resumed later."""
     from dlacli.avatar import gaussian_map as gm
     from dlacli.avatar.checkpoint import load_checkpoint
-    from dlacli.nn.residual import ResidualNet
+    from dlacli.nn.residual import GAIN_MODULES, ResidualNet
 
     world = init_world()
     say = (log or (lambda line: print(line, file=sys.stderr, flush=True))) if world.main else (lambda line: None)
