@@ -161,3 +161,48 @@ def test_no_person_anywhere(tmp_path):
     write_video([np.full((64, 64, 3), 0.4, np.float32)] * 5, path, 10)
     with pytest.raises(DlaInputError, match="no person found"):
         video_to_motion(open_video(path))
+
+
+# the real clip (tests/data/third_party/video): three squats, 65 frames at 5 fps. Frames labelled
+# by looking at every frame of the video: deep in a squat, and standing straight.
+SQUAT_DOWN = [9, 10, 11, 12, 33, 34, 35, 59, 60, 61, 62]
+SQUAT_UP = [0, 1, 2, 20, 21, 22, 23, 24, 44, 45, 46, 47, 48]
+
+
+def _knee_flexion_deg(bones, side):
+    """[T] angle between thigh and shin (0 = straight) from the bone heads [T, B, 3]."""
+    from dlacli.body.model import get_body_model
+
+    model = get_body_model()
+    hip, knee, ankle = (bones[:, model.bone_index(f"{b}.{side}")] for b in ("upperleg01", "lowerleg01", "foot"))
+    u, v = knee - hip, ankle - knee
+    cos = (u * v).sum(-1) / (np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+@pytest.mark.slow
+def test_from_video_on_a_real_clip(third_party_data):
+    """A real person squatting (Pexels video 4838220): every frame has the person; the knees bend
+    deep (> 60 degrees) in the frames where she is down and are nearly straight (< 35) where she
+    stands; her pelvis drops at least 20 cm, in three separate squats; her feet stay where they are
+    (she never steps: each ankle moves < 10 cm over the clip)."""
+    pytest.importorskip("mediapipe")
+    from dlacli.body.model import get_body_model
+    from dlacli.io.video import open_video
+    from dlacli.stages.motion_video import video_to_motion
+
+    result = video_to_motion(open_video(third_party_data / "video" / "pexels-4838220-squats.mp4"))
+    motion = result.motion
+    assert motion.num_frames == 65 and motion.fps == 5 and result.missing == []
+    model = get_body_model()
+    bones = model.forward_motion({}, motion).bone_heads.numpy()  # on the default body
+    for side in ("L", "R"):
+        knee = _knee_flexion_deg(bones, side)
+        assert knee[SQUAT_DOWN].min() > 60.0 and knee[SQUAT_UP].max() < 35.0, (side, knee.round())
+        ankle = bones[:, model.bone_index(f"foot.{side}"), :2]
+        assert (ankle.max(0) - ankle.min(0)).max() < 0.10, (side, ankle.max(0) - ankle.min(0))
+    pelvis = bones[:, 0, 2]
+    standing = np.median(pelvis[SQUAT_UP])
+    assert pelvis[SQUAT_DOWN].max() < standing - 0.20, (pelvis.round(2), standing)
+    down = pelvis < standing - 0.20
+    assert int((down[1:] & ~down[:-1]).sum() + down[0]) == 3, down.astype(int)  # three squats
