@@ -335,15 +335,55 @@ def _raster_cpu(means2d, conics, colors, opacities, radii, depths, width, height
     params, _, offsets, lists, trect = B.bin_gaussians(
         arr(means2d, npd), arr(conics, npd), arr(opacities, npd), arr(colors, npd), rd, dk, width, height
     )
-    ncam = means2d.shape[0]
+    acc, tfin, saved = _composite(params, offsets, lists, means2d.shape[0], width, height)
+    return acc, tfin, (params, offsets, lists, trect, *saved)
+
+
+def _composite(params, offsets, lists, ncam, width, height):
+    """`K.raster_forward` over the binned pairs -> (acc [C, H, W, 4] in params' dtype, t_final
+    [C, H, W] float64, (t_final, last, work) for the backward pass)."""
     cost = np.diff(offsets).astype(np.float64)
     wptr, wtiles = B.assign_workers(cost, K.num_threads())
-    acc = np.empty((ncam, height, width, 4), dtype=npd)
+    acc = np.empty((ncam, height, width, 4), dtype=params.dtype)
     tfin = np.empty((ncam, height, width), dtype=np.float64)
     last = np.empty((ncam, height, width), dtype=np.int64)
     work = np.zeros(cost.shape[0], dtype=np.float64)
     K.raster_forward(params, offsets, lists, wptr, wtiles, ncam, width, height, acc, tfin, last, work)
-    return acc, tfin, (params, offsets, lists, trect, tfin, last, work)
+    return acc, tfin, (tfin, last, work)
+
+
+def _render_plain_cpu(g: Gaussians, viewmats, Ks, width, height, bg, degree) -> RenderOutput:
+    """`render_gaussians` without autograd on the CPU: projection and packing in one numba pass
+    (`B.project_and_pack`), then the same binning, compositing and `K.compose` as the autograd
+    route, whose images it equals bit for bit (tests/render/test_splat.py)."""
+    dtype = g.means.dtype
+    npd = np.float64 if dtype == torch.float64 else np.float32
+    ncam, n = viewmats.shape[0], len(g)
+    rgb = eval_sh_colors(g.sh, g.means, viewmats, degree).to(dtype)  # [C, N, 3]; a view for degree 0
+    params = np.empty((ncam * n, B.NPARAM), dtype=npd)
+    trect = np.empty((ncam * n, 4), dtype=np.int32)
+    radii = np.empty((ncam, n), dtype=np.int32)
+    keys = np.empty((ncam, n), dtype=np.float32)
+    intr = torch.stack([Ks[:, 0, 0], Ks[:, 1, 1], Ks[:, 0, 2], Ks[:, 1, 2]], dim=-1)
+    B.project_and_pack(
+        *(_np(t) for t in (g.means, g.quats, g.scales, g.opacities)),
+        rgb.numpy(),
+        *(_np(t) for t in (viewmats[:, :3, :3], viewmats[:, :3, 3], intr)),
+        float(width),
+        float(height),
+        float(EPS2D),
+        float(NEAR),
+        float(FAR),
+        params,
+        trect,
+        radii,
+        keys,
+    )
+    _, offsets, lists = B.sort_and_list(radii, keys.view(np.uint32), trect, width, height)
+    acc, tfin, _ = _composite(params, offsets, lists, ncam, width, height)
+    out = RenderOutput(*(torch.empty(s, dtype=dtype) for s in ((ncam, height, width, 3), *[(ncam, height, width)] * 2)))
+    K.compose(acc, tfin, bg.detach().contiguous().numpy(), *(t.numpy() for t in out))
+    return out
 
 
 class _RasterizeCPU(torch.autograd.Function):
@@ -498,27 +538,20 @@ def render_gaussians(
     grad = torch.is_grad_enabled() and any(
         t.requires_grad for t in (g.means, g.quats, g.scales, g.opacities, g.sh, viewmats, Ks)
     )
-    with torch.set_grad_enabled(grad):
+    if grad:
         proj = project_gaussians(g.means, g.quats, g.scales, viewmats, Ks, w, h)
         rgb = eval_sh_colors(g.sh, g.means, viewmats, degree)  # [C, N, 3]
         colors = torch.cat([rgb, proj.depths[..., None]], dim=-1)  # [C, N, 4]
-    ncam = viewmats.shape[0]
-    opac = g.opacities[None].expand(ncam, -1)
-    if grad:
+        opac = g.opacities[None].expand(viewmats.shape[0], -1)
         acc, alpha = rasterize_projected(
             proj.means2d, proj.conics, colors, opac, proj.radii, proj.depths.detach(), w, h
         )
         out_rgb = acc[..., :3] + (1.0 - alpha)[..., None] * bg[:, None, None, :]
         depth = acc[..., 3] / alpha.clamp(min=1e-10)
         out = RenderOutput(out_rgb, alpha, depth)
-    else:  # no autograd: the same images from one numba pass over the pixels (`K.compose`)
-        acc_np, tfin, _ = _raster_cpu(proj.means2d, proj.conics, colors, opac, proj.radii, proj.depths, w, h)
-        out = RenderOutput(
-            torch.empty((ncam, h, w, 3), dtype=dtype),
-            torch.empty((ncam, h, w), dtype=dtype),
-            torch.empty((ncam, h, w), dtype=dtype),
-        )
-        K.compose(acc_np, tfin, bg.detach().contiguous().numpy(), *(t.numpy() for t in out))
+    else:  # no autograd: the same images without the torch intermediates
+        with torch.no_grad():
+            out = _render_plain_cpu(g, viewmats, Ks, w, h, bg, degree)
     if device.type != "cpu":
         out = RenderOutput(*(t.to(device) for t in out))
     return out

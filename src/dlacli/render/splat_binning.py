@@ -13,6 +13,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from dlacli.render import camera_kernels
 from dlacli.render.radix_sort import radix_argsort_u32
 
 TILE = 16
@@ -22,71 +23,148 @@ SIGMA_MARGIN = 0.05
 NPARAM = 16
 
 
+@njit(cache=True, inline="always")
+def _pack_pair(i, mx, my, a, b, cc, op, c0, c1, c2, c3, r, width, height, params, trect):
+    """Row i of params (packed parameters, pixel box) and of trect (tile rectangle) of one
+    (camera, Gaussian) pair with radius r > 0, from its values as stored (float64 of them)."""
+    tw = (width + TILE - 1) // TILE
+    th = (height + TILE - 1) // TILE
+    trect[i, 0] = 0
+    trect[i, 1] = 0
+    trect[i, 2] = 0
+    trect[i, 3] = 0
+    params[i, 0] = mx
+    params[i, 1] = my
+    params[i, 2] = a
+    params[i, 3] = b
+    params[i, 4] = cc
+    params[i, 5] = op
+    params[i, 11] = 0.0
+    params[i, 12] = c0
+    params[i, 13] = c1
+    params[i, 14] = c2
+    params[i, 15] = c3
+    # gsplat's tile rectangle from the integer radius (this decides membership)
+    tx0 = int(min(max(np.floor(mx / TILE - r / TILE), 0.0), tw))
+    tx1 = int(min(max(np.ceil(mx / TILE + r / TILE), 0.0), tw))
+    ty0 = int(min(max(np.floor(my / TILE - r / TILE), 0.0), th))
+    ty1 = int(min(max(np.ceil(my / TILE + r / TILE), 0.0), th))
+    # pixel box outside of which sigma > log(255 opacity): alpha < 1/255 there
+    det = a * cc - b * b
+    ok = np.isfinite(mx) and np.isfinite(my) and det > 0.0 and a > 0.0 and cc > 0.0
+    if not ok or not (op * 255.0 >= 1.0):
+        thr = -1.0
+        bx0, bx1, by0, by1 = 0, -1, 0, -1
+    else:
+        thr = math.log(op * 255.0) + SIGMA_MARGIN
+        ex = math.sqrt(2.0 * thr * cc / det)  # sqrt(2 thr cov_xx)
+        ey = math.sqrt(2.0 * thr * a / det)
+        if not (np.isfinite(ex) and np.isfinite(ey)):
+            ex = 1e30
+            ey = 1e30
+        bx0 = int(min(max(np.ceil(mx - ex - 0.5), 0.0), width))
+        bx1 = int(min(max(np.floor(mx + ex - 0.5), -1.0), width - 1))
+        by0 = int(min(max(np.ceil(my - ey - 0.5), 0.0), height))
+        by1 = int(min(max(np.floor(my + ey - 0.5), -1.0), height - 1))
+    params[i, 6] = thr
+    params[i, 7] = bx0
+    params[i, 8] = bx1
+    params[i, 9] = by0
+    params[i, 10] = by1
+    if bx0 > bx1 or by0 > by1:
+        return
+    trect[i, 0] = max(tx0, bx0 // TILE)
+    trect[i, 1] = max(min(tx1, bx1 // TILE + 1), trect[i, 0])
+    trect[i, 2] = max(ty0, by0 // TILE)
+    trect[i, 3] = max(min(ty1, by1 // TILE + 1), trect[i, 2])
+
+
 @njit(parallel=True, cache=True)
 def _prepare(means2d, conics, opacities, colors, radii, width, height, params, trect):
     """Per (camera, Gaussian) in input order: packed parameters, pixel box, tile rectangle (the
     kernels read them in place through the tile lists: no gather into depth order)."""
     ncam, n = radii.shape[0], radii.shape[1]
-    tw = (width + TILE - 1) // TILE
-    th = (height + TILE - 1) // TILE
     for c in range(ncam):  # no integer division per pair
         for g in prange(n):
             i = c * n + g
-            trect[i, 0] = 0
-            trect[i, 1] = 0
-            trect[i, 2] = 0
-            trect[i, 3] = 0
             if radii[c, g] <= 0:
+                trect[i, 0] = 0
+                trect[i, 1] = 0
+                trect[i, 2] = 0
+                trect[i, 3] = 0
                 continue
-            mx = np.float64(means2d[c, g, 0])
-            my = np.float64(means2d[c, g, 1])
-            a = np.float64(conics[c, g, 0])
-            b = np.float64(conics[c, g, 1])
-            cc = np.float64(conics[c, g, 2])
-            op = np.float64(opacities[c, g])
-            params[i, 0] = means2d[c, g, 0]
-            params[i, 1] = means2d[c, g, 1]
-            params[i, 2] = conics[c, g, 0]
-            params[i, 3] = conics[c, g, 1]
-            params[i, 4] = conics[c, g, 2]
-            params[i, 5] = opacities[c, g]
-            params[i, 11] = 0.0
-            for k in range(4):
-                params[i, 12 + k] = colors[c, g, k]
-            # gsplat's tile rectangle from the integer radius (this decides membership)
-            r = np.float64(radii[c, g])
-            tx0 = int(min(max(np.floor(mx / TILE - r / TILE), 0.0), tw))
-            tx1 = int(min(max(np.ceil(mx / TILE + r / TILE), 0.0), tw))
-            ty0 = int(min(max(np.floor(my / TILE - r / TILE), 0.0), th))
-            ty1 = int(min(max(np.ceil(my / TILE + r / TILE), 0.0), th))
-            # pixel box outside of which sigma > log(255 opacity): alpha < 1/255 there
-            det = a * cc - b * b
-            ok = np.isfinite(mx) and np.isfinite(my) and det > 0.0 and a > 0.0 and cc > 0.0
-            if not ok or not (op * 255.0 >= 1.0):
-                thr = -1.0
-                bx0, bx1, by0, by1 = 0, -1, 0, -1
-            else:
-                thr = math.log(op * 255.0) + SIGMA_MARGIN
-                ex = math.sqrt(2.0 * thr * cc / det)  # sqrt(2 thr cov_xx)
-                ey = math.sqrt(2.0 * thr * a / det)
-                if not (np.isfinite(ex) and np.isfinite(ey)):
-                    ex = 1e30
-                    ey = 1e30
-                bx0 = int(min(max(np.ceil(mx - ex - 0.5), 0.0), width))
-                bx1 = int(min(max(np.floor(mx + ex - 0.5), -1.0), width - 1))
-                by0 = int(min(max(np.ceil(my - ey - 0.5), 0.0), height))
-                by1 = int(min(max(np.floor(my + ey - 0.5), -1.0), height - 1))
-            params[i, 6] = thr
-            params[i, 7] = bx0
-            params[i, 8] = bx1
-            params[i, 9] = by0
-            params[i, 10] = by1
-            if bx0 > bx1 or by0 > by1:
+            _pack_pair(
+                i,
+                np.float64(means2d[c, g, 0]),
+                np.float64(means2d[c, g, 1]),
+                np.float64(conics[c, g, 0]),
+                np.float64(conics[c, g, 1]),
+                np.float64(conics[c, g, 2]),
+                np.float64(opacities[c, g]),
+                np.float64(colors[c, g, 0]),
+                np.float64(colors[c, g, 1]),
+                np.float64(colors[c, g, 2]),
+                np.float64(colors[c, g, 3]),
+                np.float64(radii[c, g]),
+                width,
+                height,
+                params,
+                trect,
+            )
+
+
+@njit(parallel=True, cache=True)
+def project_and_pack(
+    means, quats, scales, opacities, rgb, rot, trans, intr, width, height, eps2d, near, far, params, trect, radii, keys
+):
+    """`camera_kernels.project_fused` and `_prepare` in one pass, for renders without autograd:
+    the projected values are rounded to params' dtype (what the two-pass route stores between
+    them) before they are packed, so params, trect and radii are bit for bit the two-pass
+    route's, without its [C, N] intermediates. opacities [N], rgb [C, N, 3] (colour per camera;
+    depth is the fourth channel) -> params [C * N, 16], trect [C * N, 4], radii [C, N] int32,
+    keys [C, N] float32 (the depth rounded to params' dtype, then float32; 1 where culled: the
+    sort keys of `_depth_order`, as bits)."""
+    ncam, n = rot.shape[0], means.shape[0]
+    ft = params.dtype.type
+    for g in prange(n):
+        m = camera_kernels._scaled_rotation(quats, scales, g)
+        mu0 = np.float64(means[g, 0])
+        mu1 = np.float64(means[g, 1])
+        mu2 = np.float64(means[g, 2])
+        op = np.float64(ft(opacities[g]))
+        for c in range(ncam):
+            i = c * n + g
+            mx, my, ca, cb, cc, z, r = camera_kernels._project_one(
+                m, mu0, mu1, mu2, rot, trans, intr, c, width, height, eps2d, near, far
+            )
+            radii[c, g] = r
+            if r <= 0:
+                keys[c, g] = 1.0
+                trect[i, 0] = 0
+                trect[i, 1] = 0
+                trect[i, 2] = 0
+                trect[i, 3] = 0
                 continue
-            trect[i, 0] = max(tx0, bx0 // TILE)
-            trect[i, 1] = max(min(tx1, bx1 // TILE + 1), trect[i, 0])
-            trect[i, 2] = max(ty0, by0 // TILE)
-            trect[i, 3] = max(min(ty1, by1 // TILE + 1), trect[i, 2])
+            zr = np.float64(ft(z))
+            keys[c, g] = np.float32(zr)
+            _pack_pair(
+                i,
+                np.float64(ft(mx)),
+                np.float64(ft(my)),
+                np.float64(ft(ca)),
+                np.float64(ft(cb)),
+                np.float64(ft(cc)),
+                op,
+                np.float64(ft(rgb[c, g, 0])),
+                np.float64(ft(rgb[c, g, 1])),
+                np.float64(ft(rgb[c, g, 2])),
+                zr,
+                np.float64(r),
+                width,
+                height,
+                params,
+                trect,
+            )
 
 
 @njit(cache=True, nogil=True)
@@ -218,9 +296,17 @@ def bin_gaussians(means2d, conics, opacities, colors, radii, depth_keys, width, 
     params = np.empty((ncam * n, NPARAM), dtype=means2d.dtype)
     trect = np.empty((ncam * n, 4), dtype=np.int32)
     _prepare(means2d, conics, opacities, colors, radii, width, height, params, trect)
+    src, offsets, lists = sort_and_list(radii, depth_keys, trect, width, height)
+    return params, src, offsets, lists, trect
+
+
+def sort_and_list(radii, depth_keys, trect, width, height):
+    """The visible pairs in (camera, depth) order and the per-tile lists (`bin_gaussians`'s
+    src, tile_offsets and lists) from radii [C, N], depth_keys [C, N] uint32 and trect."""
+    ncam, n = radii.shape
     src = _depth_order(radii, depth_keys)
     offsets, lists = _tile_lists(src, trect, n, ncam, width, height, numba.get_num_threads())
-    return params, src, offsets, lists, trect
+    return src, offsets, lists
 
 
 @njit(cache=True, nogil=True)
