@@ -74,6 +74,16 @@ def _scaled_rotation(quats, scales, g):
 
 
 @njit(cache=True, inline="always")
+def _clamp(x, lo, hi):
+    """x clamped to [lo, hi] by comparisons, so a NaN stays NaN (as torch's minimum / maximum)."""
+    if x < lo:
+        x = lo
+    if x > hi:
+        x = hi
+    return x
+
+
+@njit(cache=True, inline="always")
 def _project_one(m, mu0, mu1, mu2, rot, trans, intr, c, width, height, eps2d, near, far):
     """Gaussian (M = `_scaled_rotation`, mean mu) seen by camera c: (mean x, mean y, conic a, b, c,
     depth, radius int, 0 = culled), float64, the torch code's formulas in its order."""
@@ -97,20 +107,8 @@ def _project_one(m, mu0, mu1, mu2, rot, trans, intr, c, width, height, eps2d, ne
     tanx = 0.5 * width / fx
     tany = 0.5 * height / fy
     rz = 1.0 / pz
-    u = px * rz
-    lo = -(cx / fx + 0.3 * tanx)
-    hi = (width - cx) / fx + 0.3 * tanx
-    if u < lo:
-        u = lo
-    if u > hi:
-        u = hi
-    v = py * rz
-    lo = -(cy / fy + 0.3 * tany)
-    hi = (height - cy) / fy + 0.3 * tany
-    if v < lo:
-        v = lo
-    if v > hi:
-        v = hi
+    u = _clamp(px * rz, -(cx / fx + 0.3 * tanx), (width - cx) / fx + 0.3 * tanx)
+    v = _clamp(py * rz, -(cy / fy + 0.3 * tany), (height - cy) / fy + 0.3 * tany)
     # rows of J R (pinhole Jacobian at the clamped point times the view rotation)
     j00 = fx * rz * (r00 - u * r20)
     j01 = fx * rz * (r01 - u * r21)

@@ -272,9 +272,15 @@ def _np(x: torch.Tensor) -> np.ndarray:
     return x.detach().contiguous().numpy()
 
 
-def _project_fused(means, quats, scales, viewmats, Ks, width, height, eps2d, near, far) -> Projected:
+def _camera_arrays(viewmats, Ks) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """What the numba kernels read of the cameras: intrinsics [C, 4] (fx, fy, cx, cy), rotations
+    [C, 3, 3] and translations [C, 3] of the view matrices, detached."""
     intr = torch.stack([Ks[:, 0, 0], Ks[:, 1, 1], Ks[:, 0, 2], Ks[:, 1, 2]], dim=-1).detach()
-    rot, trans = viewmats[:, :3, :3].detach(), viewmats[:, :3, 3].detach()
+    return intr, viewmats[:, :3, :3].detach(), viewmats[:, :3, 3].detach()
+
+
+def _project_fused(means, quats, scales, viewmats, Ks, width, height, eps2d, near, far) -> Projected:
+    intr, rot, trans = _camera_arrays(viewmats, Ks)
     return Projected(*_ProjectCPU.apply(means, quats, scales, intr, rot, trans, width, height, eps2d, near, far))
 
 
@@ -364,11 +370,11 @@ def _render_plain_cpu(g: Gaussians, viewmats, Ks, width, height, bg, degree) -> 
     trect = np.empty((ncam * n, 4), dtype=np.int32)
     radii = np.empty((ncam, n), dtype=np.int32)
     keys = np.empty((ncam, n), dtype=np.float32)
-    intr = torch.stack([Ks[:, 0, 0], Ks[:, 1, 1], Ks[:, 0, 2], Ks[:, 1, 2]], dim=-1)
+    intr, rot, trans = _camera_arrays(viewmats, Ks)
     B.project_and_pack(
         *(_np(t) for t in (g.means, g.quats, g.scales, g.opacities)),
         rgb.numpy(),
-        *(_np(t) for t in (viewmats[:, :3, :3], viewmats[:, :3, 3], intr)),
+        *(_np(t) for t in (rot, trans, intr)),
         float(width),
         float(height),
         float(EPS2D),

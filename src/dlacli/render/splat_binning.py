@@ -24,15 +24,19 @@ NPARAM = 16
 
 
 @njit(cache=True, inline="always")
+def _no_tiles(trect, i):
+    """Pair i is in no tile's list (culled, or its pixel box is empty)."""
+    for k in range(4):
+        trect[i, k] = 0
+
+
+@njit(cache=True, inline="always")
 def _pack_pair(i, mx, my, a, b, cc, op, c0, c1, c2, c3, r, width, height, params, trect):
     """Row i of params (packed parameters, pixel box) and of trect (tile rectangle) of one
     (camera, Gaussian) pair with radius r > 0, from its values as stored (float64 of them)."""
     tw = (width + TILE - 1) // TILE
     th = (height + TILE - 1) // TILE
-    trect[i, 0] = 0
-    trect[i, 1] = 0
-    trect[i, 2] = 0
-    trect[i, 3] = 0
+    _no_tiles(trect, i)
     params[i, 0] = mx
     params[i, 1] = my
     params[i, 2] = a
@@ -88,10 +92,7 @@ def _prepare(means2d, conics, opacities, colors, radii, width, height, params, t
         for g in prange(n):
             i = c * n + g
             if radii[c, g] <= 0:
-                trect[i, 0] = 0
-                trect[i, 1] = 0
-                trect[i, 2] = 0
-                trect[i, 3] = 0
+                _no_tiles(trect, i)
                 continue
             _pack_pair(
                 i,
@@ -140,10 +141,7 @@ def project_and_pack(
             radii[c, g] = r
             if r <= 0:
                 keys[c, g] = 1.0
-                trect[i, 0] = 0
-                trect[i, 1] = 0
-                trect[i, 2] = 0
-                trect[i, 3] = 0
+                _no_tiles(trect, i)
                 continue
             zr = np.float64(ft(z))
             keys[c, g] = np.float32(zr)
