@@ -1,0 +1,40 @@
+"""The rasteriser's depth order (render/radix_sort.py) against numpy's stable argsort."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dlacli.render.radix_sort import radix_argsort_u32
+
+
+def _cases():
+    rng = np.random.default_rng(11)
+    depths = rng.uniform(0.5, 40.0, 5000).astype(np.float32)
+    return {
+        "empty": np.zeros(0, np.uint32),
+        "one": np.array([7], np.uint32),
+        "all equal": np.full(300, 12345, np.uint32),
+        "full range": rng.integers(0, 2**32, 20000, dtype=np.uint64).astype(np.uint32),
+        "extremes": np.array([2**32 - 1, 0, 2**32 - 1, 1, 0, 2**31], np.uint32),
+        "many ties": rng.integers(0, 40, 20000).astype(np.uint32),
+        # the rasteriser's keys: bits of positive float32 depths, with repeats
+        "depth bits": np.concatenate([depths, depths[::7]]).view(np.uint32),
+        "ties across digits": (rng.integers(0, 4, 5000).astype(np.uint32) << 22) | 2047,
+    }
+
+
+@pytest.mark.parametrize("name", list(_cases()))
+def test_radix_argsort_is_numpy_stable_argsort(name):
+    keys = _cases()[name]
+    got = radix_argsort_u32(keys)
+    assert got.dtype == np.int64
+    assert np.array_equal(got, np.argsort(keys, kind="stable"))
+
+
+def test_float_bits_sort_as_the_depths():
+    """The bits of positive float32 values sort in the order of the values (what `_depth_order`
+    relies on), ties kept in input order."""
+    rng = np.random.default_rng(5)
+    z = rng.choice(np.float32([0.01, 0.5, 1.0, 1.5, 3.0, 1e3]), 2000)
+    assert np.array_equal(radix_argsort_u32(z.view(np.uint32)), np.argsort(z, kind="stable"))
