@@ -71,3 +71,27 @@ def test_not_a_video(tmp_path):
         open_video(bad)
     with pytest.raises(DlaInputError, match="no such file"):
         open_video(tmp_path / "missing.mp4")
+
+
+def test_a_phone_clip_stored_sideways_reads_upright(tmp_path, caplog):
+    """A portrait clip stored sideways with a display rotation (what phones write): the frames
+    come upright, as a player shows them, at the displayed size, and nothing is logged."""
+    import subprocess
+
+    import imageio_ffmpeg
+
+    upright = np.zeros((48, 32, 3), np.uint8)  # portrait: 48 high, 32 wide
+    upright[:16, :16] = 255  # a bright block in the top-left corner
+    stored = tmp_path / "stored.mp4"
+    write_video([np.rot90(upright, k=-1)] * 5, stored, FPS)  # turned clockwise: 32 high, 48 wide
+    phone = tmp_path / "phone.mp4"
+    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-display_rotation", "90", "-i", str(stored)]
+    subprocess.run([*cmd, "-c", "copy", str(phone)], check=True)
+    clip = open_video(phone)
+    assert (clip.width, clip.height) == (32, 48)
+    frames = [f for _, _, f in clip]
+    assert len(frames) == 5
+    for f in frames:
+        assert f.shape == (48, 32, 3)
+        assert f[2:14, 2:14].mean() > 200 and f[20:, :].mean() < 40 and f[:, 20:].mean() < 40
+    assert not [r for r in caplog.records if r.levelno >= 30], [r.getMessage() for r in caplog.records]

@@ -1,10 +1,12 @@
 """Videos through imageio-ffmpeg's bundled ffmpeg: preview videos (.mp4, H.264) written
 atomically, and any video ffmpeg decodes read as a stream of frames (`open_video`), so that a
-long clip never sits in memory: one decoded frame at a time.
+long clip never sits in memory: one decoded frame at a time. Frames come as a player shows them:
+ffmpeg applies the stream's display rotation (a phone's portrait clip is usually stored sideways).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from collections.abc import Iterable, Iterator
@@ -92,12 +94,21 @@ class VideoClip:
         return _frames(self)
 
 
+def _rotated_size_note(record: logging.LogRecord) -> bool:
+    """False for imageio-ffmpeg's warning that the frames' size differs from the stored size: what
+    ffmpeg's display rotation does to a phone clip, expected here (the frames come upright)."""
+    return "is different from the source frame size" not in record.getMessage()
+
+
 def _ffmpeg_frames(path: Path, start: float):
     """imageio-ffmpeg's generator (the meta dict first, then raw rgb24 frames), seeking to `start`
     seconds before decoding (input-side -ss: ffmpeg decodes from the keyframe before and drops
     what precedes `start`, so the first frame is the one at `start`)."""
     import imageio_ffmpeg
 
+    log = logging.getLogger("imageio_ffmpeg")
+    if _rotated_size_note not in log.filters:
+        log.addFilter(_rotated_size_note)
     params = ["-ss", f"{start:.6f}"] if start > 0 else None
     return imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24", input_params=params)
 
