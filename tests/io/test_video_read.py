@@ -95,3 +95,19 @@ def test_a_phone_clip_stored_sideways_reads_upright(tmp_path, caplog):
         assert f.shape == (48, 32, 3)
         assert f[2:14, 2:14].mean() > 200 and f[20:, :].mean() < 40 and f[:, 20:].mean() < 40
     assert not [r for r in caplog.records if r.levelno >= 30], [r.getMessage() for r in caplog.records]
+
+
+def test_a_still_image_reads_as_one_frame(tmp_path):
+    """ffmpeg decodes a picture as a video of one frame with no duration: one frame comes out
+    (not an error blaming --start, which the user did not give)."""
+    from PIL import Image
+
+    still = np.zeros((24, 40, 3), np.uint8)
+    still[:, :20] = 200
+    path = tmp_path / "still.png"
+    Image.fromarray(still).save(path)
+    clip = open_video(path)
+    frames = [f for _, _, f in clip]
+    assert len(frames) == 1 and frames[0].shape == (24, 40, 3)
+    assert frames[0][:, :18].mean() > 190 and frames[0][:, 22:].mean() < 10
+    assert list(open_video(path, start=1.0)) == []  # past its one frame (the command says so)

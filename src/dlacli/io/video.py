@@ -157,6 +157,8 @@ def open_video(
         out_fps = float(fps)
     duration = meta.get("duration")
     duration = float(duration) if duration is not None and math.isfinite(float(duration)) else None
+    if duration is not None and duration <= 0:  # a still image (ffmpeg reads it as one frame): unknown
+        duration = None
     if duration is not None and start >= duration:
         raise DlaInputError("--start", f"{start:g} s is at or after the video's end ({duration:g} s)")
     clip = VideoClip(path, width, height, src_fps, out_fps, float(start), end, duration)
