@@ -222,13 +222,14 @@ def skinned_params(
     return means, quats, scales, opacity, rgb
 
 
-def fast_skinning(fmap: torch.Tensor, vertices: torch.Tensor) -> bool:
+def fast_skinning(*tensors: torch.Tensor) -> bool:
     """Whether `skinned_params_on_body` takes the numba path (body/skinning.py
-    `skin_gaussians_on_body_fast`): float32 CPU tensors and no gradient asked for (the torch
-    path keeps the gradients of training and refinement): `uv.fast_surface` of both."""
+    `skin_gaussians_on_body_fast`) for these maps and vertices: float32 CPU tensors and no
+    gradient asked for (the torch path keeps the gradients of training and refinement):
+    `uv.fast_surface` of them all."""
     from dlacli.body.uv import fast_surface
 
-    return fast_surface(fmap, vertices)
+    return fast_surface(*tensors)
 
 
 def skinned_params_on_body(

@@ -148,22 +148,27 @@ class PosedAvatar:
         pose = self._poses[p]
         rays = dec.rays(self.vertices[p], self.eyes[p, c], pose) if self.eyes is not None else None
         delta = dec.delta(pose, rays)
-        fmap = dec.f_c if delta is None else dec.f_c + delta
-        means, quats, scales, opacities, rgb = self._appearance_only(fmap, p) or self._skin(fmap, p)
+        placed = self._appearance_only(delta, p)
+        if placed is None:
+            placed = self._skin(dec.f_c if delta is None else dec.f_c + delta, p)
+        means, quats, scales, opacities, rgb = placed
         return Placed(means, quats, scales, opacities[None], rgb[None], None if delta is None else delta[None])
 
-    def _appearance_only(self, fmap: torch.Tensor, p: int) -> tuple[torch.Tensor, ...] | None:
-        """`_skin(fmap, p)` for fmap = F_c + F_delta when F_delta changes only opacity and colour
-        (the decoder's `delta_geometry` is off) and no gradient is asked for: the geometry is
-        F_c's, skinned once per body, and only the appearance is looked up per camera (the same
-        numbers, bit for bit). None where this does not apply."""
+    def _appearance_only(self, delta: torch.Tensor | None, p: int) -> tuple[torch.Tensor, ...] | None:
+        """`_skin(F_c + delta, p)` when F_delta changes only opacity and colour (the decoder's
+        `delta_geometry` is off) and no gradient is asked for: the geometry is F_c's, skinned once
+        per body, and only the appearance channels of F are added and looked up per camera (the
+        same numbers, bit for bit). None where this does not apply."""
         dec = self.decoded
-        if dec.decoder.delta_geometry or not gm.fast_skinning(fmap, self.vertices):
+        maps = (dec.f_c,) if delta is None else (dec.f_c, delta)
+        if dec.decoder.delta_geometry or not gm.fast_skinning(*maps, self.vertices):
             return None
         if dec.sampled_canonical(self.samples) is None:
             return None
         if p not in self._geometry:
             self._geometry[p] = self._skin(dec.f_c, p)[:3]
+        shown = slice(0, gm.RGB.stop)  # opacity and colour
+        fmap = dec.f_c[shown] if delta is None else dec.f_c[shown] + delta[shown]
         return (*self._geometry[p], *gm.sampled_appearance(fmap, self.samples))
 
     def all(self, c: int = 0) -> Placed:

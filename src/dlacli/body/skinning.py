@@ -81,7 +81,7 @@ def skin_gaussians_on_body_fast(
     from dlacli.body import skin_kernels as sk
     from dlacli.body.uv import FRAME_RESOLUTION, face_uv_terms
 
-    faces, uv_d, inv_det, abs_inv_det = face_uv_terms()
+    faces = face_uv_terms()[0]
     verts = np.ascontiguousarray(vertices.detach().cpu().numpy(), np.float32)
     p, n = verts.shape[0], len(face_id)
     fid = np.ascontiguousarray(face_id, np.int64)
@@ -93,12 +93,11 @@ def skin_gaussians_on_body_fast(
 
     dx, dq, dsc = per_body(dxyz, 3), per_body(dquat, 4), per_body(ds, 3)
     means, quats, scales = (np.empty((p, n, k), np.float32) for k in (3, 4, 3))
-    vn = np.empty((verts.shape[1], 3), np.float64)
-    dpdu = np.empty((faces.shape[0], 3), np.float64)
-    scale = np.empty(faces.shape[0], np.float64)
     res = float(FRAME_RESOLUTION if resolution is None else resolution)
     for b in range(p):
-        sk.face_frames(verts[b], faces, uv_d, inv_det, abs_inv_det, res, vn, dpdu, scale)
+        vn, dpdu, scale = sk.body_face_frames(verts[b])
         m = b if dx.shape[0] > 1 else 0
-        sk.skin_samples(verts[b], faces, vn, dpdu, scale, fid, bar, dx[m], dq[m], dsc[m], means[b], quats[b], scales[b])
+        sk.skin_samples(
+            verts[b], faces, vn, dpdu, scale / res, fid, bar, dx[m], dq[m], dsc[m], means[b], quats[b], scales[b]
+        )
     return torch.from_numpy(means), torch.from_numpy(quats), torch.from_numpy(scales)

@@ -149,14 +149,12 @@ def _surface_maps_fast(v: torch.Tensor, resolution: int) -> tuple[torch.Tensor, 
     float64 inside, float32 out)."""
     from dlacli.body import skin_kernels as sk
 
-    faces, uv_d, inv_det, abs_inv_det = face_uv_terms()
+    faces = face_uv_terms()[0]
     fid, bar, dest = _texel_kernel_args(resolution)
     verts = np.ascontiguousarray(v.detach().numpy(), np.float32)
     pos, nrm = (np.zeros((verts.shape[0], resolution * resolution, 3), np.float32) for _ in range(2))
-    vn = np.empty((verts.shape[1], 3), np.float64)
-    dpdu, scale = np.empty((faces.shape[0], 3), np.float64), np.empty(faces.shape[0], np.float64)
     for t in range(verts.shape[0]):
-        sk.face_frames(verts[t], faces, uv_d, inv_det, abs_inv_det, 1.0, vn, dpdu, scale)
+        vn = sk.body_face_frames(verts[t])[0]
         sk.surface_points_normals(verts[t], faces, vn, fid, bar, dest, pos[t], nrm[t])
     shape = (verts.shape[0], resolution, resolution, 3)
     return torch.from_numpy(pos.reshape(shape)), torch.from_numpy(nrm.reshape(shape))
