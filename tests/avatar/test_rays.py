@@ -34,3 +34,34 @@ def test_kernel_rays_match_torch(resolution):
     d, m = fast[:3, 1:, 1:], fast[3:, 1:, 1:]
     assert ((d.norm(dim=0) - 1).abs() <= 4 * EPS).all()
     assert ((d * m).sum(dim=0).abs() <= 16 * EPS * scale[3]).all()
+
+
+def test_view_cosine_kernel_matches_torch():
+    """The view-cosine decoder's colour F_delta by the numba kernel (no gradient, float32 CPU)
+    against codec.py's torch formula: within float32 rounding of rgb (1 + |k|) (torch's sqrt is
+    not correctly rounded, so the two can differ in the last bit); texels with a zero normal (off
+    the body) and a zero ray (at the camera) included; with a gradient asked for, the torch path,
+    differentiable in z."""
+    from dlacli.avatar.codec import PoseConditioning, ViewCosineDecoder, shading, view_cosine
+
+    g = torch.Generator().manual_seed(4)
+    r = 48
+    z = torch.rand((15, r, r), generator=g)
+    z[14] = torch.rand((r, r), generator=g) * 1.6 - 0.4  # falloffs k, some < 0, some > 1
+    normals = torch.randn((3, r, r), generator=g)
+    normals = normals / normals.norm(dim=0, keepdim=True)
+    normals[:, :4] = 0.0  # texels off the body (rows 0-3)
+    rays = torch.randn((6, r, r), generator=g)
+    rays[:3] = rays[:3] / rays[:3].norm(dim=0, keepdim=True)
+    rays[:, 5, 5] = 0.0  # a texel at the camera centre
+    decoder, pose = ViewCosineDecoder(), PoseConditioning(normals=normals)
+    fast = decoder.delta(z, pose, rays)
+    want = z[1:4] * (shading(z[14], view_cosine(normals, rays)) - 1.0)
+    assert fast.shape == (14, r, r) and fast.dtype == torch.float32
+    assert torch.equal(fast[:1], torch.zeros(1, r, r)) and torch.equal(fast[4:], torch.zeros(10, r, r))
+    assert ((fast[1:4] - want).abs() <= 16 * EPS * (1 + z[14].abs()) * z[1:4]).all()
+    assert torch.equal(fast[1:4, :4], want[:, :4])  # off the body (rows 0-3): cos 0, the same bits
+    zg = z.clone().requires_grad_(True)
+    slow = decoder.delta(zg, pose, rays)
+    slow.sum().backward()
+    assert torch.equal(slow.detach()[1:4], want) and zg.grad[14].abs().sum() > 0

@@ -157,12 +157,19 @@ class ViewCosineDecoder(IdentityDecoder):
 
     def delta(self, z: torch.Tensor, pose: PoseConditioning | None, rays: torch.Tensor | None) -> torch.Tensor | None:
         from dlacli.avatar.gaussian_map import CHANNELS, RGB
+        from dlacli.body.uv import fast_surface
 
         if pose is None or rays is None:
             return None
-        cos = view_cosine(pose.normals.to(z), rays.to(z))  # [R, R]
+        normals, rays = pose.normals.to(z), rays.to(z)
         out = torch.zeros((CHANNELS, *z.shape[1:]), dtype=z.dtype, device=z.device)
-        out[RGB] = z[RGB] * (shading(z[self.FALLOFF], cos) - 1.0)
+        if fast_surface(z, normals, rays):  # numba, the same float32 steps
+            from dlacli.avatar.ray_kernels import view_cosine_rgb
+
+            arrays = (z[RGB], z[self.FALLOFF], normals, rays)
+            view_cosine_rgb(*(a.contiguous().numpy() for a in arrays), out[RGB].numpy())
+            return out
+        out[RGB] = z[RGB] * (shading(z[self.FALLOFF], view_cosine(normals, rays)) - 1.0)
         return out
 
 
