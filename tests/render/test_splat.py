@@ -430,28 +430,41 @@ def test_cpu_matches_gsplat_on_cuda():
 
 @pytest.mark.parametrize("nthreads", [1, 2, 3])
 def test_tile_lists_match_a_direct_listing(nthreads):
-    """The parallel tile lists (bands of tile rows per thread) against a plain listing: for every
-    tile of every camera, the sorted pairs whose tile rectangle covers it, in sorted order."""
+    """The parallel tile lists (bands of tile rows per thread, each list sorted by depth) against a
+    plain listing: for every tile of every camera, the pairs whose tile rectangle covers it, by
+    depth key, ties in pair order (numpy's stable argsort); lists short and long (insertion and
+    radix sort), depths with many ties and depths that share their top bits or not."""
     from dlacli.render.splat_binning import TILE, _tile_lists
 
     rng = np.random.default_rng(3)
-    ncam, n, width, height = 3, 200, 70, 45  # 5 x 3 tiles per camera, the last ones partial
+    ncam, n, width, height = 3, 400, 70, 45  # 5 x 3 tiles per camera, the last ones partial
     tw, th = -(-width // TILE), -(-height // TILE)
     trect = np.zeros((ncam * n, 4), dtype=np.int32)
     visible = rng.random(ncam * n) < 0.8
     for i in np.flatnonzero(visible):
         x0, y0 = rng.integers(0, tw), rng.integers(0, th)
         trect[i] = (x0, rng.integers(x0, tw + 1), y0, rng.integers(y0, th + 1))  # some empty
-    src = np.concatenate([c * n + rng.permutation(np.flatnonzero(visible[c * n : (c + 1) * n])) for c in range(ncam)])
-    offsets, lists = _tile_lists(src, trect, n, ncam, width, height, nthreads)
+    depths = np.concatenate(
+        [
+            rng.choice(np.float32([0.5, 2.0, 2.0001, 3.0]), n),  # ties
+            rng.uniform(2.0, 2.5, n).astype(np.float32),  # one exponent: the top digits alike
+            rng.uniform(0.01, 500.0, n).astype(np.float32),
+        ]
+    ).reshape(ncam, n)
+    keys = depths.view(np.uint32)
+    offsets, lists = _tile_lists(keys, trect, width, height, nthreads)
+    order = np.concatenate([c * n + np.argsort(depths[c], kind="stable") for c in range(ncam)])
+    sizes = []
     for c in range(ncam):
         for ty in range(th):
             for tx in range(tw):
                 t = c * tw * th + ty * tw + tx
                 want = [
                     i
-                    for i in src
+                    for i in order
                     if i // n == c and trect[i, 0] <= tx < trect[i, 1] and trect[i, 2] <= ty < trect[i, 3]
                 ]
                 assert lists[offsets[t] : offsets[t + 1]].tolist() == want, (c, tx, ty)
+                sizes.append(len(want))
     assert offsets[-1] == lists.shape[0]
+    assert min(sizes) <= 24 < max(sizes)  # both sorts were used

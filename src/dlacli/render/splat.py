@@ -338,7 +338,7 @@ def _raster_cpu(means2d, conics, colors, opacities, radii, depths, width, height
     rd = arr(radii, np.int64)
     dk = arr(depths, np.float32)
     dk = np.where(rd > 0, dk, np.float32(1.0)).astype(np.float32).view(np.uint32)
-    params, _, offsets, lists, trect = B.bin_gaussians(
+    params, offsets, lists, trect = B.bin_gaussians(
         arr(means2d, npd), arr(conics, npd), arr(opacities, npd), arr(colors, npd), rd, dk, width, height
     )
     acc, tfin, saved = _composite(params, offsets, lists, means2d.shape[0], width, height)
@@ -385,7 +385,7 @@ def _render_plain_cpu(g: Gaussians, viewmats, Ks, width, height, bg, degree) -> 
         radii,
         keys,
     )
-    _, offsets, lists = B.sort_and_list(radii, keys.view(np.uint32), trect, width, height)
+    offsets, lists = B.tile_lists(keys.view(np.uint32), trect, width, height)
     acc, tfin, _ = _composite(params, offsets, lists, ncam, width, height)
     out = RenderOutput(*(torch.empty(s, dtype=dtype) for s in ((ncam, height, width, 3), *[(ncam, height, width)] * 2)))
     K.compose(acc, tfin, bg.detach().contiguous().numpy(), *(t.numpy() for t in out))

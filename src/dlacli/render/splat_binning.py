@@ -1,8 +1,8 @@
 """Tile binning of the CPU Gaussian rasteriser (the layout and conventions in splat_kernels.py's
 docstring): per (camera, Gaussian) packed rows, pixel boxes and tile rectangles (`_prepare`), the
-visible pairs in (camera, depth) order (`_depth_order`, a stable radix sort), the per-tile lists
-(`_tile_lists`), the backward pass's per-(pair, tile) gradient rows (`isect_rows`) and the split
-of tiles over threads (`assign_workers`). Every output is the same for any thread count.
+per-tile lists, each sorted front to back by depth (`_tile_lists`, a stable radix sort per list),
+the backward pass's per-(pair, tile) gradient rows (`isect_rows`) and the split of tiles over
+threads (`assign_workers`). Every output is the same for any thread count.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit, prange
 
 from dlacli.render import camera_kernels
-from dlacli.render.radix_sort import radix_argsort_u32
+from dlacli.render.radix_sort import sort_segment
 
 TILE = 16
 # Extra room on the sigma cut-off used for the pixel bounding boxes, far above float32 rounding
@@ -124,7 +124,7 @@ def project_and_pack(
     route's, without its [C, N] intermediates. opacities [N], rgb [C, N, 3] (colour per camera;
     depth is the fourth channel) -> params [C * N, 16], trect [C * N, 4], radii [C, N] int32,
     keys [C, N] float32 (the depth rounded to params' dtype, then float32; 1 where culled: the
-    sort keys of `_depth_order`, as bits)."""
+    sort keys of `_tile_lists`, as bits)."""
     ncam, n = rot.shape[0], means.shape[0]
     ft = params.dtype.type
     for g in prange(n):
@@ -165,62 +165,32 @@ def project_and_pack(
             )
 
 
-@njit(cache=True, nogil=True)
-def _depth_order(radii, depth_keys):
-    """Flat indices c * N + g of the visible pairs, sorted by camera then depth (stable)."""
-    ncam, n = radii.shape[0], radii.shape[1]
-    nvis = 0
-    for c in range(ncam):
-        for g in range(n):
-            if radii[c, g] > 0:
-                nvis += 1
-    out = np.empty(nvis, dtype=np.int64)
-    s = 0
-    vis = np.empty(n, dtype=np.int64)
-    for c in range(ncam):
-        m = 0
-        for g in range(n):
-            if radii[c, g] > 0:
-                vis[m] = g
-                m += 1
-        keys = np.empty(m, dtype=np.uint32)
-        for i in range(m):
-            keys[i] = depth_keys[c, vis[i]]
-        order = radix_argsort_u32(keys)
-        for i in range(m):
-            out[s] = c * n + vis[order[i]]
-            s += 1
-    return out
-
-
 @njit(parallel=True, cache=True)
-def _tile_lists(src, trect, n, ncam, width, height, nthreads):
-    """Per-tile lists of the sorted pairs `src` (each tile's list front to back) in three parallel
-    passes: the tile rectangles gathered in depth order, per-thread tile counts (summed), then
-    each thread fills the lists of its own band of tile rows (camera-major rows c * TH + ty, split
-    so the bands hold about equal numbers of entries), walking all pairs in depth order. Every
-    list slot has one writer and its value does not depend on the split: the same lists for any
-    thread count."""
+def _tile_lists(depth_keys, trect, width, height, nthreads):
+    """Per-tile lists of the (camera, Gaussian) pairs, each front to back (depth_keys [C, N]
+    uint32 ascending, ties in pair order c * N + g: the order of a stable sort by depth), in three
+    parallel passes: per-thread tile counts over slices of the pairs (summed), then each thread
+    fills the lists of its own band of tile rows (camera-major rows c * TH + ty, split so the
+    bands hold about equal numbers of entries), walking all pairs in index order, and sorts those
+    lists by depth (`radix_sort.sort_segment`). Culled pairs have empty tile rectangles and are
+    in no list. Every list slot has one writer and its value does not depend on the split: the
+    same lists for any thread count."""
+    ncam, n = depth_keys.shape
     tw = (width + TILE - 1) // TILE
     th = (height + TILE - 1) // TILE
     ntiles = tw * th
     nrows = ncam * th
-    m = src.shape[0]
+    m = ncam * n
     nparts = max(1, min(nthreads, nrows))
-    rect = np.empty((m, 4), dtype=np.int32)  # tx0, tx1, camera-major row y0, y1 (ends exclusive)
-    cam_end = np.searchsorted(src, np.arange(1, ncam + 1) * n)  # src is sorted by camera
-    for c in range(ncam):
-        r0 = c * th
-        for s in prange(0 if c == 0 else cam_end[c - 1], cam_end[c]):
-            i = src[s]
-            rect[s, 0] = trect[i, 0]
-            rect[s, 1] = trect[i, 1]
-            rect[s, 2] = r0 + trect[i, 2]
-            rect[s, 3] = r0 + trect[i, 3]
     chunk = (m + nparts - 1) // nparts
-    part_counts = np.zeros((nparts, nrows * tw), dtype=np.int64)
+    part_counts = np.zeros((nparts, ncam * ntiles), dtype=np.int64)
     for k in prange(nparts):
-        _count_tiles(rect, k * chunk, min(m, (k + 1) * chunk), tw, part_counts[k])
+        cnt = part_counts[k]
+        for i in range(k * chunk, min(m, (k + 1) * chunk)):
+            base = (i // n) * ntiles
+            for ty in range(trect[i, 2], trect[i, 3]):
+                for tx in range(trect[i, 0], trect[i, 1]):
+                    cnt[base + ty * tw + tx] += 1
     counts = np.zeros(ncam * ntiles + 1, dtype=np.int64)
     for k in range(nparts):
         for t in range(ncam * ntiles):
@@ -239,31 +209,29 @@ def _tile_lists(src, trect, n, ncam, width, height, nthreads):
         bands[k] = max(r, bands[k - 1])
     bands[nparts] = nrows
     fill = counts[:-1].copy()
+    keys = depth_keys.reshape(-1)
     for k in prange(nparts):
-        _fill_band(src, rect, bands[k], bands[k + 1], tw, fill, lists)
+        _fill_band(trect, n, th, tw, bands[k], bands[k + 1], fill, lists)
+        longest = 0
+        for t in range(bands[k] * tw, bands[k + 1] * tw):
+            longest = max(longest, counts[t + 1] - counts[t])
+        kb, kb2 = np.empty(longest, np.uint32), np.empty(longest, np.uint32)
+        ib, ib2 = np.empty(longest, np.int64), np.empty(longest, np.int64)
+        cnt = np.empty(256, np.int64)
+        for t in range(bands[k] * tw, bands[k + 1] * tw):
+            sort_segment(lists, counts[t], counts[t + 1], keys, kb, kb2, ib, ib2, cnt)
     return counts, lists
 
 
 @njit(cache=True, nogil=True)
-def _count_tiles(rect, s0, s1, tw, cnt):
-    """cnt[row * tw + tx] += 1 for every tile of the rectangles rect[s0:s1] (`_tile_lists`)."""
-    for s in range(s0, s1):
-        for r in range(rect[s, 2], rect[s, 3]):
-            for tx in range(rect[s, 0], rect[s, 1]):
-                cnt[r * tw + tx] += 1
-
-
-@njit(cache=True, nogil=True)
-def _fill_band(src, rect, b0, b1, tw, fill, lists):
-    """Append every pair, in depth order, to the lists of its tiles in rows b0 .. b1 - 1."""
-    for s in range(src.shape[0]):
-        r0 = max(rect[s, 2], b0)
-        r1 = min(rect[s, 3], b1)
-        if r0 >= r1:
-            continue
-        i = src[s]
-        for r in range(r0, r1):
-            for tx in range(rect[s, 0], rect[s, 1]):
+def _fill_band(trect, n, th, tw, b0, b1, fill, lists):
+    """Append every pair, in index order, to the lists of its tiles in camera-major rows b0 .. b1 - 1."""
+    for i in range(trect.shape[0]):
+        r0 = (i // n) * th
+        lo = max(r0 + trect[i, 2], b0)
+        hi = min(r0 + trect[i, 3], b1)
+        for r in range(lo, hi):
+            for tx in range(trect[i, 0], trect[i, 1]):
                 t = r * tw + tx
                 lists[fill[t]] = i
                 fill[t] += 1
@@ -282,29 +250,26 @@ def isect_rows(trect):
 
 
 def bin_gaussians(means2d, conics, opacities, colors, radii, depth_keys, width, height):
-    """Sort visible Gaussians by (camera, depth) and build per-tile lists.
+    """Pack the (camera, Gaussian) pairs and list them per tile, front to back.
 
     means2d [C, N, 2], conics [C, N, 3], opacities [C, N], colors [C, N, 4], radii [C, N] int,
     depth_keys [C, N] uint32 (float32 bits of positive depths, same order as the depths).
-    Returns params [C * N, 16], src [S], tile_offsets [C*TH*TW + 1], lists [n_isects] (rows
-    c * N + g) and the tile rectangles trect [C * N, 4] int32 (tx0, tx1, ty0, ty1; ends exclusive),
-    all rows in input order (module docstring).
+    Returns params [C * N, 16], tile_offsets [C*TH*TW + 1], lists [n_isects] (rows c * N + g)
+    and the tile rectangles trect [C * N, 4] int32 (tx0, tx1, ty0, ty1; ends exclusive), all
+    rows in input order (module docstring).
     """
     ncam, n = radii.shape
     params = np.empty((ncam * n, NPARAM), dtype=means2d.dtype)
     trect = np.empty((ncam * n, 4), dtype=np.int32)
     _prepare(means2d, conics, opacities, colors, radii, width, height, params, trect)
-    src, offsets, lists = sort_and_list(radii, depth_keys, trect, width, height)
-    return params, src, offsets, lists, trect
+    offsets, lists = tile_lists(depth_keys, trect, width, height)
+    return params, offsets, lists, trect
 
 
-def sort_and_list(radii, depth_keys, trect, width, height):
-    """The visible pairs in (camera, depth) order and the per-tile lists (`bin_gaussians`'s
-    src, tile_offsets and lists) from radii [C, N], depth_keys [C, N] uint32 and trect."""
-    ncam, n = radii.shape
-    src = _depth_order(radii, depth_keys)
-    offsets, lists = _tile_lists(src, trect, n, ncam, width, height, numba.get_num_threads())
-    return src, offsets, lists
+def tile_lists(depth_keys, trect, width, height):
+    """The per-tile lists (`bin_gaussians`'s tile_offsets and lists) from depth_keys [C, N]
+    uint32 and the tile rectangles trect [C * N, 4] (culled pairs: empty)."""
+    return _tile_lists(np.ascontiguousarray(depth_keys), trect, width, height, numba.get_num_threads())
 
 
 @njit(cache=True, nogil=True)

@@ -9,16 +9,16 @@ alpha < 1/255; a pixel stops *before* the Gaussian whose next transmittance T (1
 broken by index (a stable sort), exactly the order of gsplat's (tile, depth) radix sort.
 
 Layout used between the kernels (pairs = (camera, Gaussian), row c * N + g, in input order: the
-rows are never moved; S = the visible pairs, radii > 0, sorted by camera then depth in `src`):
+rows are never moved):
 - params [C * N, 16] (one 64-byte row in float32; rows of culled pairs are left unset): mean x,
   mean y, conic a, b, c, opacity, sigma cut-off log(255 opacity) + margin, pixel box x0, x1, y0,
   y1 (inclusive, stored as floats)
   outside of which alpha < 1/255 for certain (an optimisation only: it never changes which
   Gaussians count), unused, colour[4] (rgb + depth)
-- src [S] int64: flat index c * N + g of each sorted pair
 - tile_offsets [C * TH * TW + 1] int64, lists [n_isects] int64 (pair rows c * N + g): the
-  per-tile lists, front to back; trect [C * N, 4] int32: each pair's tile rectangle (tx0, tx1,
-  ty0, ty1, ends exclusive; empty for culled pairs), the tiles whose lists hold it.
+  per-tile lists, front to back (by depth, ties by pair row); trect [C * N, 4] int32: each
+  pair's tile rectangle (tx0, tx1, ty0, ty1, ends exclusive; empty for culled pairs), the tiles
+  whose lists hold it.
 - backward: one gradient row per (pair, tile), pair s owning rows sptr[s] .. sptr[s + 1] - 1
   (`isect_rows`), so that every row has one writer and each pair's rows are summed in a fixed
   order: the gradients do not depend on the number of threads (docs/rendering.md "Determinism").
