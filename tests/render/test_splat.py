@@ -125,6 +125,10 @@ def test_no_grad_render_equals_autograd_render(dtype):
     assert (tracked.alpha == 0).any() and tracked.alpha.max() > 0.5
     for name, a, b in zip(("rgb", "alpha", "depth"), plain, tracked):
         assert a.dtype == dtype and torch.equal(a, b.detach()), name
+    for k in range(2):  # the RGBA image a preview or a render writes
+        rgba = tracked.rgba(k)
+        assert rgba.shape == (29, 41, 4) and rgba.dtype == (np.float64 if dtype == torch.float64 else np.float32)
+        assert np.array_equal(rgba, torch.cat([plain.rgb[k], plain.alpha[k][..., None]], dim=-1).numpy())
 
 
 def test_pairs_render_matches_reference():

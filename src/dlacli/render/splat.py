@@ -58,6 +58,15 @@ class RenderOutput(NamedTuple):
     alpha: torch.Tensor  # [C, H, W] 1 - final transmittance
     depth: torch.Tensor  # [C, H, W] expected z-depth sum(w_i z_i) / alpha, 0 where alpha == 0
 
+    def rgba(self, k: int = 0) -> np.ndarray:
+        """Camera k's image as a numpy RGBA [H, W, 4] (a copy; torch.cat along the last axis took
+        ~1 ms for 512^2)."""
+        rgb = self.rgb[k].detach().cpu().numpy()
+        out = np.empty((*rgb.shape[:2], 4), dtype=rgb.dtype)
+        out[..., :3] = rgb
+        out[..., 3] = self.alpha[k].detach().cpu().numpy()
+        return out
+
 
 class Projected(NamedTuple):
     means2d: torch.Tensor  # [C, N, 2] pixels

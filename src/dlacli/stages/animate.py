@@ -151,7 +151,7 @@ def animation_preview_frames(anim: Animation, size: int = 512) -> Iterator[np.nd
     for t in range(anim.num_frames):
         with torch.no_grad():
             out = render_gaussians(anim.frame(t), cams.select(t))
-        yield torch.cat([out.rgb[0], out.alpha[0][..., None]], dim=-1).numpy()
+        yield out.rgba(0)
 
 
 def write_animation(

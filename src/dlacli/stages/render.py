@@ -80,7 +80,7 @@ def render_avatar(
         posed = PosedAvatar(decoded, samples, verts, camera_centers(sub.viewmats)[None])
         for group, out in render_posed(posed, sub):
             for k, c in enumerate(cams[group]):
-                rgba = torch.cat([out.rgb[k], out.alpha[k][..., None]], dim=-1).numpy()
+                rgba = out.rgba(k)
                 yield Shot(int(frame), int(c), rgba)
                 done += 1
                 if progress is not None:
