@@ -1,4 +1,5 @@
-"""The rasteriser's depth order (render/radix_sort.py) against numpy's stable argsort."""
+"""The rasteriser's depth sort (render/radix_sort.py: insertion for short lists, radix passes for long
+ones) against numpy's stable argsort."""
 
 from __future__ import annotations
 
@@ -17,6 +18,9 @@ def _cases():
         "all equal": np.full(300, 12345, np.uint32),
         "full range": rng.integers(0, 2**32, 20000, dtype=np.uint64).astype(np.uint32),
         "extremes": np.array([2**32 - 1, 0, 2**32 - 1, 1, 0, 2**31], np.uint32),
+        # the longest list sorted by insertion, and the shortest by radix passes
+        "24 with ties": rng.integers(0, 6, 24).astype(np.uint32),
+        "25 with ties": rng.integers(0, 6, 25).astype(np.uint32) << 9,
         "many ties": rng.integers(0, 40, 20000).astype(np.uint32),
         # the rasteriser's keys: bits of positive float32 depths, with repeats
         "depth bits": np.concatenate([depths, depths[::7]]).view(np.uint32),
@@ -33,8 +37,8 @@ def test_radix_argsort_is_numpy_stable_argsort(name):
 
 
 def test_float_bits_sort_as_the_depths():
-    """The bits of positive float32 values sort in the order of the values (what `_depth_order`
-    relies on), ties kept in input order."""
+    """The bits of positive float32 values sort in the order of the values (what the tile lists'
+    depth sort relies on), ties kept in input order."""
     rng = np.random.default_rng(5)
     z = rng.choice(np.float32([0.01, 0.5, 1.0, 1.5, 3.0, 1e3]), 2000)
     assert np.array_equal(radix_argsort_u32(z.view(np.uint32)), np.argsort(z, kind="stable"))
