@@ -37,11 +37,12 @@ def test_kernel_rays_match_torch(resolution):
 
 
 def test_view_cosine_kernel_matches_torch():
-    """The view-cosine decoder's colour F_delta by the numba kernel (no gradient, float32 CPU)
-    against codec.py's torch formula: within float32 rounding of rgb (1 + |k|) (torch's sqrt is
-    not correctly rounded, so the two can differ in the last bit); texels with a zero normal (off
-    the body) and a zero ray (at the camera) included; with a gradient asked for, the torch path,
-    differentiable in z."""
+    """The view-cosine decoder's colour F_delta and its cosine by the numba kernels (no gradient,
+    float32 CPU) against the formula in float64: within float32 rounding of rgb (1 + |k|) (torch's
+    own float32 sqrt is not correctly rounded either); texels with a zero normal (off the body) and
+    a zero ray (at the camera) included. The fused kernel equals `view_cosine` then codec.py's
+    torch shading bit for bit (what a decoder with a gain of exactly 1 computes), and with a
+    gradient asked for the decoder is the torch formula, differentiable in z."""
     from dlacli.avatar.codec import PoseConditioning, ViewCosineDecoder, shading, view_cosine
 
     g = torch.Generator().manual_seed(4)
@@ -54,14 +55,19 @@ def test_view_cosine_kernel_matches_torch():
     rays = torch.randn((6, r, r), generator=g)
     rays[:3] = rays[:3] / rays[:3].norm(dim=0, keepdim=True)
     rays[:, 5, 5] = 0.0  # a texel at the camera centre
+    d = rays[:3].double()
+    cos64 = (-(normals.double() * d / d.norm(dim=0).clamp_min(1e-12)).sum(0)).clamp(0.0, 1.0)
+    want = z[1:4].double() * (shading(z[14].double(), cos64) - 1.0)
     decoder, pose = ViewCosineDecoder(), PoseConditioning(normals=normals)
+    cos = view_cosine(normals, rays)
+    assert cos.dtype == torch.float32 and ((cos.double() - cos64).abs() <= 4 * EPS).all()
     fast = decoder.delta(z, pose, rays)
-    want = z[1:4] * (shading(z[14], view_cosine(normals, rays)) - 1.0)
     assert fast.shape == (14, r, r) and fast.dtype == torch.float32
     assert torch.equal(fast[:1], torch.zeros(1, r, r)) and torch.equal(fast[4:], torch.zeros(10, r, r))
-    assert ((fast[1:4] - want).abs() <= 16 * EPS * (1 + z[14].abs()) * z[1:4]).all()
-    assert torch.equal(fast[1:4, :4], want[:, :4])  # off the body (rows 0-3): cos 0, the same bits
+    assert ((fast[1:4].double() - want).abs() <= 16 * EPS * (1 + z[14].abs()) * z[1:4]).all()
+    assert torch.equal(fast[1:4], z[1:4] * (shading(z[14], cos) * torch.ones(3, r, r) - 1.0))
     zg = z.clone().requires_grad_(True)
     slow = decoder.delta(zg, pose, rays)
     slow.sum().backward()
-    assert torch.equal(slow.detach()[1:4], want) and zg.grad[14].abs().sum() > 0
+    assert ((slow.detach()[1:4].double() - want).abs() <= 16 * EPS * (1 + z[14].abs()) * z[1:4]).all()
+    assert zg.grad[14].abs().sum() > 0

@@ -200,9 +200,19 @@ def shading(falloff, cosine):
 
 def view_cosine(normals: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:
     """cos of the angle between unit normals [3, ...] and the direction back along rays [6, ...]
-    (Plücker, unit direction first) toward the camera, clamped to [0, 1] -> [...]."""
+    (Plücker, unit direction first) toward the camera, clamped to [0, 1] -> [...]. UV maps
+    ([3, R, R], [6, R, R]) without a gradient on the CPU in float32: a numba kernel with the same
+    float32 steps (`ray_kernels.view_cosine_map`; to float32 rounding, as torch's sqrt is not
+    correctly rounded), the one every decoder's no-gradient F_delta reads."""
+    from dlacli.body.uv import fast_surface
     from dlacli.geometry import vector_norm
 
+    if normals.ndim == 3 and rays.ndim == 3 and fast_surface(normals, rays):
+        from dlacli.avatar.ray_kernels import view_cosine_map
+
+        out = torch.empty(normals.shape[1:], dtype=normals.dtype)
+        view_cosine_map(normals.contiguous().numpy(), rays.contiguous().numpy(), out.numpy())
+        return out
     d = rays[:3] / vector_norm(rays[:3], dim=0).clamp_min(1e-12)
     return (-(normals * d).sum(dim=0)).clamp(0.0, 1.0)
 
