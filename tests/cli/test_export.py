@@ -202,7 +202,7 @@ def test_motion_frame_and_sequence(avatar, avatar_path, tmp_path, capsys):
 
 def test_rotate_sh_keeps_the_colour_seen_along_rotated_directions():
     from dlacli.geometry import axis_angle_to_matrix
-    from dlacli.render.splat import sh_basis
+    from dlacli.render.sh import sh_basis
     from dlacli.stages.export import R_3DGS, rotate_sh
 
     rng = np.random.default_rng(1)

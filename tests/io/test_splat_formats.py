@@ -207,7 +207,7 @@ def test_spz_sh_sign_table_is_the_rub_flip():
     """Each SH basis function of the 3DGS order times its table sign equals the function at the
     flipped direction (x, -y, -z) (the splatter's `sh_basis` is the oracle)."""
     from dlacli.io.spz import _SH_FLIP
-    from dlacli.render.splat import sh_basis
+    from dlacli.render.sh import sh_basis
 
     d = torch.nn.functional.normalize(torch.randn(50, 3, dtype=torch.float64), dim=-1)
     flipped = sh_basis(3, d * torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64))

@@ -5,8 +5,20 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from numba import njit
 
-from dlacli.render.radix_sort import radix_argsort_u32
+from dlacli.render.radix_sort import sort_segment
+
+
+@njit
+def radix_argsort_u32(keys):
+    """keys [M] uint32 -> the int64 indices that sort them: `sort_segment` of 0 .. M - 1."""
+    m = keys.shape[0]
+    order = np.arange(m)
+    kb, kb2 = np.empty(m, np.uint32), np.empty(m, np.uint32)
+    ib, ib2 = np.empty(m, np.int64), np.empty(m, np.int64)
+    sort_segment(order, 0, m, keys, kb, kb2, ib, ib2, np.empty(256, np.int64))
+    return order
 
 
 def _cases():

@@ -13,11 +13,11 @@ import pytest
 import torch
 
 from dlacli.errors import DlaInputError
+from dlacli.render.sh import sh_basis
 from dlacli.render.splat import (
     project_gaussians,
     rasterize_projected,
     render_gaussians,
-    sh_basis,
 )
 from dlacli.render.splat_reference import pairs_render, reference_render
 from dlacli.types import Cameras, Gaussians

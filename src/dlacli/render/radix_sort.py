@@ -1,10 +1,9 @@
-"""Stable sorts of uint32 keys in numba: each tile list of the CPU rasteriser front to back
+"""A stable sort of uint32 keys in numba: each tile list of the CPU rasteriser front to back
 (`splat_binning._tile_lists` sorts every list by its pairs' float32 depth bits, ties kept in pair
 order: the order gsplat's (tile, depth) radix sort gives)."""
 
 from __future__ import annotations
 
-import numpy as np
 from numba import njit
 
 SMALL = 24  # segments up to this long are sorted by insertion
@@ -62,23 +61,3 @@ def sort_segment(values, o0, o1, keys, kb, kb2, ib, ib2, cnt):
         si, di = di, si
     for j in range(n):
         values[o0 + j] = si[j]
-
-
-@njit(cache=True, nogil=True)
-def radix_argsort_u32(keys):
-    """keys [M] uint32 -> [M] int64 indices that sort them, stable (equal keys keep their order):
-    `sort_segment` of 0 .. M - 1."""
-    m = keys.shape[0]
-    order = np.arange(m)
-    sort_segment(
-        order,
-        0,
-        m,
-        keys,
-        np.empty(m, np.uint32),
-        np.empty(m, np.uint32),
-        np.empty(m, np.int64),
-        np.empty(m, np.int64),
-        np.empty(256, np.int64),
-    )
-    return order

@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import torch
 
-from dlacli.render.splat import EPS2D, FAR, NEAR, TILE, RenderOutput, eval_sh_colors
+from dlacli.render.sh import eval_sh_colors
+from dlacli.render.splat import EPS2D, FAR, NEAR, TILE, RenderOutput
 from dlacli.types import Cameras, Gaussians
 
 

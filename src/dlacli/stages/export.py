@@ -72,7 +72,7 @@ def rotate_sh(sh: torch.Tensor, rot: np.ndarray) -> torch.Tensor:
     float64 rounding), then c' = D_l^T c."""
     if sh.shape[-2] == 1:
         return sh
-    from dlacli.render.splat import sh_basis
+    from dlacli.render.sh import sh_basis
     from dlacli.types import sh_degree_for_coeffs
 
     degree = sh_degree_for_coeffs(sh.shape[-2])
