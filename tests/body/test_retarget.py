@@ -293,3 +293,41 @@ def test_units_do_not_matter(third_party_data, motions, rig):
     )
     assert np.degrees(rel.magnitude()).max() < 0.01
     np.testing.assert_allclose(metric.root_translation[:n], cmu.root_translation, atol=1e-4)
+
+
+# MotionBuilder-style CMU names -> Reallusion Character Creator / iClone names
+_CC_NAMES = {
+    "Hips": "CC_Base_Hip",
+    "LowerBack": "CC_Base_Waist",
+    "Spine": "CC_Base_Spine01",
+    "Spine1": "CC_Base_Spine02",
+    "Neck": "CC_Base_NeckTwist01",
+    "Neck1": "CC_Base_NeckTwist02",
+    "Head": "CC_Base_Head",
+    **{
+        f"{side}{mb}": f"CC_Base_{side[0]}_{cc}"
+        for side in ("Left", "Right")
+        for mb, cc in (
+            ("Shoulder", "Clavicle"),
+            ("Arm", "Upperarm"),
+            ("ForeArm", "Forearm"),
+            ("Hand", "Hand"),
+            ("UpLeg", "Thigh"),
+            ("Leg", "Calf"),
+            ("Foot", "Foot"),
+        )
+    },
+}
+
+
+def test_character_creator_names_give_the_same_motion(clips, motions, rig):
+    """An iClone / Character Creator export ("CC_Base_" names) maps onto the same anny bones as
+    the MotionBuilder-style names: the clip renamed retargets to the same motion, bit for bit."""
+    skel = clips["cmu_01_01.bvh"]
+    renamed = type(skel)(**{**vars(skel), "names": [_CC_NAMES.get(n, n) for n in skel.names]})
+    assert match_joints(renamed.names)[0] == "character-creator"
+    assert sum(n.startswith("CC_Base_") for n in renamed.names) == len(_CC_NAMES)
+    got, want = retarget(renamed, rig), motions["cmu_01_01.bvh"]
+    np.testing.assert_array_equal(got.rotations, want.rotations)
+    np.testing.assert_array_equal(got.root_rotation, want.root_rotation)
+    np.testing.assert_array_equal(got.root_translation, want.root_translation)

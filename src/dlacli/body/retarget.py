@@ -2,11 +2,12 @@
 
 Method (docs/motion.md has the derivation):
 1. Joints are matched to anny bones by name (`DIALECTS`: CMU 3dsMax-style and MotionBuilder-style
-   BVH names, CMU ASF bone names, Mixamo, SMPL). Source joints without a counterpart (fingers,
-   toes, hip and collar helpers) are ignored; their rotations still reach the mapped joints below
-   them, because the transfer works on world rotations. Every anny bone of the chosen table is
-   needed (`NEEDED`): a file lacking one is refused unless missing joints are allowed, and then
-   those bones stay at rest (relative to their parents).
+   BVH names, CMU ASF bone names, Mixamo, Character Creator / iClone, SMPL). Source joints without
+   a counterpart (fingers, toes, twist, hip and collar helpers) are ignored; their rotations
+   still reach the mapped joints below them, because the transfer works on world rotations.
+   Every anny bone of the chosen table is needed (`NEEDED`): a file lacking one is refused
+   unless missing joints are allowed, and then those bones stay at rest (relative to their
+   parents).
 2. Forward kinematics gives each source joint's world rotation G_s(t) (a delta from the source's
    rest pose). Axes change with A (Y-up, facing +Z -> anny's Z-up, facing -Y).
 3. Rest-pose correction Q_b: a rotation taking the source's rest bone to anny's zero-pose bone:
@@ -136,6 +137,26 @@ _TABLES: dict[str, dict[str, str]] = {  # source joint name (as written) -> anny
             "Neck": "neck01",
             "Head": "head",
             **_LIMBS_MB,
+        },
+        "L",
+        "R",
+    ),
+    "character-creator": _sided(  # Reallusion Character Creator / iClone ("CC_Base_" bones)
+        {
+            "CC_Base_Hip": "root",
+            "CC_Base_Waist": "spine05",
+            "CC_Base_Spine01": "spine03",
+            "CC_Base_Spine02": "spine01",
+            "CC_Base_NeckTwist01": "neck01",
+            "CC_Base_NeckTwist02": "neck02",
+            "CC_Base_Head": "head",
+            "CC_Base_{s}_Clavicle": "clavicle.{side}",
+            "CC_Base_{s}_Upperarm": "upperarm01.{side}",
+            "CC_Base_{s}_Forearm": "lowerarm01.{side}",
+            "CC_Base_{s}_Hand": "wrist.{side}",
+            "CC_Base_{s}_Thigh": "upperleg01.{side}",
+            "CC_Base_{s}_Calf": "lowerleg01.{side}",
+            "CC_Base_{s}_Foot": "foot.{side}",
         },
         "L",
         "R",
