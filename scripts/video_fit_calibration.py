@@ -44,6 +44,12 @@ CAL = [(m, s) for m in ("idle", "walk", "turnaround", "wave") for s in (0, 1, 2)
 RAND = [("rand1", 1), ("rand2", 2), ("rand3", 0), ("rand4", 1)]
 SHRUG = [("idle_shrug", 3), ("turnaround_shrug", 5)]
 TEST = [("131_01", 0), ("131_02", 0), ("01_01", 0)]
+# CMU subject 006 (basketball dribbling), held out of the lifter's training motions: its validation
+# set (BVH files from $DLA_LIFTER_MOTIONS, 2.5 s from the middle of each clip)
+VAL = [
+    ("cc006_02", 0), ("cc006_06", 1), ("cc006_14", 2), ("cc006_15", 0),
+    ("cc006_03", 1), ("cc006_08", 2), ("cc006_10", 0), ("cc006_12", 1),
+]  # fmt: skip
 
 
 def rand_motion(k):
@@ -121,6 +127,13 @@ def truth_motion(name):
         return Motion(labels, rot, m.root_rotation, m.root_translation, m.fps)
     if name in ("idle", "walk", "turnaround", "wave"):
         return load_motion(name, fps=30)
+    if name.startswith("cc"):
+        from dlacli.types import Motion
+
+        m = load_motion(Path(os.environ["DLA_LIFTER_MOTIONS"]) / f"{name[2:]}.bvh", fps=30)
+        lo = max(0, (m.num_frames - 75) // 2)
+        sl = slice(lo, lo + 75)
+        return Motion(list(m.bone_labels), m.rotations[sl], m.root_rotation[sl], m.root_translation[sl], m.fps)
     f = {"131_01": "131_01.bvh", "131_02": "131_02.bvh", "01_01": "cmu_01_01.bvh"}[name]
     return load_motion(TP / f, fps=30)
 
@@ -206,7 +219,13 @@ def jitter(j):
 
 
 def run_fit(name, seed, steps=None):
+    from dlacli.nn import lifter
+    from dlacli.stages import motion_fit as mf
     from dlacli.stages import motion_video as mv
+
+    mf.LIMB_SOURCE = os.environ.get("LIMB_SOURCE", mf.LIMB_SOURCE)
+    if os.environ.get("LIFTER"):
+        lifter.WEIGHTS = Path(os.environ["LIFTER"])
 
     det, z = load_det(name, seed)
     orig = mv.detect_clip
@@ -233,6 +252,7 @@ def main():
         "cal2": CAL + SHRUG,
         "rand": RAND,
         "cal3": CAL + SHRUG + RAND,
+        "val": VAL,
     }
     which = sets[sys.argv[2]] if len(sys.argv) > 2 else CAL
     if cmd == "prep":

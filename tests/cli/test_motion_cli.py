@@ -174,6 +174,29 @@ def test_from_video_bad_options(tmp_path, monkeypatch, capsys, args, message):
     assert not out.exists()
 
 
+def test_from_video_bad_lifter_weights(tmp_path, monkeypatch, capsys):
+    """--lifter: a missing file, a foreign file, a file that is not a lifter's (another torch
+    save) each give one line naming the file, and nothing is written."""
+    import torch
+
+    from dlacli.io.video import write_video
+
+    clip = tmp_path / "clip.mp4"
+    write_video([np.zeros((32, 32, 3), np.uint8)] * 4, clip, 10)
+    out = tmp_path / "m.npz"
+    from safetensors.torch import save_file
+
+    junk, other = tmp_path / "junk.safetensors", tmp_path / "other.safetensors"
+    junk.write_bytes(b"\x08\x00\x00\x00\x00\x00\x00\x00{}garbage")
+    save_file({"w": torch.zeros(2)}, str(other), metadata={"config": '{"width": 8, "depth": 3}'})
+    cases = [(tmp_path / "none.safetensors", "no such lifter weights file")]
+    cases += [(junk, "not pose-lifter weights"), (other, "not pose-lifter weights")]
+    for path, problem in cases:
+        code, err = _main(monkeypatch, capsys, "motion", "from-video", str(clip), "-o", str(out), "--lifter", str(path))
+        assert code == 2 and err.startswith(f"error: {path}: {problem}") and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
+
+
 def test_from_video_not_a_video_and_no_person(tmp_path, monkeypatch, capsys):
     pytest.importorskip("mediapipe")
     from dlacli.io.video import write_video

@@ -136,10 +136,10 @@ def test_from_video_on_a_synthetic_clip(third_party_data, tmp_path):
     err = _pa_mpjpe(jf, jt)
     rest = Motion([], np.zeros((truth.num_frames, 0, 3)), truth.root_rotation, truth.root_translation, FPS)
     baseline = _pa_mpjpe(_major_joints(rest), jt)
-    # the target is 50 mm; this fit measures ~54 mm on this clip (~21 mm when it is given
-    # the true keypoints and 3D directions: MediaPipe's 3D landmarks are what it lacks), the
-    # filled frames ~52 mm, the rest pose ~140 mm (docs/motion.md, "from a video")
-    assert err[seen].mean() < 0.070, err[seen].mean()
+    # the target is 50 mm; this fit measures 46 mm on this clip (~21 mm when it is given
+    # the true keypoints and 3D directions: the 3D limb directions are what limit it), the filled
+    # frames 45 mm, the rest pose 139 mm, jitter 1.33 x the truth's (docs/motion.md, "from a video")
+    assert err[seen].mean() < 0.050, err[seen].mean()
     assert err[seen].mean() < 0.5 * baseline[seen].mean(), (err[seen].mean(), baseline[seen].mean())
     assert err[~seen].mean() < 0.100, err[~seen].mean()  # interpolated across the blank frames
     assert _jitter(jf) <= 1.5 * _jitter(jt), (_jitter(jf), _jitter(jt))

@@ -80,21 +80,29 @@ def from_video(
     preview: Optional[Path] = options.side_output(
         "--preview", "Also write an mp4 of the fitted body drawn over the clip.", (".mp4",), "video"
     ),
+    lifter: Optional[Path] = typer.Option(
+        None,
+        "--lifter",
+        help="Pose-lifter weights (RUN/lifter.safetensors of `dla train --method lifter`; default: the shipped ones).",
+    ),
 ) -> None:
     """Fit anny's motion to a video of a person (MediaPipe Pose per frame, one temporal fit)."""
     from dlacli.cli.progress import progress_bar
     from dlacli.io.atomic import check_outputs, output_group
     from dlacli.io.motion import write_motion
     from dlacli.io.video import open_video, write_video
+    from dlacli.nn.lifter import load_lifter
     from dlacli.stages.motion_video import preview_frames, video_to_motion
 
-    check_outputs(files=[output, preview], inputs=[video])
+    check_outputs(files=[output, preview], inputs=[video, lifter])
+    lifter_model = load_lifter(lifter)
     clip = open_video(video, fps=fps, start=start, end=end)
     with progress_bar("from-video", clip.expected_frames) as update:
         result = video_to_motion(
             clip,
             detect_progress=lambda done, total: update(done, total, "detecting"),
             fit_progress=lambda done, total: update(done, total, "fitting"),
+            lifter=lifter_model,
         )
     motion = result.motion
     with output_group():  # the motion and its preview land together or not at all

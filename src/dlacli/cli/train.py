@@ -25,14 +25,18 @@ _SCHEDULE = {
 
 def train(
     data: Path = typer.Option(
-        ..., "--data", help="Dataset folder (`dla synth --seeds A-B -o DATA`) or one subject folder."
+        ...,
+        "--data",
+        help="Dataset folder (`dla synth --seeds A-B -o DATA`) or one subject folder; for --method lifter a folder "
+        "of motion files (.bvh, .amc with its .asf, .npz).",
     ),
     output: Path = options.output("Run folder: train.json, checkpoints, loss.png, val/."),
     method: str = typer.Option(
         "learned",
         "--method",
-        help="learned (U-Net + encoder + GPD, the paper's) or residual (the small network that corrects mesh "
-        "unprojection; one stage: --steps-full steps at --full-size).",
+        help="learned (U-Net + encoder + GPD, the paper's), residual (the small network that corrects mesh "
+        "unprojection; one stage: --steps-full steps at --full-size) or lifter (the 2D-to-3D pose lifter of "
+        "`dla motion from-video`, from motion files; --steps-full steps).",
     ),
     preset: Optional[str] = typer.Option(
         None,
@@ -135,10 +139,29 @@ def train(
     from dlacli.train.loop import TrainConfig
     from dlacli.train.loop import train as run
 
-    if method not in ("learned", "residual"):
-        raise DlaInputError("--method", f"must be learned or residual, got {method!r}")
+    if method not in ("learned", "residual", "lifter"):
+        raise DlaInputError("--method", f"must be learned, residual or lifter, got {method!r}")
     if not data.exists():
         raise DlaInputError(data, "no such dataset folder")
+    if method == "lifter":
+        not_lifter = {
+            "--preset": preset is not None, "--steps-low": steps_low is not None, "--low-size": low_size is not None,
+            "--full-size": full_size is not None, "--targets": targets is not None, "--lr-d": lr_d is not None,
+            "--alexnet": alexnet is not None, "--init": init is not None, "--variant": variant != "full",
+            "--stage": stage != "both", "--resume": resume, "--gain": gain, "--gain-only": gain_only,
+            "--supersample": supersample != 1,
+        }  # fmt: skip
+        for flag, given in not_lifter.items():
+            if given:
+                raise DlaInputError(flag, "does not apply to --method lifter")
+        from dlacli.train.lifter import run_lifter_training
+
+        path = run_lifter_training(
+            data, output, steps=20_000 if steps_full is None else steps_full, batch=batch or 512, lr=lr_g or 1e-3,
+            seed=seed, validation=validation,
+        )  # fmt: skip
+        typer.echo(str(path))
+        return
     if method == "residual":
         learned_only = dict(steps_low=steps_low, low_size=low_size, lr_d=lr_d, alexnet=alexnet)
         given = [k for k, v in learned_only.items() if v is not None]

@@ -12,15 +12,17 @@ by window, overlapping, the shape from the first) are optimised together by Adam
 `PointRig` (one bone-chain call for all frames a step). The objective, a mean over the frames:
 - reprojection: Geman-McClure of the keypoints' pixel error over the person's height in pixels,
   weighted by confidence (keypoints below `MIN_CONF` or outside the image count 0);
-- the 3D-landmark limb-direction prior of the photo fit (`fit.limb_loss`), per frame;
+- the photo fit's limb-direction prior (`fit.limb_loss`), per frame, toward the mean of two 3D
+  estimates of each limb's direction: MediaPipe's 3D landmarks and the pose lifter's 3D keypoints
+  (`nn.lifter`, trained on CMU motion capture; docs/motion.md has how the two were chosen);
 - the photo fit's pose prior and joint limits;
 - temporal smoothness: squared accelerations (second differences over consecutive detected
   frames) of the 3D keypoints, of the bone rotations and of the root;
 - foot contact: where an ankle is still in the image (`foot_contacts`), the squared frame-to-frame
   displacement of that ankle's 3D keypoint (no skating);
 - a prior of the phenotype to 0.5 (it is shared by the clip).
-Initialisation per frame, from the landmarks: the root's facing (`fit._facing_from_landmarks`),
-its depth from the torso's pixel length, the limbs by inverse kinematics on the landmark
+Initialisation per frame: the root's facing from the landmarks (`fit._facing_from_landmarks`),
+its depth from the torso's pixel length, the limbs by inverse kinematics on the prior's
 directions. Coarse to fine: the root alone on the torso keypoints first (`ROOT_STAGE` of the
 steps), then everything; the phenotype from half-way.
 """
@@ -30,6 +32,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -53,6 +56,9 @@ from dlacli.stages.fit import (
     geman_mcclure,
     photo_intrinsics,
 )
+
+if TYPE_CHECKING:
+    from dlacli.nn.lifter import PoseLifter
 
 ROOT_STAGE = 0.2  # fraction of the steps that fit the root alone
 SIGMA = (0.1, 0.04)  # Geman-McClure scales (fractions of the person's height): first half, second half
@@ -218,7 +224,8 @@ def _initial_roots(kp: np.ndarray, lm: np.ndarray, K: np.ndarray, rest_kp: np.nd
 class _Window:
     """The objective and the unknowns of one window of detected frames (module doc)."""
 
-    def __init__(self, rig: MovingRig, kp, lm, frames, contacts, K, height_px, phen_logit, fit_shape: bool):
+    def __init__(self, rig: MovingRig, kp, lm, limbs, frames, contacts, K, height_px, phen_logit, fit_shape: bool):
+        """limbs: (directions [N, S, 3], confidences [N, S]) of the limb prior (`_limb_directions`)."""
         self.rig = rig
         self.Kt = torch.from_numpy(K).float()
         self.height_px = float(height_px)
@@ -228,7 +235,7 @@ class _Window:
         conf[conf < MIN_CONF] = 0.0
         self.target = torch.from_numpy(kp[:, :, :2].astype(np.float32))  # [N, 17, 2]
         self.conf = torch.from_numpy(conf)  # [N, 17]
-        self.dirs, self.dir_w = _limb_targets_batched(lm)
+        self.dirs, self.dir_w = limbs
         frames = np.asarray(frames, np.int64)
         self.triples = torch.from_numpy(np.nonzero(frames[2:] - frames[:-2] == 2)[0])  # i: i, i+1, i+2 consecutive
         pair = frames[1:] - frames[:-1] == 1
@@ -329,6 +336,25 @@ class _Window:
                 progress(1)
 
 
+LIMB_SOURCE = "both"  # where the limb prior's directions come from: lifter, landmarks or both (their mean)
+
+
+def _limb_directions(
+    kp: np.ndarray, lm: np.ndarray, K: np.ndarray, lifter: PoseLifter | None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The limb prior's unit directions [N, S, 3] (camera axes) and confidences [N, S]: those of
+    the pose lifter's 3D keypoints (`nn.lifter`), of MediaPipe's 3D landmarks, or their mean."""
+    if LIMB_SOURCE == "landmarks":
+        return _limb_targets_batched(lm)
+    from dlacli.nn.lifter import lift_keypoints
+
+    lifted = _limb_targets_batched(lift_keypoints(kp, K, lifter))
+    if LIMB_SOURCE == "lifter":
+        return lifted
+    mp = _limb_targets_batched(lm)
+    return torch.nn.functional.normalize(lifted[0] + mp[0], dim=-1), torch.minimum(lifted[1], mp[1])
+
+
 def _windows(n: int, size: int, overlap: int) -> list[tuple[int, int]]:
     """[lo, hi) index ranges of at most `size` covering range(n), neighbours sharing `overlap`."""
     if n <= size:
@@ -353,19 +379,21 @@ def fit_motion(
     steps: int = VIDEO_FIT_STEPS,
     window: int = VIDEO_FIT_WINDOW,
     progress: Callable[[int, int], None] | None = None,
+    lifter: PoseLifter | None = None,
 ) -> MotionFit:
-    """The temporal fit (module doc); `progress(done, total)` counts optimisation steps.
+    """The temporal fit (module doc); `progress(done, total)` counts optimisation steps; `lifter`
+    the pose lifter (`nn.lifter.PoseLifter`; None: the shipped one).
 
     Runs torch single-threaded (restored afterwards), as the photo fit: the tensors are small."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        return _fit_motion(keypoints, landmarks, frames, width, height, fps, steps, window, progress)
+        return _fit_motion(keypoints, landmarks, frames, width, height, fps, steps, window, progress, lifter)
     finally:
         torch.set_num_threads(threads)
 
 
-def _fit_motion(keypoints, landmarks, frames, width, height, fps, steps, window, progress) -> MotionFit:
+def _fit_motion(keypoints, landmarks, frames, width, height, fps, steps, window, progress, lifter) -> MotionFit:
     kp = np.asarray(keypoints, np.float32)
     lm = np.asarray(landmarks, np.float32)
     frames = np.asarray(frames, np.int64)
@@ -376,6 +404,7 @@ def _fit_motion(keypoints, landmarks, frames, width, height, fps, steps, window,
         frames.shape,
     )
     K = photo_intrinsics(width, height)
+    limbs = _limb_directions(kp, lm, K, lifter)
     height_px = person_height_px(kp)
     contacts = foot_contacts(kp, frames, fps, height_px)
     rig = PointRig(free_keys=FREE_PHENOTYPE, model=get_body_model())
@@ -394,7 +423,10 @@ def _fit_motion(keypoints, landmarks, frames, width, height, fps, steps, window,
     rt = np.zeros((n, 3))
     phen_logit = torch.zeros(len(FREE_PHENOTYPE))
     for w, (lo, hi) in enumerate(spans):
-        win = _Window(moving, kp[lo:hi], lm[lo:hi], frames[lo:hi], contacts[lo:hi], K, height_px, phen_logit, w == 0)
+        win = _Window(
+            moving, kp[lo:hi], lm[lo:hi], tuple(x[lo:hi] for x in limbs), frames[lo:hi], contacts[lo:hi], K, height_px,
+            phen_logit, w == 0,
+        )  # fmt: skip
         win.optimise(steps, tick)
         if w == 0:
             phen_logit = win.phen_logit.detach().clone()

@@ -28,6 +28,7 @@ from dlacli.io.video import VideoClip
 from dlacli.types import Motion
 
 if TYPE_CHECKING:
+    from dlacli.nn.lifter import PoseLifter
     from dlacli.stages.motion_fit import MotionFit
 
 MIN_KEYPOINTS = 6  # confident keypoints a frame needs (with a shoulder and a hip) to count as seen
@@ -205,8 +206,10 @@ def video_to_motion(
     steps: int | None = None,
     detect_progress: Callable[[int, int | None], None] | None = None,
     fit_progress: Callable[[int, int], None] | None = None,
+    lifter: PoseLifter | None = None,
 ) -> VideoMotion:
-    """Steps 1-4 of the module doc. DlaInputError when no frame shows a person."""
+    """Steps 1-4 of the module doc; `lifter` a `nn.lifter.PoseLifter` (None: the shipped weights).
+    DlaInputError when no frame shows a person."""
     import time
 
     import torch
@@ -231,6 +234,7 @@ def video_to_motion(
         det.fps,
         steps=VIDEO_FIT_STEPS if steps is None else steps,
         progress=fit_progress,
+        lifter=lifter,
     )
     model = get_body_model()
     with torch.no_grad():
