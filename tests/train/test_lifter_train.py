@@ -36,7 +36,10 @@ def test_a_short_run_writes_loadable_weights(motions, tmp_path, monkeypatch, cap
     assert capsys.readouterr().out.strip() == str(out / "lifter.safetensors")
     record = json.loads((out / "train.json").read_text())
     assert record["validation_files"] == ["131_01.bvh"] and record["train_files"] == ["131_02.bvh"]
-    assert record["steps"] == 3 and record["motion_frames"] > 0 and record["random_poses"] > 0
+    assert record["format"] == "dla.lifter-run/1" and record["steps"] == 3
+    assert record["motion_frames"] > 0 and record["random_poses"] > 0
+    (last,) = record["history"]  # fewer steps than a log interval: one record, at the end
+    assert last["step"] == 3 and last["loss"] > 0 and 0 < last["val_limb_angle_deg"] < 180
     model = load_lifter(out / "lifter.safetensors")
     x = torch.zeros(2, 54)
     assert model(x).shape == (2, 17, 3)

@@ -168,16 +168,17 @@ def train_lifter(
     log_every: int = 500,
     val_bank: np.ndarray | None = None,
     width: int = 512,
-) -> PoseLifter:
-    """Adam with a cosine decay; writes `out` (float16 safetensors, `save_lifter`). Prints the training
-    loss (and the mean limb-angle error on `val_bank` views, degrees) every `log_every` steps."""
+) -> list[dict]:
+    """Adam with a cosine decay; writes `out` (float16 safetensors, `save_lifter`). Every
+    `log_every` steps (and at the end) prints and records the mean training loss since the last
+    record and the mean limb-angle error on `val_bank` views (degrees); returns the records."""
     torch.manual_seed(seed)
     model = PoseLifter(LifterConfig(width=width))
     views = LifterViews(bank, seed)
     val = LifterViews(val_bank, seed + 1).sample(4096) if val_bank is not None else None
     opt = torch.optim.Adam(model.parameters(), lr=lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(steps, 1), eta_min=lr * 0.02)
-    t0, run = time.time(), 0.0
+    t0, run, history = time.time(), 0.0, []
     for step in range(1, steps + 1):
         x, y = views.sample(batch)
         loss = ((model(x) - y) ** 2).sum(-1).mean()
@@ -187,13 +188,17 @@ def train_lifter(
         sched.step()
         run += loss.item()
         if step % log_every == 0 or step == steps:
-            msg = f"step {step}/{steps} loss {run / min(log_every, step):.4f} {time.time() - t0:.0f}s"
+            done = step - (history[-1]["step"] if history else 0)
+            record = {"step": step, "loss": run / done, "seconds": round(time.time() - t0, 1)}
+            msg = f"step {step}/{steps} loss {record['loss']:.4f} {record['seconds']:.0f}s"
             if val is not None:
-                msg += f" val limb angle {limb_angle_error(model, *val):.2f} deg"
+                record["val_limb_angle_deg"] = limb_angle_error(model, *val)
+                msg += f" val limb angle {record['val_limb_angle_deg']:.2f} deg"
             print(msg, file=sys.stderr, flush=True)
+            history.append(record)
             run = 0.0
     save_lifter(model, out, {"steps": steps, "batch": batch, "lr": lr, "seed": seed, "poses": int(len(bank))})
-    return model.eval()
+    return history
 
 
 LIMBS = ((5, 7), (7, 9), (6, 8), (8, 10), (11, 13), (13, 15), (12, 14), (14, 16))
@@ -244,9 +249,9 @@ def run_lifter_training(
     val_bank = keypoint_bank(*motion_poses(held), 8, 1000, rng) if held else None
     output.mkdir(parents=True, exist_ok=True)
     path = output / "lifter.safetensors"
-    train_lifter(bank, path, steps=steps, batch=batch, lr=lr, seed=seed, val_bank=val_bank)
+    history = train_lifter(bank, path, steps=steps, batch=batch, lr=lr, seed=seed, val_bank=val_bank)
     record = {
-        "method": "lifter",
+        "format": "dla.lifter-run/1",
         "steps": steps,
         "batch": batch,
         "lr": lr,
@@ -255,6 +260,7 @@ def run_lifter_training(
         "random_poses": int(len(extra[0])),
         "train_files": [p.name for p in used],
         "validation_files": [p.name for p in held],
+        "history": history,
     }
     (output / "train.json").write_text(json.dumps(record, indent=1))
     return path
