@@ -74,6 +74,35 @@ def test_keep_tracked_drops_another_person():
     np.testing.assert_array_equal(keep, found & ~np.isin(np.arange(t), [10, 11, 12]))
 
 
+def test_limb_directions_are_the_mean_of_lifter_and_landmarks_where_both_see():
+    """The limb prior's directions: the normalised sum of the lifter's and MediaPipe's unit
+    directions where both see a segment; only MediaPipe's where the lifter lacks a keypoint (out of
+    the frame), weighted by MediaPipe's confidence."""
+    import torch
+
+    from dlacli.nn.lifter import PoseLifter, lift_keypoints
+    from dlacli.stages import motion_fit as mf
+    from dlacli.stages.fit import photo_intrinsics
+
+    rng = np.random.default_rng(0)
+    kp = np.concatenate([rng.uniform(100, 200, (2, 17, 2)), np.ones((2, 17, 1))], -1).astype(np.float32)
+    kp[1, 15, 2] = 0.0  # frame 1: the left ankle unseen
+    lm = np.concatenate([rng.normal(size=(2, 17, 3)), np.full((2, 17, 1), 0.8)], -1).astype(np.float32)
+    K = photo_intrinsics(320, 320)
+    torch.manual_seed(0)
+    lifter = PoseLifter().eval()  # an untrained network: any directions do
+    dirs, conf = mf._limb_directions(kp, lm, K, lifter)
+    lifted_u, lifted_c = (t.numpy() for t in mf._limb_targets_batched(lift_keypoints(kp, K, lifter)))
+    mp_u, mp_c = (t.numpy() for t in mf._limb_targets_batched(lm))
+    dirs, conf = dirs.numpy(), conf.numpy()
+    shin = mf.VIDEO_SEGMENTS.index((13, 15))
+    want = (lifted_u + mp_u) / np.linalg.norm(lifted_u + mp_u, axis=-1, keepdims=True)
+    np.testing.assert_allclose(dirs[0], want[0], atol=1e-6)
+    np.testing.assert_allclose(conf[0], np.minimum(lifted_c[0], mp_c[0]))
+    assert lifted_c[1, shin] == 0 and conf[1, shin] == mp_c[1, shin] == pytest.approx(0.8)
+    np.testing.assert_allclose(dirs[1, shin], mp_u[1, shin], atol=1e-6)
+
+
 def test_foot_contacts():
     n = 20
     kp = np.zeros((n, 17, 3), np.float32)

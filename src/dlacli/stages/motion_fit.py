@@ -352,7 +352,12 @@ def _limb_directions(
     if LIMB_SOURCE == "lifter":
         return lifted
     mp = _limb_targets_batched(lm)
-    return torch.nn.functional.normalize(lifted[0] + mp[0], dim=-1), torch.minimum(lifted[1], mp[1])
+    # the mean where both see the segment; else the one that does (a keypoint out of the frame
+    # leaves the lifter without the segment, MediaPipe still guesses it)
+    has_l, has_m = (lifted[1] > 0)[..., None], (mp[1] > 0)[..., None]
+    mean = torch.nn.functional.normalize(lifted[0] * has_l + mp[0] * has_m, dim=-1)
+    conf = torch.where(has_l[..., 0] & has_m[..., 0], torch.minimum(lifted[1], mp[1]), lifted[1] + mp[1])
+    return mean, conf
 
 
 def _windows(n: int, size: int, overlap: int) -> list[tuple[int, int]]:
