@@ -4,10 +4,11 @@ A small MLP in the manner of Martinez et al.'s "simple yet effective baseline" f
 the 17 keypoints, as camera rays, centred on the hips and scaled by the torso's length in the
 image, go in (with which of them were seen, and where the hips are in the image); the 17 points
 in camera axes (x right, y down, z away from the camera), centred on the hips and scaled by the
-torso's 3D length, come out. `dla motion from-video` takes its limb directions as the fit's 3D
-prior (docs/motion.md). It is trained here, on anny poses retargeted from CMU motion capture and
-random flexions, seen by random cameras (`dlacli.train.lifter`, docs/train.md); the shipped
-weights are `assets/weights/lifter/lifter.safetensors` (float16, the config in its metadata).
+torso's 3D length, come out. `dla motion from-video` averages its limb directions with those of
+MediaPipe's 3D landmarks for the fit's limb prior (docs/motion.md). It is trained here, on anny
+poses retargeted from CMU motion capture and random flexions, seen by random cameras
+(`dlacli.train.lifter`, docs/train.md); the shipped weights are
+`assets/weights/lifter/lifter.safetensors` (float16, the config in its metadata).
 """
 
 from __future__ import annotations

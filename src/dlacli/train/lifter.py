@@ -2,14 +2,14 @@
 
 Data, made here without rendering:
 - poses: every frame (at 30 fps) of the given motion files, retargeted to anny as `dla animate`
-  does, and as many random flexions of the limbs, spine and clavicles (`random_poses`);
-- bodies: `shapes` random adult phenotypes; each body takes `per_shape` random poses, and its 17
+  does, and half as many random flexions of the limbs, spine and clavicles (`random_poses`);
+- bodies: `SHAPES` random adult phenotypes; each body takes `PER_SHAPE` random poses, and its 17
   COCO keypoints (anny's own regressor) are computed once (`keypoint_bank`);
 - views, drawn afresh each step (`LifterViews`): the body turned to a random heading and mirrored
-  left-right half of the time, at 1.2-7 m (log-uniform) before a level camera (pitch +-5 degrees, height 0.6-1.8 m)
-  with a 40-60 degree vertical field of view, read with the fit's 50 degree guess; the keypoints
-  jittered (per body a noise level up to 5 % of the torso's image length, one keypoint in 30 five
-  times more) and a non-torso keypoint unseen with probability 0.05.
+  left-right half of the time, at 1.2-7 m (log-uniform) before a level camera (pitch +-5 degrees,
+  height 0.6-1.8 m) with a 40-60 degree vertical field of view, read with the fit's 50 degree
+  guess; the keypoints jittered (per body a noise level up to 5 % of the torso's image length, one
+  keypoint in 30 five times more) and a non-torso keypoint unseen with probability 0.05.
 The loss is the mean squared error of the hip-centred points in torso lengths.
 """
 
