@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import torch
 
+from dlacli.body.keypoints import COCO_MIRROR
 from dlacli.nn.lifter import (
     HIPS,
-    MIRROR,
     NUM_INPUTS,
     SHOULDERS,
     WEIGHTS,
@@ -26,7 +26,6 @@ from dlacli.nn.lifter import (
     PoseLifter,
     lift_keypoints,
     lifter_inputs,
-    lifter_meta,
     lifter_targets,
     load_lifter,
     save_lifter,
@@ -82,6 +81,9 @@ def test_targets_are_hip_centred_in_torso_lengths():
 
 
 def test_saved_weights_are_float16_and_load_back(tmp_path):
+    import json
+
+    from safetensors import safe_open
     from safetensors.torch import load_file
 
     torch.manual_seed(0)
@@ -89,7 +91,8 @@ def test_saved_weights_are_float16_and_load_back(tmp_path):
     path = tmp_path / "l.safetensors"
     save_lifter(model, path, {"note": "tiny"})
     assert all(v.dtype == torch.float16 for v in load_file(str(path)).values())
-    assert lifter_meta(path) == {"note": "tiny"}
+    with safe_open(str(path), framework="pt") as f:
+        assert json.loads(f.metadata()["meta"]) == {"note": "tiny"}
     loaded = load_lifter(path)
     assert loaded.config == model.config and not loaded.training
     with torch.no_grad():  # the saved model is the original with its weights rounded to float16
@@ -125,8 +128,8 @@ def test_views_of_the_bank(small_bank):
 
 
 def test_mirror_table_swaps_left_and_right():
-    assert sorted(MIRROR) == list(range(17)) and all(MIRROR[MIRROR[k]] == k for k in range(17))
-    assert MIRROR[5] == 6 and MIRROR[0] == 0 and MIRROR[15] == 16
+    assert sorted(COCO_MIRROR) == list(range(17)) and all(COCO_MIRROR[COCO_MIRROR[k]] == k for k in range(17))
+    assert COCO_MIRROR[5] == 6 and COCO_MIRROR[0] == 0 and COCO_MIRROR[15] == 16
 
 
 def _limb_angles(pred: np.ndarray, true: np.ndarray) -> np.ndarray:

@@ -20,11 +20,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from dlacli.body.keypoints import NUM_KEYPOINTS
+from dlacli.body.keypoints import COCO_MIRROR, MIN_CONF, NUM_KEYPOINTS
 
-MIN_CONF = 0.3  # keypoints below this confidence count as unseen (as the fit's)
-# COCO-17 left <-> right (a mirror image of a person is a person with the sides swapped)
-MIRROR = (0, 2, 1, 4, 3, 6, 5, 8, 7, 10, 9, 12, 11, 14, 13, 16, 15)
 HIPS = (11, 12)
 SHOULDERS = (5, 6)
 NUM_INPUTS = 3 * NUM_KEYPOINTS + 3
@@ -108,16 +105,6 @@ def save_lifter(model: PoseLifter, path: str | Path, meta: dict | None = None) -
 MAX_BYTES = 64 << 20  # a lifter file larger than this is refused (the shipped one is ~2 MB)
 
 
-def lifter_meta(path: str | Path) -> dict:
-    """The `meta` a lifter file was saved with."""
-    import json
-
-    from safetensors import safe_open
-
-    with safe_open(str(path), framework="pt") as f:
-        return json.loads(f.metadata()["meta"])
-
-
 def load_lifter(path: str | Path | None = None) -> PoseLifter:
     """A saved lifter (the shipped `WEIGHTS` by default) in eval mode, float32 on the CPU.
     DlaInputError naming the file when it is not one (`save_lifter`'s layout)."""
@@ -156,10 +143,10 @@ def lift_keypoints(keypoints: np.ndarray, K: np.ndarray, model: PoseLifter | Non
     seen = torch.from_numpy(kp[..., 2] >= MIN_CONF)
     rays = torch.from_numpy(np.stack([(kp[..., 0] - K[0, 2]) / K[0, 0], (kp[..., 1] - K[1, 2]) / K[1, 1]], -1))
     flip = torch.tensor([-1.0, 1.0])
-    mirrored = (rays * flip)[:, list(MIRROR)]
-    both = model(lifter_inputs(torch.cat([rays, mirrored]).float(), torch.cat([seen, seen[:, list(MIRROR)]])))
+    mirrored = (rays * flip)[:, list(COCO_MIRROR)]
+    both = model(lifter_inputs(torch.cat([rays, mirrored]).float(), torch.cat([seen, seen[:, list(COCO_MIRROR)]])))
     n = kp.shape[0]
-    back = both[n:, list(MIRROR)] * torch.tensor([-1.0, 1.0, 1.0])
+    back = both[n:, list(COCO_MIRROR)] * torch.tensor([-1.0, 1.0, 1.0])
     pts = (0.5 * (both[:n] + back)).numpy()
     conf = np.where(seen.numpy(), kp[..., 2], 0.0)
     return np.concatenate([pts, conf[..., None]], -1).astype(np.float32)

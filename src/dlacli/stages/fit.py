@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from dlacli.body.keypoints import COCO_NAMES, NUM_KEYPOINTS, PointRig, coco_keypoints
+from dlacli.body.keypoints import COCO_NAMES, MIN_CONF, NUM_KEYPOINTS, PointRig, coco_keypoints
 from dlacli.body.model import get_body_model, rotations_to_pose
 from dlacli.body.uv import sample_surface
 from dlacli.errors import DlaInputError
@@ -81,7 +81,6 @@ _TORSO = (5, 6, 11, 12)  # COCO shoulders and hips
 SIGMA_B = (0.3, 0.05)
 SIGMA_C = 0.03
 SIL_FROM_B = 0.5  # the silhouette term starts this fraction of the way into stage B
-MIN_CONF = 0.3  # keypoints with confidence >= this count as "confident"
 # world -> camera rotation of the photo camera (OpenCV axes): x_cam = X, y_cam = -Z, z_cam = Y
 _R_W2C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 # [4, 4] world-to-camera of the fitting world (camera at the origin); its entries are 0 and +-1,

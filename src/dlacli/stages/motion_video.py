@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from dlacli.body.keypoints import MIN_CONF
 from dlacli.errors import DlaInputError
 from dlacli.io.video import VideoClip
 from dlacli.types import Motion
@@ -32,7 +33,6 @@ if TYPE_CHECKING:
     from dlacli.stages.motion_fit import MotionFit
 
 MIN_KEYPOINTS = 6  # confident keypoints a frame needs (with a shoulder and a hip) to count as seen
-KEYPOINT_CONF = 0.3  # = fit.MIN_CONF: below it a keypoint is unseen
 TRACK_JUMP = 0.3  # a torso centre this far (person heights) from the last tracked one ...
 TRACK_SPEED = 3.0  # ... plus this many person heights per second since then: another person
 TRACK_RESET_S = 1.0  # after this long without the tracked person, whoever is found is tracked
@@ -60,7 +60,7 @@ class ClipDetections:
 
 
 def _torso_centre(kp: np.ndarray) -> np.ndarray:
-    c = kp[:, 2] >= KEYPOINT_CONF
+    c = kp[:, 2] >= MIN_CONF
     sel = [k for k in (5, 6, 11, 12) if c[k]]
     return kp[sel, :2].mean(0)
 
@@ -71,7 +71,7 @@ def clean_keypoints(kp: np.ndarray, width: int, height: int) -> tuple[np.ndarray
     kp = np.asarray(kp, np.float32).copy()
     x, y = kp[:, 0], kp[:, 1]
     outside = (x < 0) | (y < 0) | (x > width - 1) | (y > height - 1) | ~np.isfinite(kp).all(1)
-    kp[outside | (kp[:, 2] < KEYPOINT_CONF), 2] = 0.0
+    kp[outside | (kp[:, 2] < MIN_CONF), 2] = 0.0
     kp[~np.isfinite(kp)] = 0.0
     c = kp[:, 2] > 0
     return kp, bool(c.sum() >= MIN_KEYPOINTS and c[[5, 6]].any() and c[[11, 12]].any())

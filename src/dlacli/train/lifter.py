@@ -24,11 +24,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dlacli.body.keypoints import NUM_KEYPOINTS, PointRig
+from dlacli.body.keypoints import COCO_MIRROR, NUM_KEYPOINTS, PointRig
 from dlacli.body.model import get_body_model
 from dlacli.nn.lifter import (
     HIPS,
-    MIRROR,
     SHOULDERS,
     LifterConfig,
     PoseLifter,
@@ -130,7 +129,7 @@ class LifterViews:
         g = self.gen
         p = self.bank[torch.randint(len(self.bank), (batch,), generator=g)].clone()  # [B, 17, 3]
         flip = torch.rand(batch, generator=g) < 0.5
-        p[flip] = p[flip][:, list(MIRROR)] * torch.tensor([-1.0, 1.0, 1.0])
+        p[flip] = p[flip][:, list(COCO_MIRROR)] * torch.tensor([-1.0, 1.0, 1.0])
         hip = p[:, list(HIPS)].mean(1, keepdim=True)
         yaw = self._u(batch, 0.0, 2 * math.pi)
         c, s = torch.cos(yaw), torch.sin(yaw)
