@@ -143,17 +143,27 @@ def train(
         raise DlaInputError("--method", f"must be learned, residual or lifter, got {method!r}")
     if not data.exists():
         raise DlaInputError(data, "no such dataset folder")
+    # the options that only some methods take (the rest: data, output, steps, batch, lr, seed, validation)
+    only = {
+        "--preset": (preset is not None, ("learned", "residual")),
+        "--steps-low": (steps_low is not None, ("learned",)),
+        "--low-size": (low_size is not None, ("learned",)),
+        "--full-size": (full_size is not None, ("learned", "residual")),
+        "--targets": (targets is not None, ("learned", "residual")),
+        "--lr-d": (lr_d is not None, ("learned",)),
+        "--alexnet": (alexnet is not None, ("learned",)),
+        "--variant": (variant != "full", ("learned",)),
+        "--stage": (stage != "both", ("learned",)),
+        "--resume": (resume, ("learned", "residual")),
+        "--gain": (gain, ("residual",)),
+        "--gain-only": (gain_only, ("residual",)),
+        "--supersample": (supersample != 1, ("residual",)),
+        "--init": (init is not None, ("residual",)),
+    }
+    for flag, (given, methods) in only.items():
+        if given and method not in methods:
+            raise DlaInputError(flag, f"applies to --method {' or '.join(methods)} only")
     if method == "lifter":
-        not_lifter = {
-            "--preset": preset is not None, "--steps-low": steps_low is not None, "--low-size": low_size is not None,
-            "--full-size": full_size is not None, "--targets": targets is not None, "--lr-d": lr_d is not None,
-            "--alexnet": alexnet is not None, "--init": init is not None, "--variant": variant != "full",
-            "--stage": stage != "both", "--resume": resume, "--gain": gain, "--gain-only": gain_only,
-            "--supersample": supersample != 1,
-        }  # fmt: skip
-        for flag, given in not_lifter.items():
-            if given:
-                raise DlaInputError(flag, "does not apply to --method lifter")
         from dlacli.train.lifter import run_lifter_training
 
         path = run_lifter_training(
@@ -163,20 +173,11 @@ def train(
         typer.echo(str(path))
         return
     if method == "residual":
-        learned_only = dict(steps_low=steps_low, low_size=low_size, lr_d=lr_d, alexnet=alexnet)
-        given = [k for k, v in learned_only.items() if v is not None]
-        if given or variant != "full" or stage != "both":
-            flag = "--" + (given[0] if given else "variant" if variant != "full" else "stage").replace("_", "-")
-            raise DlaInputError(flag, "applies to --method learned only (residual trains one stage)")
         _train_residual(
             data, output, preset or "small", resume, steps_full, full_size, batch, targets, lr_g, validation,
             eval_every, checkpoint_every, seed, gain, supersample, init, gain_only,
         )  # fmt: skip
         return
-    residual_only = {"--gain": gain, "--supersample": supersample != 1, "--init": init, "--gain-only": gain_only}
-    for flag, given in residual_only.items():
-        if given:
-            raise DlaInputError(flag, "applies to --method residual only")
     preset = preset or "tiny"
     if preset not in PRESET_NAMES:
         raise DlaInputError("--preset", f"unknown preset {preset!r} (available: {', '.join(PRESET_NAMES)})")
