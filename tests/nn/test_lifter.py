@@ -16,11 +16,9 @@ import numpy as np
 import pytest
 import torch
 
-from dlacli.body.keypoints import COCO_MIRROR
+from dlacli.body.keypoints import COCO_MIRROR, HIPS, SHOULDERS
 from dlacli.nn.lifter import (
-    HIPS,
     NUM_INPUTS,
-    SHOULDERS,
     WEIGHTS,
     LifterConfig,
     PoseLifter,

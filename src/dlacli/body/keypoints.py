@@ -48,6 +48,9 @@ COCO_NAMES = (
 NUM_KEYPOINTS = len(COCO_NAMES)
 # a keypoint detected below this confidence counts as unseen (the photo fit, the video fit, the lifter)
 MIN_CONF = 0.3
+SHOULDERS = (5, 6)  # COCO left, right shoulder
+HIPS = (11, 12)  # COCO left, right hip
+TORSO = (*SHOULDERS, *HIPS)
 # left <-> right: the keypoint each one becomes in a mirror image of the person
 COCO_MIRROR = (0, 2, 1, 4, 3, 6, 5, 8, 7, 10, 9, 12, 11, 14, 13, 16, 15)
 # Pairs drawn as a skeleton (COCO's own skeleton, 0-based).

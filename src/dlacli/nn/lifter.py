@@ -20,10 +20,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from dlacli.body.keypoints import COCO_MIRROR, MIN_CONF, NUM_KEYPOINTS
+from dlacli.body.keypoints import COCO_MIRROR, HIPS, MIN_CONF, NUM_KEYPOINTS, SHOULDERS
 
-HIPS = (11, 12)
-SHOULDERS = (5, 6)
 NUM_INPUTS = 3 * NUM_KEYPOINTS + 3
 WEIGHTS = Path(__file__).resolve().parents[1] / "assets" / "weights" / "lifter" / "lifter.safetensors"
 

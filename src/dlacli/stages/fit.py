@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from dlacli.body.keypoints import COCO_NAMES, MIN_CONF, NUM_KEYPOINTS, PointRig, coco_keypoints
+from dlacli.body.keypoints import COCO_NAMES, MIN_CONF, NUM_KEYPOINTS, TORSO, PointRig, coco_keypoints
 from dlacli.body.model import get_body_model, rotations_to_pose
 from dlacli.body.uv import sample_surface
 from dlacli.errors import DlaInputError
@@ -75,7 +75,6 @@ _LIMITS = {
     "lowerleg01.L": ((0.0, 2.6), (-0.2, 0.2), (-0.3, 0.3)),
     "lowerleg01.R": ((0.0, 2.6), (-0.2, 0.2), (-0.3, 0.3)),
 }
-_TORSO = (5, 6, 11, 12)  # COCO shoulders and hips
 # Geman-McClure scales (fractions of the person's height in pixels): stage B starts wide and
 # narrows; stage C, with the silhouette on, is narrow so that a wrong keypoint loses to the mask.
 SIGMA_B = (0.3, 0.05)
@@ -391,7 +390,7 @@ def _fit(image, mask, keypoints, landmarks_3d, steps, progress, surface_samples,
     ys = np.nonzero(msk > 0.5)[0]
     scale_px = float(max(ys.max() - ys.min() + 1, 16))  # person height in pixels
     torso_w = torch.zeros(NUM_KEYPOINTS)
-    torso_w[list(_TORSO)] = 1.0
+    torso_w[list(TORSO)] = 1.0
     sil = SilhouetteTargets(msk, scale_px, samples=silhouette_samples)
     dirs, dir_w = (None, None) if lm is None else _limb_targets(lm)
 

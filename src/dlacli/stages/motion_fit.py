@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from dlacli.body.keypoints import NUM_KEYPOINTS, PointRig
+from dlacli.body.keypoints import HIPS, MIN_CONF, NUM_KEYPOINTS, SHOULDERS, TORSO, PointRig
 from dlacli.body.model import get_body_model
 from dlacli.body.moving_rig import MovingRig
 from dlacli.limits import VIDEO_FIT_STEPS, VIDEO_FIT_WINDOW
@@ -45,12 +45,10 @@ from dlacli.stages.fit import (
     _BONE_PRIOR,
     _INF,
     _LIMITS,
-    _TORSO,
     FIT_BONES,
     FREE_PHENOTYPE,
     LIMB_SEGMENTS,
     LIMB_SIGMA,
-    MIN_CONF,
     _facing_from_landmarks,
     _project_fit,
     geman_mcclure,
@@ -111,7 +109,7 @@ def person_height_px(keypoints: np.ndarray) -> float:
             ext.append((kp[ok, 1].max() - kp[ok, 1].min()) / 0.87)
     if not ext:  # no frame shows head and feet: the torso (~0.3 of the height)
         for kp in keypoints:
-            if (kp[list(_TORSO), 2] >= MIN_CONF).all():
+            if (kp[list(TORSO), 2] >= MIN_CONF).all():
                 ext.append(np.linalg.norm(kp[[5, 6], :2].mean(0) - kp[[11, 12], :2].mean(0)) / 0.3)
     return float(max(np.median(ext), 16.0)) if ext else 16.0
 
@@ -190,13 +188,13 @@ def _initial_roots(kp: np.ndarray, lm: np.ndarray, K: np.ndarray, rest_kp: np.nd
     unwrapped over time."""
     f = float(K[1, 1])
     n = kp.shape[0]
-    torso_m = float(np.linalg.norm(rest_kp[[5, 6]].mean(0) - rest_kp[[11, 12]].mean(0)))
+    torso_m = float(np.linalg.norm(rest_kp[list(SHOULDERS)].mean(0) - rest_kp[list(HIPS)].mean(0)))
     depth = np.full(n, np.nan)
     hips = np.zeros((n, 2))
     for i in range(n):
         c = kp[i, :, 2] >= MIN_CONF
-        sh = [k for k in (5, 6) if c[k]]
-        hp = [k for k in (11, 12) if c[k]]
+        sh = [k for k in SHOULDERS if c[k]]
+        hp = [k for k in HIPS if c[k]]
         hips[i] = kp[i, hp, :2].mean(0) if hp else kp[i, c, :2].mean(0) if c.any() else (K[0, 2], K[1, 2])
         if sh and hp:
             px = float(np.linalg.norm(kp[i, sh, :2].mean(0) - kp[i, hp, :2].mean(0)))
@@ -245,7 +243,7 @@ class _Window:
         self.prior_w = torch.tensor(_VIDEO_PRIOR)[:, None]  # [B, 1]
         self.lim = torch.tensor([_VIDEO_LIMITS.get(b, ((-_INF, _INF),) * 3) for b in VIDEO_BONES])  # [B, 3, 2]
         torso = torch.zeros(NUM_KEYPOINTS)
-        torso[list(_TORSO)] = 1.0
+        torso[list(TORSO)] = 1.0
         self.torso_w = torso + 0.1
         with torch.no_grad():
             rest = rig(None, torch.zeros(1, len(VIDEO_BONES), 3), torch.zeros(1, 3), torch.zeros(1, 3))[0]

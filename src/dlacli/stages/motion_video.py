@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dlacli.body.keypoints import MIN_CONF
+from dlacli.body.keypoints import MIN_CONF, TORSO
 from dlacli.errors import DlaInputError
 from dlacli.io.video import VideoClip
 from dlacli.types import Motion
@@ -61,7 +61,7 @@ class ClipDetections:
 
 def _torso_centre(kp: np.ndarray) -> np.ndarray:
     c = kp[:, 2] >= MIN_CONF
-    sel = [k for k in (5, 6, 11, 12) if c[k]]
+    sel = [k for k in TORSO if c[k]]
     return kp[sel, :2].mean(0)
 
 

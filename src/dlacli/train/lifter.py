@@ -24,20 +24,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dlacli.body.keypoints import COCO_MIRROR, NUM_KEYPOINTS, PointRig
+from dlacli.body.keypoints import COCO_MIRROR, HIPS, NUM_KEYPOINTS, SHOULDERS, TORSO, PointRig
 from dlacli.body.model import get_body_model
 from dlacli.nn.lifter import (
-    HIPS,
-    SHOULDERS,
     LifterConfig,
     PoseLifter,
     lifter_inputs,
     lifter_targets,
     save_lifter,
 )
-from dlacli.stages.fit import FOV_Y_DEG
+from dlacli.stages.fit import FOV_Y_DEG, LIMB_SEGMENTS
 
-TORSO = (*SHOULDERS, *HIPS)
 SHAPES = 40  # random bodies
 PER_SHAPE = 8000  # poses each
 
@@ -200,7 +197,7 @@ def train_lifter(
     return history
 
 
-LIMBS = ((5, 7), (7, 9), (6, 8), (8, 10), (11, 13), (13, 15), (12, 14), (14, 16))
+LIMBS = LIMB_SEGMENTS[:8]  # upper and lower arms and legs
 
 
 @torch.no_grad()
