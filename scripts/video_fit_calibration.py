@@ -189,12 +189,15 @@ def prep(name, seed):
 
 
 def load_det(name, seed):
-    from dlacli.stages.motion_video import ClipDetections
+    from dlacli.stages.motion_video import ClipDetections, unswap_left_right
 
     z = np.load(CACHE / f"{name}_s{seed}.npz")
-    return ClipDetections(
-        z["keypoints"], z["landmarks"], z["found"], int(z["width"]), int(z["height"]), float(z["fps"]), z["times"]
-    ), z
+    # the cache holds the tracked, cleaned detections; what `detect_clip` does after them:
+    kps, lms, unswapped = unswap_left_right(z["keypoints"], z["landmarks"], z["found"], float(z["fps"]))
+    det = ClipDetections(
+        kps, lms, z["found"], int(z["width"]), int(z["height"]), float(z["fps"]), z["times"], [], unswapped
+    )
+    return det, z
 
 
 def major_joints(motion):

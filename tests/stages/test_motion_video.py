@@ -11,9 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from dlacli.body.keypoints import COCO_MIRROR
 from dlacli.errors import DlaInputError
 from dlacli.stages.motion_fit import foot_contacts
-from dlacli.stages.motion_video import clean_keypoints, fill_missing, keep_tracked, missing_ranges
+from dlacli.stages.motion_video import clean_keypoints, fill_missing, keep_tracked, missing_ranges, unswap_left_right
 
 MAJOR = (
     "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R", "foot.L", "foot.R", "upperarm01.L",
@@ -72,6 +73,64 @@ def test_keep_tracked_drops_another_person():
     keep, switched = keep_tracked(kp, found, FPS)
     assert switched == [10, 11, 12]
     np.testing.assert_array_equal(keep, found & ~np.isin(np.arange(t), [10, 11, 12]))
+
+
+def _turning_person(yaw: np.ndarray) -> np.ndarray:
+    """COCO keypoints [T, 17, 3] of a standing person seen level, turned by yaw [T] (0: facing the
+    camera, whose left is then on the image right): shoulders 80 px and hips 50 px wide when
+    facing, torso 100 px long."""
+    kp = np.zeros((len(yaw), 17, 3), np.float32)
+    kp[..., 2] = 0.9
+    kp[..., 0] = 160.0
+    kp[:, :, 1] = np.linspace(40, 300, 17)
+    c = np.cos(yaw)
+    for (a, b), half, y in (((5, 6), 40.0, 100.0), ((11, 12), 25.0, 200.0), ((13, 14), 25.0, 250.0)):
+        kp[:, a, 0], kp[:, b, 0] = 160.0 + half * c, 160.0 - half * c
+        kp[:, a, 1] = kp[:, b, 1] = y
+    return kp
+
+
+def test_unswap_left_right():
+    """The detector's label swaps are undone, a turn is not: frames 40-49 of a person facing the
+    camera come with left and right exchanged (the shoulders and hips change sides from one frame to
+    the next while wide): they are swapped back, and their 3D landmarks mirrored in depth too; a
+    person turning round in 20 frames (their shoulders narrow on the way) keeps their labels; a swap
+    at the start is undone on the shorter side; a change across a gap of a second is not a swap."""
+    rng = np.random.default_rng(0)
+    mirror = list(COCO_MIRROR)
+    truth = _turning_person(np.zeros(60))
+    lm = rng.normal(size=(60, 17, 4)).astype(np.float32)
+    kp = truth.copy()
+    kp[40:50] = truth[40:50][:, mirror]
+    lm_in = lm.copy()
+    lm_in[40:50] = lm[40:50][:, mirror] * np.array([1, 1, -1, 1], np.float32)
+    found = np.ones(60, bool)
+    out, lm_out, fixed = unswap_left_right(kp, lm_in, found, FPS)
+    assert fixed == list(range(40, 50))
+    np.testing.assert_array_equal(out, truth)
+    np.testing.assert_array_equal(lm_out, lm)
+
+    turn = _turning_person(np.clip((np.arange(60) - 20) / 20.0, 0.0, 1.0) * np.pi)  # frames 20-40, 9 degrees a frame
+    out, lm_out, fixed = unswap_left_right(turn, lm, found, FPS)
+    assert fixed == [] and np.array_equal(out, turn) and np.array_equal(lm_out, lm)
+
+    kp = truth.copy()
+    kp[:10] = truth[:10][:, mirror]
+    assert unswap_left_right(kp, lm, found, FPS)[2] == list(range(10))
+
+    # a swap entered through a half-swapped frame (shoulders crossed, narrow; hips not yet) and
+    # left at once: the two swapped frames are found from the frames either side of the narrow one
+    kp = truth.copy()
+    kp[40, [5, 6], 0] = (154.0, 166.0)
+    kp[40, [11, 12], 0] = (163.0, 157.0)
+    kp[41:43] = truth[41:43][:, mirror]
+    assert unswap_left_right(kp, lm, found, FPS)[2] == [41, 42]
+
+    kp = truth.copy()
+    kp[30:] = truth[30:][:, mirror]
+    gap = found.copy()
+    gap[20:30] = False  # a third of a second unseen: the person may have turned
+    assert unswap_left_right(kp, lm, gap, FPS)[2] == []
 
 
 def test_limb_directions_are_the_mean_of_lifter_and_landmarks_where_both_see():

@@ -121,6 +121,12 @@ def from_video(
             f"warning: no person in {count} of {motion.num_frames} frames ({spans}{more}{note}): interpolated", err=True
         )
     det, sec = result.detections, result.seconds
+    if det.unswapped:
+        typer.echo(
+            f"note: left and right swapped back in {len(det.unswapped)} frames "
+            f"(the detector's labels changed sides at once, from frame {det.unswapped[0]})",
+            err=True,
+        )
     typer.echo(
         f"{output}  {motion.num_frames} frames at {motion.fps:g} fps from {det.width}x{det.height} video"
         f"  (detect {sec['detect']:.1f} s, fit {sec['fit']:.1f} s)"

@@ -5,7 +5,8 @@
    keypoints and 3D landmarks only. Keypoints outside the image or below the confidence floor
    count as unseen; a frame with too few confident keypoints (no shoulder or no hip) has no
    person; so has a frame whose person jumped away from the tracked one (`keep_tracked`: another
-   person was picked up), until the tracked one is back or `TRACK_RESET_S` passed.
+   person was picked up), until the tracked one is back or `TRACK_RESET_S` passed. Left and
+   right labels that change sides at once are swapped back (`unswap_left_right`).
 2. `stages.motion_fit.fit_motion`: one temporal fit over the detected frames.
 3. `fill_missing`: frames with no person are interpolated (rotations slerped, translations
    linear between the nearest fitted frames; held before the first and after the last).
@@ -23,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dlacli.body.keypoints import MIN_CONF, TORSO
+from dlacli.body.keypoints import COCO_MIRROR, HIPS, MIN_CONF, SHOULDERS, TORSO
 from dlacli.errors import DlaInputError
 from dlacli.io.video import VideoClip
 from dlacli.types import Motion
@@ -36,6 +37,8 @@ MIN_KEYPOINTS = 6  # confident keypoints a frame needs (with a shoulder and a hi
 TRACK_JUMP = 0.3  # a torso centre this far (person heights) from the last tracked one ...
 TRACK_SPEED = 3.0  # ... plus this many person heights per second since then: another person
 TRACK_RESET_S = 1.0  # after this long without the tracked person, whoever is found is tracked
+SWAP_WIDTH = 0.25  # a left-right pair this wide (torso lengths) on both sides of a flip ...
+SWAP_GAP_S = 0.1  # ... within this many seconds is a label swap, not a turn
 PREVIEW_ALPHA = 0.6  # opacity of the body drawn over the clip
 PREVIEW_FILLED = (0.6, 0.6, 0.6)  # colour of the body in frames with no person (interpolated)
 PREVIEW_FITTED = (0.45, 0.62, 0.90)
@@ -53,6 +56,7 @@ class ClipDetections:
     fps: float
     times: np.ndarray  # [T] seconds in the file
     switched: list[int] = field(default_factory=list)  # frames dropped as another person (keep_tracked)
+    unswapped: list[int] = field(default_factory=list)  # frames whose left and right were swapped back
 
     @property
     def num_frames(self) -> int:
@@ -101,6 +105,50 @@ def keep_tracked(keypoints: np.ndarray, found: np.ndarray, fps: float) -> tuple[
     return keep, switched
 
 
+def _pair_widths(kp: np.ndarray) -> dict[tuple[int, int], float]:
+    """Signed image widths (x of the left minus x of the right, torso lengths) of the shoulders and
+    hips seen in a frame's keypoints [17, 3]."""
+    c = kp[:, 2] >= MIN_CONF
+    if not (c[list(SHOULDERS)].any() and c[list(HIPS)].any()):
+        return {}
+    sh = kp[[k for k in SHOULDERS if c[k]], :2].mean(0)
+    hp = kp[[k for k in HIPS if c[k]], :2].mean(0)
+    torso = max(float(np.linalg.norm(sh - hp)), 1.0)
+    return {(a, b): float(kp[a, 0] - kp[b, 0]) / torso for a, b in (SHOULDERS, HIPS) if c[a] and c[b]}
+
+
+def unswap_left_right(keypoints: np.ndarray, landmarks: np.ndarray, found: np.ndarray, fps: float):
+    """Undo the detector's left-right label swaps (module doc, step 1). A frame whose shoulders or
+    hips are at least `SWAP_WIDTH` torso lengths wide in the image shows which way the person
+    faces; between two such frames at most `SWAP_GAP_S` apart (narrower frames between them
+    skipped), the wide pairs seen in both changing sides is no turn (a turn passes through a side
+    view, where they are narrow): the labels swapped. Each swap flips the labelling of the frames
+    after it; the frames of the less frequent labelling get their left and right exchanged, and
+    MediaPipe's 3D landmarks are mirrored in depth as well (the other reading of the same image: a
+    body seen from the front instead of the back). Returns (keypoints, landmarks, the frames
+    changed)."""
+    seen = np.nonzero(found)[0]
+    parity = np.zeros(len(seen), bool)
+    prev = None  # (frame, its wide pairs) of the last frame that showed the facing
+    for j, k in enumerate(seen):
+        if j > 0:
+            parity[j] = parity[j - 1]
+        wide = {p: w for p, w in _pair_widths(keypoints[k]).items() if abs(w) >= SWAP_WIDTH}
+        if not wide:
+            continue
+        if prev is not None and (k - prev[0]) / fps <= SWAP_GAP_S:
+            common = [p for p in wide if p in prev[1]]
+            if common and all(wide[p] * prev[1][p] < 0 for p in common):
+                parity[j] = not parity[j]
+        prev = (k, wide)
+    fix = seen[parity] if parity.sum() * 2 < len(seen) else seen[~parity]
+    kps, lms = keypoints.copy(), landmarks.copy()
+    mirror = list(COCO_MIRROR)
+    kps[fix] = keypoints[fix][:, mirror]
+    lms[fix] = landmarks[fix][:, mirror] * np.array([1.0, 1.0, -1.0, 1.0], np.float32)
+    return kps, lms, [int(k) for k in fix]
+
+
 def detect_clip(clip: VideoClip, progress: Callable[[int, int | None], None] | None = None) -> ClipDetections:
     """Stream the clip through the tracker (module doc, step 1)."""
     from dlacli.io.detect import PoseTracker
@@ -129,7 +177,8 @@ def detect_clip(clip: VideoClip, progress: Callable[[int, int | None], None] | N
     keep, switched = keep_tracked(kps, np.array(found), clip.fps)
     kps[~keep] = 0.0
     lms[~keep] = 0.0
-    return ClipDetections(kps, lms, keep, clip.width, clip.height, clip.fps, np.array(times), switched)
+    kps, lms, unswapped = unswap_left_right(kps, lms, keep, clip.fps)
+    return ClipDetections(kps, lms, keep, clip.width, clip.height, clip.fps, np.array(times), switched, unswapped)
 
 
 def missing_ranges(found: np.ndarray) -> list[tuple[int, int]]:
