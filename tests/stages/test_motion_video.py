@@ -94,8 +94,9 @@ def test_unswap_left_right():
     """The detector's label swaps are undone, a turn is not: frames 40-49 of a person facing the
     camera come with left and right exchanged (the shoulders and hips change sides from one frame to
     the next while wide): they are swapped back, and their 3D landmarks mirrored in depth too; a
-    person turning round in 20 frames (their shoulders narrow on the way) keeps their labels; a swap
-    at the start is undone on the shorter side; a change across a gap of a second is not a swap."""
+    person turning round briskly (half a turn in half a second: their shoulders narrow on the way)
+    keeps their labels; a swap at the start is undone on the shorter side; a swap entered through a
+    half-swapped frame is found; a change across a third of a second unseen is not a swap."""
     rng = np.random.default_rng(0)
     mirror = list(COCO_MIRROR)
     truth = _turning_person(np.zeros(60))
@@ -110,7 +111,7 @@ def test_unswap_left_right():
     np.testing.assert_array_equal(out, truth)
     np.testing.assert_array_equal(lm_out, lm)
 
-    turn = _turning_person(np.clip((np.arange(60) - 20) / 20.0, 0.0, 1.0) * np.pi)  # frames 20-40, 9 degrees a frame
+    turn = _turning_person(np.clip((np.arange(60) - 20) / 15.0, 0.0, 1.0) * np.pi)  # half a turn in 0.5 s
     out, lm_out, fixed = unswap_left_right(turn, lm, found, FPS)
     assert fixed == [] and np.array_equal(out, turn) and np.array_equal(lm_out, lm)
 

@@ -37,8 +37,11 @@ MIN_KEYPOINTS = 6  # confident keypoints a frame needs (with a shoulder and a hi
 TRACK_JUMP = 0.3  # a torso centre this far (person heights) from the last tracked one ...
 TRACK_SPEED = 3.0  # ... plus this many person heights per second since then: another person
 TRACK_RESET_S = 1.0  # after this long without the tracked person, whoever is found is tracked
-SWAP_WIDTH = 0.25  # a left-right pair this wide (torso lengths) on both sides of a flip ...
-SWAP_GAP_S = 0.1  # ... within this many seconds is a label swap, not a turn
+# shoulders or hips this wide (torso lengths; ~0.6 facing the camera) on both sides of a change of
+# sides within this many seconds (two frame intervals at 25-30 fps) are a label swap: a turn that
+# fast would be ~800 degrees a second
+SWAP_WIDTH = 0.35
+SWAP_GAP_S = 0.085
 PREVIEW_ALPHA = 0.6  # opacity of the body drawn over the clip
 PREVIEW_FILLED = (0.6, 0.6, 0.6)  # colour of the body in frames with no person (interpolated)
 PREVIEW_FITTED = (0.45, 0.62, 0.90)
