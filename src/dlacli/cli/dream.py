@@ -8,7 +8,7 @@ from typing import Optional
 import typer
 
 from dlacli.cli import options
-from dlacli.limits import FIT_STEPS
+from dlacli.limits import DEFAULT_PRIOR, FIT_STEPS
 
 
 def dream(
@@ -54,6 +54,14 @@ def dream(
     fit_steps: int = typer.Option(
         FIT_STEPS, "--fit-steps", min=3, max=100_000, help="Optimisation steps of the body fit."
     ),
+    prior: Optional[str] = typer.Option(
+        None,
+        "--prior",
+        help="Body backend: what fills the surface the photo does not show: 'shipped' (the completion network "
+        "trained by dla and shipped in the package), 'none' (the hand-written rule: mirror, then the nearest "
+        "well-seen colour, blurred) or a checkpoint folder or hash from `dla train --method completion`. Default: "
+        f"{DEFAULT_PRIOR}.",
+    ),
 ) -> None:
     """Dream novel views of a person from one photo: fit the body, then write a view folder with
     the photo (azimuth 0) and views at azimuths 90, 180, 270, plus body.json and fit_overlay.png.
@@ -91,6 +99,7 @@ def dream(
                 seed=seed,
                 fit_steps=fit_steps,
                 progress=report,
+                prior=prior,
                 detection=detection,
             )
     finally:

@@ -35,8 +35,9 @@ def train(
         "learned",
         "--method",
         help="learned (U-Net + encoder + GPD, the paper's), residual (the small network that corrects mesh "
-        "unprojection; one stage: --steps-full steps at --full-size) or lifter (the 2D-to-3D pose lifter of "
-        "`dla motion from-video`, from motion files; --steps-full steps).",
+        "unprojection; one stage: --steps-full steps at --full-size), completion (the completion prior of `dla "
+        "dream`: what the photo does not show, from synthetic subjects' front views; --steps-full steps) or lifter "
+        "(the 2D-to-3D pose lifter of `dla motion from-video`, from motion files; --steps-full steps).",
     ),
     preset: Optional[str] = typer.Option(
         None,
@@ -120,6 +121,9 @@ def train(
         "--gain-only",
         help="Residual only, with --gain and --init: train F_delta alone; the corrections stay the init network's.",
     ),
+    jobs: int = typer.Option(
+        1, "--jobs", min=1, max=64, help="Completion only: processes that make the training samples (cached)."
+    ),
     supersample: int = typer.Option(
         1,
         "--supersample",
@@ -139,8 +143,8 @@ def train(
     from dlacli.train.loop import TrainConfig
     from dlacli.train.loop import train as run
 
-    if method not in ("learned", "residual", "lifter"):
-        raise DlaInputError("--method", f"must be learned, residual or lifter, got {method!r}")
+    if method not in ("learned", "residual", "completion", "lifter"):
+        raise DlaInputError("--method", f"must be learned, residual, completion or lifter, got {method!r}")
     if not data.exists():
         raise DlaInputError(data, "no such dataset folder")
     # the options that only some methods take (the rest: data, output, steps, batch, lr, seed, validation)
@@ -154,7 +158,8 @@ def train(
         "--alexnet": (alexnet is not None, ("learned",)),
         "--variant": (variant != "full", ("learned",)),
         "--stage": (stage != "both", ("learned",)),
-        "--resume": (resume, ("learned", "residual")),
+        "--resume": (resume, ("learned", "residual", "completion")),
+        "--jobs": (jobs != 1, ("completion",)),
         "--gain": (gain, ("residual",)),
         "--gain-only": (gain_only, ("residual",)),
         "--supersample": (supersample != 1, ("residual",)),
@@ -171,6 +176,11 @@ def train(
             seed=seed, validation=validation,
         )  # fmt: skip
         typer.echo(str(path))
+        return
+    if method == "completion":
+        _train_completion(
+            data, output, resume, steps_full, batch, lr_g, validation, eval_every, checkpoint_every, seed, jobs
+        )
         return
     if method == "residual":
         _train_residual(
@@ -253,6 +263,25 @@ def _train_residual(
     record = train_residual(data, output, cfg, resume=resume)
     if os.environ.get("RANK", "0") == "0":
         typer.echo(str(output / record["checkpoint"] / "generator"))
+
+
+def _train_completion(
+    data, output, resume, steps, batch, lr, validation, eval_every, checkpoint_every, seed, jobs
+) -> None:  # fmt: skip
+    from dlacli.train.completion import CompletionTrainConfig, train_completion
+
+    given = dict(steps=steps, batch=batch, lr=lr)
+    cfg = CompletionTrainConfig(
+        validation=validation,
+        eval_every=eval_every,
+        checkpoint_every=checkpoint_every,
+        seed=seed,
+        **{k: v for k, v in given.items() if v is not None},
+    )
+    if cfg.total_steps == 0:
+        raise DlaInputError("--steps-full", "no steps to train")
+    record = train_completion(data, output, cfg, resume=resume, jobs=jobs)
+    typer.echo(str(output / record["checkpoint"] / "prior"))
 
 
 def register(app: typer.Typer) -> None:

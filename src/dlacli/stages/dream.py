@@ -44,15 +44,16 @@ MIN_PERSON_PX = 32  # the person must be at least this many pixels tall in the p
 @dataclass(frozen=True)
 class Backend:
     """A way to make the novel views: `load(model, device, res, frames, say)` returns (what
-    `views(rgb, alpha, cam, vertices, loaded, frames=, steps=, seed=, say=)` needs, the model
-    name it loaded), and
-    `views` returns (images, masks, cameras, settings to record in dream's info)."""
+    `views(rgb, alpha, cam, vertices, loaded, frames=, steps=, seed=, say=, prior=)` needs, the
+    model name it loaded), and `views` returns (images, masks, cameras, settings to record in
+    dream's info). `prior`: the completion network (dlacli.stages.completion) or None; only the
+    body backend uses one (`dream` refuses --prior for the others)."""
 
     views: Callable
     load: Callable | None = None
 
 
-def _shell(rgb, alpha, cam, vertices, loaded, *, frames, steps, seed, say):
+def _shell(rgb, alpha, cam, vertices, loaded, *, frames, steps, seed, say, prior=None):
     from dlacli.stages.shell import template_views
 
     say("rendering the shell views")
@@ -60,11 +61,11 @@ def _shell(rgb, alpha, cam, vertices, loaded, *, frames, steps, seed, say):
     return images, masks, cams, {}
 
 
-def _body(rgb, alpha, cam, vertices, loaded, *, frames, steps, seed, say):
+def _body(rgb, alpha, cam, vertices, loaded, *, frames, steps, seed, say, prior=None):
     from dlacli.stages.texture import body_views
 
     say("baking the photo onto the body and rendering its views")
-    return body_views(rgb, alpha, cam, vertices)
+    return body_views(rgb, alpha, cam, vertices, prior=prior)
 
 
 def _load_diffusion(model, device, res, frames, say):
@@ -79,7 +80,7 @@ def _load_diffusion(model, device, res, frames, say):
     return load_pipeline(model, device=device), model
 
 
-def _diffusion(rgb, alpha, cam, vertices, pipe, *, frames, steps, seed, say):
+def _diffusion(rgb, alpha, cam, vertices, pipe, *, frames, steps, seed, say, prior=None):
     if pipe is None:
         raise DlaInputError("--backend diffusion", "no pipeline loaded")
     images, masks, cams, _ = diffusion_views(
@@ -321,9 +322,10 @@ def build_views(
     steps: int = 50,
     seed: int = 0,
     progress: Progress | None = None,
+    prior=None,
 ) -> ViewSet:
     """Photo [H, W, 3] + person mask [H, W] + body fit (`dlacli.stages.fit.FitResult`) -> the
-    4 views (azimuths 0, 90, 180, 270) as a ViewSet with the fitted body."""
+    4 views (azimuths 0, 90, 180, 270) as a ViewSet with the fitted body. `prior`: see `Backend`."""
     from dlacli.stages.fit_report import fit_info
 
     say = progress or (lambda msg: None)
@@ -335,7 +337,7 @@ def build_views(
         "fit": fit_info(fit),
     }
     images, masks, cams, settings = _backend(backend).views(
-        rgb, alpha, cam, fit.vertices, pipe, frames=frames, steps=steps, seed=seed, say=say
+        rgb, alpha, cam, fit.vertices, pipe, frames=frames, steps=steps, seed=seed, say=say, prior=prior
     )
     info.update(settings)
     info["plausibility"] = plausibility(images, masks, cams, fit.vertices)
@@ -373,9 +375,11 @@ def dream(
     device: str | None = None,
     progress: Progress | None = None,
     detection=None,
+    prior: str | None = None,
 ) -> Path:
     """One photo -> a view folder at `output` (written atomically; see the module docstring).
-    `detection`: see `_read_inputs`."""
+    `detection`: see `_read_inputs`. `prior`: the body backend's completion prior, "none",
+    "shipped" or a checkpoint (dlacli.stages.completion.load_prior); None: its default."""
     from dlacli.stages.fit import fit_body
     from dlacli.stages.fit_report import fit_warning, overlay_png
 
@@ -385,6 +389,11 @@ def dream(
         raise DlaInputError("--res", f"must be in [64, 4096], got {res}")
     if steps < 1:
         raise DlaInputError("--steps", f"must be >= 1, got {steps}")
+    from dlacli.stages.completion import DEFAULT_PRIOR, load_prior
+
+    if backend != "body" and prior not in (None, "none"):
+        raise DlaInputError("--prior", "applies to --backend body only")
+    net = load_prior(DEFAULT_PRIOR if prior is None else prior) if backend == "body" else None
     pipe = None
     if chosen.load is not None:
         pipe, model = chosen.load(model, device, res, frames, say)
@@ -407,7 +416,17 @@ def dream(
         notes.append(warning)
         say(warning)
     views = build_views(
-        image, person, fit, backend=backend, res=res, pipe=pipe, frames=frames, steps=steps, seed=seed, progress=say
+        image,
+        person,
+        fit,
+        backend=backend,
+        res=res,
+        pipe=pipe,
+        frames=frames,
+        steps=steps,
+        seed=seed,
+        progress=say,
+        prior=net,
     )
     views.extra["dream"]["photo"] = Path(photo).name
     if notes:

@@ -467,17 +467,32 @@ def texture_map(colour: np.ndarray, resolution: int) -> np.ndarray:
 # ------------------------------------------------------------------------------- the backend
 
 
-def textured_body(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarray, resolution=None):
-    """Steps 1-3 on a framed photo (rgb [R, R, 3], alpha [R, R], its camera, the fitted body
-    [V, 3]) -> dict(vertices = the displaced body [V, 3], offsets [V], texture [Ru, Ru, 3],
-    weight [N] the bake's weights, resolution Ru)."""
-    res = uv_resolution(rgb.shape[0]) if resolution is None else int(resolution)
+def displaced_body(alpha: np.ndarray, camera: Cameras, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Step 1: (the body [V, 3] moved along its normals by `clothing_offsets`, the offsets [V])."""
     v = np.asarray(vertices, np.float64)
     normals = _normals(v)
     offsets = clothing_offsets(alpha, camera, v, normals)
-    displaced = v + offsets[:, None] * normals
+    return v + offsets[:, None] * normals, offsets
+
+
+def textured_body(
+    rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarray, resolution=None, prior=None
+):
+    """Steps 1-3 on a framed photo (rgb [R, R, 3], alpha [R, R], its camera, the fitted body
+    [V, 3]) -> dict(vertices = the displaced body [V, 3], offsets [V], texture [Ru, Ru, 3],
+    weight [N] the bake's weights, resolution Ru). `prior`: a completion network
+    (dlacli.stages.completion) that corrects step 3 where the photo does not see the body."""
+    res = uv_resolution(rgb.shape[0]) if resolution is None else int(resolution)
+    displaced, offsets = displaced_body(alpha, camera, vertices)
     colour, weight = bake(rgb, alpha, camera, displaced, res)
-    texture = texture_map(complete(colour, weight, res), res)
+    completed = complete(colour, weight, res)
+    if prior is not None:
+        from dlacli.stages.completion import correct, photo_evidence, prior_inputs
+
+        r = prior.config.resolution
+        inputs = prior_inputs(*photo_evidence(rgb, alpha, camera, displaced, r), r)
+        completed = correct(prior, inputs, completed, weight, res)
+    texture = texture_map(completed, res)
     return {"vertices": displaced, "offsets": offsets, "texture": texture, "weight": weight, "resolution": res}
 
 
@@ -500,14 +515,14 @@ def mask_iou(alpha: np.ndarray, camera: Cameras, vertices: np.ndarray) -> float:
     return float((body & person).sum() / max((body | person).sum(), 1))
 
 
-def body_views(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarray, azimuths=None):
+def body_views(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarray, azimuths=None, prior=None):
     """The body backend on a framed photo: rgb [R, R, 3], alpha [R, R], camera (the crop's),
     vertices [V, 3] the fitted body -> (images [A, R, R, 3] straight colours, masks [A, R, R],
-    cameras [A], settings dict). View 0 is the photo itself."""
+    cameras [A], settings dict). View 0 is the photo itself. `prior`: see `textured_body`."""
     from dlacli.stages.dream import AZIMUTHS, body_pivot, orbit_cameras
 
     azimuths = AZIMUTHS if azimuths is None else azimuths
-    body = textured_body(rgb, alpha, camera, vertices)
+    body = textured_body(rgb, alpha, camera, vertices, prior=prior)
     cams = orbit_cameras(camera, body_pivot(vertices), azimuths)
     novel = Cameras(cams.viewmats[1:], cams.Ks[1:], cams.width, cams.height)
     rgba = render_body(body, novel)
@@ -521,4 +536,6 @@ def body_views(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np
         "mask_iou_displaced": round(mask_iou(alpha, camera, body["vertices"]), 4),
         "max_offset_m": round(float(body["offsets"].max()), 4),
     }
+    if prior is not None:
+        settings["prior"] = {"hash": getattr(prior, "checkpoint_hash", None)}
     return images, masks, cams, settings
