@@ -189,6 +189,60 @@ def test_a_tiny_run_writes_photo_rows(monkeypatch, tmp_path):
     assert draw_chart(rows + failed, tmp_path / "chart.png").stat().st_size > 0
 
 
+def test_the_error_budgets_oracles(tmp_path):
+    """The oracles replace part of the dream by the truth: "true_colours" on the subject's own
+    folder re-renders its views 1-3 from its own cameras (so they equal synth's files to 8-bit
+    rounding), "true_body" dreams on the true body (no misalignment left); a tiny run with
+    oracles and two priors gives each its rows, and the views-only oracles no dreamed split."""
+    from dlacli.avatar.checkpoint import load_checkpoint, save_checkpoint
+    from dlacli.bench.accuracy import subjects
+    from dlacli.bench.rows import check_row, label
+    from dlacli.bench.single_photo import PHOTO_SPLITS, oracle_folder, run_photo, truth_fit
+    from dlacli.io.views import read_views
+    from dlacli.nn.completion import CompletionConfig, CompletionNet
+    from dlacli.stages.methods import parse_methods
+
+    ((seed, subject),) = subjects([SEED + 2], tmp_path, 128, 1, 1, "lit", "heldout")
+    own = read_views(subject)
+    out = oracle_folder("true_colours", subject, seed, subject, tmp_path / "tc", "body", 128, "lit", "heldout")
+    again = read_views(out)
+    diff = np.abs(again.images[1:] * again.masks[1:, ..., None] - own.images[1:] * own.masks[1:, ..., None])
+    # 8-bit rounding of both; the cameras pass through an identity similarity fitted to round-off,
+    # which may move an edge pixel's coverage across a rounding step
+    assert (diff > 1.5 / 255).mean() < 1e-4 and diff.max() < 0.05
+    np.testing.assert_array_equal(again.images[0], own.images[0])
+    out = oracle_folder("true_body", subject, seed, subject, tmp_path / "tb", "body", 128, "lit", "heldout")
+    body = read_views(out)
+    assert body.extra["dream"]["oracle"] == "true_body" and body.body.phenotype == own.body.phenotype
+    assert all(np.array_equal(body.body.pose[k], v) for k, v in own.body.pose.items())
+    assert truth_fit(subject).mask_iou > 0.75  # the bare true body under the mask of its clothes and hair
+
+    net = CompletionNet(CompletionConfig(width=8, resolution=32))
+    save_checkpoint(tmp_path / "prior", net, net.config)
+    kw = dict(res=128, novel_views=1, novel_poses=1, fit_steps=20, log=lambda s: None, oracles=True)
+    rows = run_photo([SEED + 2], parse_methods(METHOD), ["body"], priors=["none", str(tmp_path / "prior")], **kw)
+    for r in rows:
+        check_row(r)
+    groups = {}
+    for r in rows:
+        groups.setdefault((r["config"].get("prior"), r["config"].get("oracle")), []).append(r["split"])
+    short = None
+    for (prior, oracle), splits in groups.items():
+        if prior not in (None, "none"):
+            short = prior
+        assert splits == list(PHOTO_SPLITS if oracle in (None, "true_body") else PHOTO_SPLITS[:3]), (prior, oracle)
+    assert set(groups) == {("none", None), ("none", "true_body"), ("none", "true_colours"), (short, None),
+                           (short, "true_body"), (None, "four_views")}  # fmt: skip
+    assert short == load_checkpoint(tmp_path / "prior").hash[: len(short)]
+    by = {(r["config"].get("prior"), r["config"].get("oracle"), r["split"]): r for r in rows}
+    # an untrained prior is the rule: the same avatar, the same scores
+    for split in PHOTO_SPLITS:
+        assert by[("none", None, split)]["metrics"] == by[(short, None, split)]["metrics"]
+    assert by[("none", "true_body", "novel_views")]["alignment_mm"] < 0.01
+    assert "oracle=four_views" in label(by[(None, "four_views", "novel_views")])
+    assert set(by[("none", None, "novel_views")]["regions"]) == {"novel_views", "dreamed_views"}
+
+
 def test_rows_of_each_input_are_labelled_apart():
     """The 4-view input, and one photo through two dream backends: three labels, three chart
     groups, three points per split."""

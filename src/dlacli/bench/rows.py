@@ -380,7 +380,8 @@ def group(row: dict) -> str:
     cfg = row["config"]
     if cfg.get("input", "views") == "views":
         return row["method"]
-    return f"{cfg['input']}/{cfg.get('backend', '?')} {row['method']}"
+    oracle = f" oracle={cfg['oracle']}" if cfg.get("oracle") else ""
+    return f"{cfg['input']}/{cfg.get('backend', '?')} {row['method']}{oracle}"
 
 
 SUBJECT_KEYS = ("appearance", "wardrobe", "res")  # the protocol keys that say what the subjects were
@@ -397,7 +398,7 @@ def label(row: dict, leave_out: tuple[str, ...] = (), subjects: bool = False) ->
     checkpoint's hash, what a stability row measured of its subject (`subject_*`) and `leave_out`
     are left out). `subjects`: what the subjects were too, "unproject steps=50 (albedo, heldout,
     512 px)", for rows of several kinds of subject side by side."""
-    hidden = PROTOCOL_KEYS + ("input", "backend") + tuple(leave_out)
+    hidden = PROTOCOL_KEYS + ("input", "backend", "oracle") + tuple(leave_out)
     shown = [(k, v) for k, v in sorted(row["config"].items()) if k not in hidden]
     cfg = " ".join(f"{k}={v}" for k, v in shown if not k.startswith("subject_"))
     text = f"{group(row)} {cfg}".strip()

@@ -205,6 +205,18 @@ def accuracy(
         "--subjects",
         help="Keep the synthetic subjects in this folder and reuse those already there (same seed and settings).",
     ),
+    prior: str = typer.Option(
+        "none",
+        "--prior",
+        help="With --input photo: the body backend's completion priors to compare, comma-separated (none, shipped, "
+        "checkpoint folders; as dla dream --prior).",
+    ),
+    oracles: bool = typer.Option(
+        False,
+        "--oracles",
+        help="With --input photo: the error budget's rows too: the dream on the true body, the fitted body with the "
+        "true colours, and the four true views (config oracle=true_body|true_colours|four_views).",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of a table."),
     jsonl: Optional[Path] = _results("rows"),
 ) -> None:
@@ -237,8 +249,14 @@ def accuracy(
 
         raise DlaInputError("--subjects", f"{keep} is not a folder")
     common = dict(res=res, appearance=appearance, wardrobe=wardrobe, log=_stderr, keep=keep)
+    if oracles and input != "photo":
+        from dlacli.errors import DlaInputError
+
+        raise DlaInputError("--oracles", "applies to --input photo only")
     if input == "photo":
-        rows = run_photo(seed_list, specs, check_backends(backend.split(",")), fit_steps=fit_steps, **common)
+        backends = check_backends(backend.split(","))
+        priors = [p.strip() for p in prior.split(",") if p.strip()]
+        rows = run_photo(seed_list, specs, backends, fit_steps=fit_steps, oracles=oracles, priors=priors, **common)
     else:
         rows = run(seed_list, specs, **common)
     _emit(rows, jsonl, as_json, lambda r: report_markdown(r, None))
