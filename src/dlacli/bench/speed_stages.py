@@ -250,6 +250,8 @@ def dream_suite(cfg: SpeedConfig, row, log) -> list[dict]:
     from dlacli.io.detect import detect_person
     from dlacli.io.photo import read_photo
     from dlacli.stages import dream as D
+    from dlacli.stages.completion import SHIPPED as SHIPPED_PRIOR
+    from dlacli.stages.completion import load_prior
     from dlacli.stages.fit import fit_body
     from dlacli.stages.fit_report import overlay_png
     from dlacli.stages.plausibility import plausibility
@@ -291,6 +293,10 @@ def dream_suite(cfg: SpeedConfig, row, log) -> list[dict]:
             return make(rgb, alpha, cam, fit.vertices)
 
         stage("views_body", lambda: framed_views(body_views), {"res": res})
+        if SHIPPED_PRIOR.is_dir():  # the completion prior on top (dla dream --prior shipped)
+            net = load_prior("shipped")
+            prior_views = lambda *a: body_views(*a, prior=net)  # noqa: E731
+            stage("views_body_prior", lambda: framed_views(prior_views), {"res": res, "prior": "shipped"})
         stage("views_shell", lambda: framed_views(template_views), {"res": res})
         images, masks, cams, _ = timed["views_body"]
         stage("plausibility", lambda: plausibility(images, masks, cams, fit.vertices), {"res": res})
