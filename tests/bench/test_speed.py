@@ -146,6 +146,7 @@ def test_a_tiny_dream_run(monkeypatch):
         "detect",
         "fit",
         "views_body",
+        "views_body_prior",  # the shipped completion prior on top
         "views_shell",
         "plausibility",
         "write",
