@@ -85,6 +85,11 @@ def test_scaled_count_follows_the_area_the_person_covers():
     assert scaled_count(16384, 100.0, 50.0) == 4096
     assert scaled_count(16384, 100.0, 10.0) == LADDER[0]
     assert scaled_count(131072, 100.0, 400.0) == LADDER[-1]  # more than the ladder holds
+    # half as tall as float64 measures it: 0.1 / (0.3 - 0.1) is 0.5000000000000001, whose square
+    # times 16,384 is 4,096.000000000002; a real rounding that must not take the next rung
+    assert 0.1 / (0.3 - 0.1) > 0.5
+    assert scaled_count(16384, 0.3 - 0.1, 0.1) == 4096
+    assert scaled_count(16384, 100.0, 50.001) == 8192  # a real difference does (4,096.16)
     with pytest.raises(ValueError):
         scaled_count(16384, 0.0, 10.0)
 

@@ -173,7 +173,10 @@ def scaled_count(count: int, from_px: float, to_px: float, counts=LADDER) -> int
     counts = _check_counts(counts)
     if not (from_px > 0 and math.isfinite(from_px) and math.isfinite(to_px) and to_px >= 0):
         raise ValueError(f"scaled_count: subject sizes {from_px!r} -> {to_px!r} px")
-    need = count * (to_px / from_px) ** 2
+    # the sizes are float64 projections: a person exactly half as tall can measure 0.5 + 1e-16 as
+    # tall, which must not round 4x the count up to the next rung (a relative slack of 1e-9 is far
+    # above float64 rounding and far below any real difference in size)
+    need = count * (to_px / from_px) ** 2 * (1.0 - 1e-9)
     return next((n for n in counts if n >= need), counts[-1])
 
 
