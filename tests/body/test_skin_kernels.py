@@ -120,13 +120,13 @@ def test_texel_maps_without_gradients_match_the_torch_path(bodies):
 
 
 def test_kept_face_frames_follow_the_vertices_values(bodies):
-    """`body_face_frames` keeps the last bodies' frames and finds them by the vertices' values: a
+    """`uv.body_face_frames` keeps the last bodies' frames and finds them by the vertices' values: a
     body changed in place (the same array) gets its own frames, never the kept ones, and every
     answer equals the kernel's own, at resolution 1 (the skinning divides scale by R)."""
     from dlacli.body import skin_kernels as sk
-    from dlacli.body.uv import face_uv_terms
+    from dlacli.body import uv as U
 
-    faces, uv_d, inv_det, abs_inv_det = face_uv_terms()
+    faces, uv_d, inv_det, abs_inv_det = U.face_uv_terms()
 
     def direct(verts):
         vn = np.empty((verts.shape[0], 3))
@@ -135,14 +135,14 @@ def test_kept_face_frames_follow_the_vertices_values(bodies):
         return vn, dpdu, scale
 
     verts = np.ascontiguousarray(bodies[0].numpy(), np.float32)
-    first = sk.body_face_frames(verts)
-    assert sk.body_face_frames(verts.copy()) is first  # the same values: kept
+    first = U.body_face_frames(verts)
+    assert U.body_face_frames(verts.copy()) is first  # the same values: kept
     verts[:50] += np.float32(0.05)  # moved in place: the same object, other values
-    moved = sk.body_face_frames(verts)
+    moved = U.body_face_frames(verts)
     assert moved is not first
     for got, want in zip(moved, direct(verts)):
         assert np.array_equal(got, want)
     other = np.ascontiguousarray(bodies[1].numpy(), np.float32)
     for body in (other, verts, other):  # more bodies than are kept: still right
-        for got, want in zip(sk.body_face_frames(body), direct(body)):
+        for got, want in zip(U.body_face_frames(body), direct(body)):
             assert np.array_equal(got, want)

@@ -53,31 +53,6 @@ def face_frames(verts, faces, uv_d, inv_det, abs_inv_det, resolution, vn, dpdu, 
         vn[i, 2] /= norm
 
 
-_KEPT_FRAMES: list[tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]] = []
-KEPT_BODIES = 2  # a frame's UV rays, then its Gaussians: the same body twice in a row
-
-
-def body_face_frames(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`face_frames` of one body's vertices [V, 3] (float32) at resolution 1: (vn, dpdu, scale),
-    scale in metres per unit of UV (divide by R for a map of R texels: the same bits as the
-    kernel's own division). The last KEPT_BODIES bodies' frames are kept and found by the
-    vertices' values (never by identity): a view-conditioned avatar's UV rays and its skinning
-    ask for the same body's frames one after the other. Treat the arrays as read-only."""
-    from dlacli.body.uv import face_uv_terms
-
-    for kept, frames in _KEPT_FRAMES:
-        if kept.shape == verts.shape and np.array_equal(kept, verts):
-            return frames
-    faces, uv_d, inv_det, abs_inv_det = face_uv_terms()
-    vn = np.empty((verts.shape[0], 3), np.float64)
-    dpdu, scale = np.empty((faces.shape[0], 3), np.float64), np.empty(faces.shape[0], np.float64)
-    face_frames(verts, faces, uv_d, inv_det, abs_inv_det, 1.0, vn, dpdu, scale)
-    if len(_KEPT_FRAMES) >= KEPT_BODIES:
-        _KEPT_FRAMES.pop(0)
-    _KEPT_FRAMES.append((verts.copy(), (vn, dpdu, scale)))
-    return _KEPT_FRAMES[-1][1]
-
-
 @njit(cache=True, inline="always")
 def _point_and_normal(verts, faces, vn, f, bary, g):
     """Sample g's point (p0, p1, p2) on face f and its interpolated vertex normal (n0, n1, n2),

@@ -79,7 +79,7 @@ def skin_gaussians_on_body_fast(
     tangent frames, their quaternions and the skinning fused, float64 inside -> means [P, N, 3],
     quats [P, N, 4], scales [P, N, 3], float32 CPU tensors."""
     from dlacli.body import skin_kernels as sk
-    from dlacli.body.uv import FRAME_RESOLUTION, face_uv_terms
+    from dlacli.body.uv import FRAME_RESOLUTION, body_face_frames, face_uv_terms
 
     faces = face_uv_terms()[0]
     verts = np.ascontiguousarray(vertices.detach().cpu().numpy(), np.float32)
@@ -95,7 +95,7 @@ def skin_gaussians_on_body_fast(
     means, quats, scales = (np.empty((p, n, k), np.float32) for k in (3, 4, 3))
     res = float(FRAME_RESOLUTION if resolution is None else resolution)
     for b in range(p):
-        vn, dpdu, scale = sk.body_face_frames(verts[b])
+        vn, dpdu, scale = body_face_frames(verts[b])
         m = b if dx.shape[0] > 1 else 0
         sk.skin_samples(
             verts[b], faces, vn, dpdu, scale / res, fid, bar, dx[m], dq[m], dsc[m], means[b], quats[b], scales[b]

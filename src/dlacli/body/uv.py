@@ -133,6 +133,31 @@ def face_uv_terms() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return np.ascontiguousarray(faces, np.int64), uv_d, 1.0 / safe, 1.0 / np.abs(safe)
 
 
+_KEPT_FRAMES: list[tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]] = []
+KEPT_BODIES = 2  # a frame's UV rays, then its Gaussians: the same body twice in a row
+
+
+def body_face_frames(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`face_frames` of one body's vertices [V, 3] (float32) at resolution 1: (vn, dpdu, scale),
+    scale in metres per unit of UV (divide by R for a map of R texels: the same bits as the
+    kernel's own division). The last KEPT_BODIES bodies' frames are kept and found by the
+    vertices' values (never by identity): a view-conditioned avatar's UV rays and its skinning
+    ask for the same body's frames one after the other. Treat the arrays as read-only."""
+    from dlacli.body import skin_kernels as sk
+
+    for kept, frames in _KEPT_FRAMES:
+        if kept.shape == verts.shape and np.array_equal(kept, verts):
+            return frames
+    faces, uv_d, inv_det, abs_inv_det = face_uv_terms()
+    vn = np.empty((verts.shape[0], 3), np.float64)
+    dpdu, scale = np.empty((faces.shape[0], 3), np.float64), np.empty(faces.shape[0], np.float64)
+    sk.face_frames(verts, faces, uv_d, inv_det, abs_inv_det, 1.0, vn, dpdu, scale)
+    if len(_KEPT_FRAMES) >= KEPT_BODIES:
+        _KEPT_FRAMES.pop(0)
+    _KEPT_FRAMES.append((verts.copy(), (vn, dpdu, scale)))
+    return _KEPT_FRAMES[-1][1]
+
+
 def fast_surface(*tensors: torch.Tensor) -> bool:
     """Whether the numba kernels serve these tensors: float32 on the CPU, and no gradient asked
     for (the torch code keeps the gradients of training and refinement). What `surface_maps` /
@@ -154,7 +179,7 @@ def _surface_maps_fast(v: torch.Tensor, resolution: int) -> tuple[torch.Tensor, 
     verts = np.ascontiguousarray(v.detach().numpy(), np.float32)
     pos, nrm = (np.zeros((verts.shape[0], resolution * resolution, 3), np.float32) for _ in range(2))
     for t in range(verts.shape[0]):
-        vn = sk.body_face_frames(verts[t])[0]
+        vn = body_face_frames(verts[t])[0]
         sk.surface_points_normals(verts[t], faces, vn, fid, bar, dest, pos[t], nrm[t])
     shape = (verts.shape[0], resolution, resolution, 3)
     return torch.from_numpy(pos.reshape(shape)), torch.from_numpy(nrm.reshape(shape))
