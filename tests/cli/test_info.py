@@ -63,6 +63,10 @@ def test_json_summaries_agree_with_the_files():
     meta = json.loads((EXAMPLES / "views" / "transforms.json").read_text())
     s = json.loads(CliRunner().invoke(app, ["info", "--json", str(EXAMPLES / "views")]).stdout)
     assert (s["views"], s["width"], s["height"]) == (len(meta["frames"]), meta["w"], meta["h"])
+    named = CliRunner().invoke(app, ["info", "--json", str(EXAMPLES / "views" / "transforms.json")])
+    named = json.loads(named.stdout)
+    assert named.pop("path").endswith("transforms.json") and s.pop("path").endswith("views")
+    assert named == s  # the folder's transforms.json stands for the folder
 
 
 def _bad_inputs(tmp_path):

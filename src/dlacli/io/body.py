@@ -142,14 +142,9 @@ def write_body(body: BodyParams, path: str | os.PathLike) -> None:
 
 
 def summarize_body(path: str | os.PathLike) -> dict[str, Any]:
-    """JSON-able summary of a body.json (or, for a view folder's transforms.json, of its folder)."""
+    """JSON-able summary of a body.json."""
     path = Path(path)
-    d = load_json(path)
-    if isinstance(d, dict) and "frames" in d and "format" not in d:
-        from dlacli.io.views import summarize_views
-
-        return summarize_views(path.parent)
-    body = body_from_dict(d, path)
+    body = body_from_dict(load_json(path), path)
     angles = {label: float(np.linalg.norm(r)) for label, r in body.pose.items()}
     largest = max(angles, key=angles.get) if angles else None
     return {

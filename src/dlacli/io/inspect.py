@@ -11,6 +11,18 @@ from dlacli.errors import DlaInputError, excerpt
 from dlacli.io.validate import npz_format
 
 
+def _summarize_json(path: Path) -> dict[str, Any]:
+    """A body.json, or a view folder's transforms.json (a summary of its folder)."""
+    from dlacli.io.body import summarize_body
+    from dlacli.io.validate import load_json
+    from dlacli.io.views import summarize_views
+
+    d = load_json(path)
+    if isinstance(d, dict) and "frames" in d and "format" not in d:
+        return summarize_views(path.parent)
+    return summarize_body(path)
+
+
 def _summarizer(path: Path) -> Callable[[Path], dict[str, Any]]:
     if path.is_dir():
         from dlacli.io.views import summarize_views
@@ -18,9 +30,7 @@ def _summarizer(path: Path) -> Callable[[Path], dict[str, Any]]:
         return summarize_views
     suffix = path.suffix.lower()
     if suffix == ".json":
-        from dlacli.io.body import summarize_body
-
-        return summarize_body
+        return _summarize_json
     if suffix == ".ply":
         from dlacli.io.ply import summarize_ply
 
