@@ -296,6 +296,23 @@ class ViewSet:
     def __len__(self) -> int:
         return self.images.shape[0]
 
+    def targets(self, max_size: int) -> tuple[torch.Tensor, torch.Tensor, Cameras]:
+        """The views as render targets at most max_size pixels on the long side: (rgb [V, h, w, 3]
+        premultiplied on black, mask [V, h, w], the cameras resized to match), float32 tensors,
+        downsampled with an antialiased bilinear filter."""
+        import torch
+        import torch.nn.functional as nnf
+
+        h, w = self.masks.shape[1:]
+        f = min(1.0, max_size / max(h, w))
+        rh, rw = max(1, round(h * f)), max(1, round(w * f))
+        rgba = np.concatenate([self.images * self.masks[..., None], self.masks[..., None]], -1)
+        x = torch.from_numpy(rgba).float().permute(0, 3, 1, 2)
+        if (rh, rw) != (h, w):
+            x = nnf.interpolate(x, size=(rh, rw), mode="bilinear", antialias=True, align_corners=False)
+        x = x.permute(0, 2, 3, 1).clamp(0.0, 1.0)
+        return x[..., :3].contiguous(), x[..., 3].contiguous(), self.cameras.resized(rw, rh)
+
 
 # The channels of F, the [14, R, R] UV Gaussian map an avatar decodes to (formats/avatar.md, "The
 # Gaussian map F"), written once: dlacli.avatar.gaussian_map samples and places F with them, and

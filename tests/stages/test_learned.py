@@ -131,10 +131,9 @@ def test_lift_learned_refines_z_against_the_input_views(tiny_checkpoint, subject
     assert hist[0] is not None
     # the renders of the refined Z are closer to the inputs than those of the encoder's Z
     from dlacli.stages.learned import load_learned, render_targets
-    from dlacli.stages.lift import _resized_targets
 
     net, _ = load_learned(str(path))
-    rgb, mask, cams = _resized_targets(views, 64)
+    rgb, mask, cams = views.targets(64)
     _, verts, rest = _posed(subject)
 
     def err(z):

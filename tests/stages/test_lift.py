@@ -199,7 +199,7 @@ def test_refinement_compares_a_window_that_loses_nothing(subject):
 
     frames = gm.sample_frames(torch.from_numpy(vertices)[None], samples)
     (g,) = gm.gaussians_at_frames(torch.from_numpy(fmap).float(), samples, frames)
-    rgb_t, mask_t, cams = stage._resized_targets(views, cfg.render_size)
+    rgb_t, mask_t, cams = views.targets(cfg.render_size)
     rgb, alpha = stage._render(g, cams, None)
     whole = (rgb - rgb_t).abs().mean() + (alpha - mask_t).abs().mean() + 0.2 * (1 - ssim_map(rgb, rgb_t).mean())
     assert history[0] == pytest.approx(float(whole), rel=1e-5)

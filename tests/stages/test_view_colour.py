@@ -107,12 +107,12 @@ def test_lift_shows_what_render_draws(subject):
     through the view-cosine decoder, camera by camera."""
     from dlacli.avatar import gaussian_map as gm
     from dlacli.body.model import get_body_model
-    from dlacli.stages.lift import _resized_targets, render_views
+    from dlacli.stages.lift import render_views
     from dlacli.stages.render import render_avatar
 
     views = read_views(subject)
     avatar = lift(views, LiftConfig(steps=0, gaussians=N)).avatar
-    _, _, cams = _resized_targets(views, 512)
+    _, _, cams = views.targets(512)
     verts = get_body_model().forward_body(views.body).vertices[0].numpy()
     k = avatar.extra["lift"]["view_falloff"]
     rgb, alpha = render_views(avatar.z[:14], verts, cams, gm.make_samples(N, 0), k)

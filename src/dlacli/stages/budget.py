@@ -100,10 +100,8 @@ def _check_counts(counts) -> list[int]:
 def _scaled_views(views: ViewSet, render_size: int | None):
     """(ground truth rgb on black [V, h, w, 3], masks [V, h, w], cameras) with the long side at
     most render_size (None: the views' own size; never scaled up)."""
-    from dlacli.stages.lift import _resized_targets
-
     h, w = views.masks.shape[1:]
-    rgb, mask, cams = _resized_targets(views, max(h, w) if render_size is None else int(render_size))
+    rgb, mask, cams = views.targets(max(h, w) if render_size is None else int(render_size))
     return rgb.numpy(), mask.numpy(), cams
 
 

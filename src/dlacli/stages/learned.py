@@ -73,7 +73,7 @@ def lift_learned(
     render_size) -> stages.lift.LiftResult (avatar, the U-Net's pixel Gaussians, contact sheet)."""
     from dlacli.body.model import get_body_model
     from dlacli.body.uv import UV_LAYOUT
-    from dlacli.stages.lift import MAX_VIEWS, LiftResult, _resized_targets, sheet_and_novel_view
+    from dlacli.stages.lift import MAX_VIEWS, LiftResult, sheet_and_novel_view
     from dlacli.stages.refine import adam_refine
     from dlacli.types import Avatar
 
@@ -94,7 +94,7 @@ def lift_learned(
     z = mean[0].clone()
     history: list[float] = []
     if steps > 0:
-        t_rgb, t_mask, t_cams = _resized_targets(views, render_size)
+        t_rgb, t_mask, t_cams = views.targets(render_size)
         z.requires_grad_(True)
 
         def loss() -> torch.Tensor:

@@ -257,22 +257,6 @@ def unproject_to_uv(gaussians: Gaussians, eyes: np.ndarray, vertices: np.ndarray
 _CHANNEL_STEP = torch.tensor([5.0, 0, 0, 0, 0, 0, 0.1, 1, 1, 1, 1, 1, 1, 1])
 
 
-def _resized_targets(views: ViewSet, max_size: int):
-    """Views at most max_size pixels on the long side: (rgb [V, h, w, 3] premultiplied on black,
-    mask [V, h, w], cameras)."""
-    import torch.nn.functional as nnf
-
-    h, w = views.masks.shape[1:]
-    f = min(1.0, max_size / max(h, w))
-    rh, rw = max(1, round(h * f)), max(1, round(w * f))
-    rgba = np.concatenate([views.images * views.masks[..., None], views.masks[..., None]], -1)
-    x = torch.from_numpy(rgba).float().permute(0, 3, 1, 2)
-    if (rh, rw) != (h, w):
-        x = nnf.interpolate(x, size=(rh, rw), mode="bilinear", antialias=True, align_corners=False)
-    x = x.permute(0, 2, 3, 1).clamp(0.0, 1.0)
-    return x[..., :3].contiguous(), x[..., 3].contiguous(), views.cameras.resized(rw, rh)
-
-
 def _mean(x: torch.Tensor, rows: int = 1024) -> torch.Tensor:
     """Mean whose value does not depend on the thread count: torch splits a reduction to one
     number of more than 32,768 elements over its threads, but sums each row of a [rows, -1]
@@ -350,7 +334,7 @@ def refine(
     # F itself is optimised (the identity decoder's F = Z): its Gaussians are placed straight by
     # gaussian_map (as avatar/posed.py places any F), the body's frames computed once
     frames = gm.sample_frames(torch.from_numpy(np.asarray(vertices, dtype=np.float32))[None], samples)
-    target_rgb, target_mask, cams = _resized_targets(views, cfg.render_size)
+    target_rgb, target_mask, cams = views.targets(cfg.render_size)
     base = torch.from_numpy(fmap).float()
     # the views are compared only in a window around the subject (subject_crops): outside it
     # target and render are black, so every term below equals its whole-image value

@@ -33,12 +33,10 @@ def sheet_and_novel_view(views: ViewSet, novel: ViewSet | None, render):
     the views at <= 512 px above its renders of them, plus the first novel view (ground truth
     the avatar never saw) as a fifth column when `novel` has one -> (sheet, (render, truth,
     mask) of that novel view or None)."""
-    from dlacli.stages.lift import _resized_targets
-
-    rgb, _, cams = _resized_targets(views, 512)
+    rgb, _, cams = views.targets(512)
     inputs, renders, novel_view = rgb.numpy(), render(cams), None
     if novel is not None and len(novel):
-        n_rgb, n_mask, n_cams = _resized_targets(novel, 512)
+        n_rgb, n_mask, n_cams = novel.targets(512)
         n_out = render(n_cams.select(0))
         novel_view = (n_out[0], n_rgb[0].numpy(), n_mask[0].numpy())
         inputs, renders = np.concatenate([inputs, n_rgb[:1].numpy()]), np.concatenate([renders, n_out])
