@@ -162,7 +162,8 @@ def test_orbit_skeleton_turns_around(subject):
     half-way frame (azimuth 180) it is on the left; at N/4 (camera on +X) it is nearer."""
     from dlacli.body.keypoints import coco_keypoints
     from dlacli.nn.video_diffusion import project_points
-    from dlacli.stages.dream import body_pivot, orbit_cameras, orbit_frame_azimuths, view_frames
+    from dlacli.stages.dream import orbit_frame_azimuths, view_frames
+    from dlacli.stages.orbit import body_pivot, orbit_cameras
 
     _, _, fit = subject
     az = orbit_frame_azimuths(80)

@@ -39,10 +39,11 @@ def _prior(bias: float | None = None, resolution: int = 32):
 
 
 def test_an_untrained_prior_gives_the_rules_views_bit_for_bit(photo):
+    from dlacli.stages.completion import CompletionPrior
     from dlacli.stages.texture import body_views
 
     rule = body_views(*photo)
-    prior = body_views(*photo, prior=_prior())
+    prior = body_views(*photo, prior=CompletionPrior(_prior()))
     for a, b in zip(rule[:2], prior[:2]):
         np.testing.assert_array_equal(a, b)
 

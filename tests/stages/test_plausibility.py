@@ -38,7 +38,8 @@ def scene():
     from dlacli.body.model import get_body_model, rotations_to_pose
     from dlacli.data.subject import relaxed_pose
     from dlacli.render.raster import render_mesh
-    from dlacli.stages.dream import AZIMUTHS, body_pivot, frame_crop, orbit_cameras
+    from dlacli.stages.dream import frame_crop
+    from dlacli.stages.orbit import AZIMUTHS, body_pivot, orbit_cameras
 
     m = get_body_model()
     rot = relaxed_pose(np.random.default_rng(3), m.bone_labels, 20.0)

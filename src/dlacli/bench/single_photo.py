@@ -85,7 +85,7 @@ def score_dream(
     from dlacli.data.synth import render_subject
     from dlacli.io.motion import read_motion
     from dlacli.io.views import read_views
-    from dlacli.stages.dream import AZIMUTHS
+    from dlacli.stages.orbit import AZIMUTHS
 
     model = get_body_model()
     faces = np.asarray(model.faces, np.int64)

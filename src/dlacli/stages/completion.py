@@ -108,7 +108,29 @@ def correct(net, inputs: torch.Tensor, completed: np.ndarray, weight: np.ndarray
     return out.numpy().astype(np.float32)
 
 
-def load_prior(spec: str | None):
+class CompletionPrior:
+    """A completion network and the hash of its checkpoint: what the body backend's `prior` is
+    (`texture.textured_body` calls `fill`). Called like the network."""
+
+    def __init__(self, net, checkpoint_hash: str | None = None):
+        self.net, self.checkpoint_hash = net, checkpoint_hash
+
+    @property
+    def config(self):
+        return self.net.config
+
+    def __call__(self, inputs: torch.Tensor) -> torch.Tensor:
+        return self.net(inputs)
+
+    def fill(self, rgb, alpha, camera: Cameras, displaced, completed, weight, resolution: int) -> np.ndarray:
+        """Steps 1-3: the rule's colours at R (completed [N, 3], the bake's weight [N]) of the
+        framed photo (rgb, alpha, camera) on the displaced body [V, 3], corrected -> [N, 3]."""
+        r = self.config.resolution
+        inputs = prior_inputs(*photo_evidence(rgb, alpha, camera, displaced, r), r)
+        return correct(self.net, inputs, completed, weight, resolution)
+
+
+def load_prior(spec: str | None) -> CompletionPrior | None:
     """--prior: "none" (or None) -> None; "shipped" -> the weights in the package; else a
     checkpoint folder or hash (`dla train --method completion`). The network in eval mode; a
     missing, corrupted or foreign checkpoint is a one-line DlaInputError."""
@@ -129,5 +151,4 @@ def load_prior(spec: str | None):
             path,
             f"is a {type(loaded.module).__name__} checkpoint, not a completion prior (dla train --method completion)",
         )
-    loaded.module.checkpoint_hash = loaded.hash  # what the view folder records
-    return loaded.module
+    return CompletionPrior(loaded.module, loaded.hash)  # the hash: what the view folder records

@@ -6,7 +6,7 @@ Steps (docs/dream.md):
 2. framing: a square crop of the photo around the person, resampled to res x res; the crop's
    camera is the input camera with adjusted intrinsics (`frame_crop`);
 3. novel views at azimuths 90 / 180 / 270 degrees: the input camera turned about the vertical
-   (+Z) axis through the body's centre, counter-clockwise seen from above (`orbit_cameras`), so
+   (+Z) axis through the body's centre, counter-clockwise seen from above (stages/orbit.py), so
    azimuth 90 puts the camera on the +X side when the input camera is at azimuth 0 (-Y side);
 4. backend "body" (default; `dlacli.stages.texture.body_views`, CPU, no weights): the photo baked
    onto the fitted body's UV map, completed by symmetry and per body part, on the body displaced
@@ -33,10 +33,10 @@ from scipy import ndimage
 
 from dlacli.errors import DlaInputError
 from dlacli.limits import FIT_STEPS
+from dlacli.stages.orbit import AZIMUTHS, body_pivot, orbit_cameras
 from dlacli.stages.plausibility import plausibility
 from dlacli.types import Cameras, ViewSet
 
-AZIMUTHS = (0.0, 90.0, 180.0, 270.0)  # degrees, view order in the folder
 MARGIN = 0.08  # crop margin around the person's bounding box, fraction of its longer side
 MIN_PERSON_PX = 32  # the person must be at least this many pixels tall in the photo
 
@@ -179,31 +179,6 @@ def frame_crop(
     ks[0, :2, :] *= s
     cam = Cameras(camera.viewmats[:1].clone(), ks.to(camera.Ks.dtype), res, res)
     return np.clip(rgb, 0.0, 1.0).astype(np.float32), alpha.astype(np.float32), cam
-
-
-def body_pivot(vertices: np.ndarray) -> np.ndarray:
-    """[V, 3] -> [3] the centre of the body's bounding box: the orbit's vertical axis passes here."""
-    v = np.asarray(vertices, np.float64)
-    return (v.min(axis=0) + v.max(axis=0)) / 2.0
-
-
-def orbit_cameras(camera: Cameras, pivot: np.ndarray, azimuths_deg) -> Cameras:
-    """The first camera turned about the vertical (+Z) line through pivot [3] by each azimuth
-    (degrees, counter-clockwise seen from above) -> len(azimuths) cameras, same intrinsics."""
-    c2w = camera.c2w_opengl()[0]  # [4, 4]
-    p = np.asarray(pivot, np.float64)
-    mats = []
-    for a in azimuths_deg:
-        c, s = math.cos(math.radians(a)), math.sin(math.radians(a))
-        rot = np.eye(4)
-        rot[:2, :2] = [[c, -s], [s, c]]
-        move = np.eye(4)
-        move[:3, 3] = p
-        back = np.eye(4)
-        back[:3, 3] = -p
-        mats.append(move @ rot @ back @ c2w)
-    k = camera.Ks[0].double().numpy()
-    return Cameras.from_c2w_opengl(np.stack(mats), k[0, 0], k[1, 1], k[0, 2], k[1, 2], camera.width, camera.height)
 
 
 # ------------------------------------------------------------------------------- diffusion
@@ -393,7 +368,7 @@ def dream(
 
     if backend != "body" and prior not in (None, "none"):
         raise DlaInputError("--prior", "applies to --backend body only")
-    net = load_prior(DEFAULT_PRIOR if prior is None else prior) if backend == "body" else None
+    completion_prior = load_prior(DEFAULT_PRIOR if prior is None else prior) if backend == "body" else None
     pipe = None
     if chosen.load is not None:
         pipe, model = chosen.load(model, device, res, frames, say)
@@ -426,7 +401,7 @@ def dream(
         steps=steps,
         seed=seed,
         progress=say,
-        prior=net,
+        prior=completion_prior,
     )
     views.extra["dream"]["photo"] = Path(photo).name
     if notes:

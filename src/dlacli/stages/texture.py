@@ -480,18 +480,15 @@ def textured_body(
 ):
     """Steps 1-3 on a framed photo (rgb [R, R, 3], alpha [R, R], its camera, the fitted body
     [V, 3]) -> dict(vertices = the displaced body [V, 3], offsets [V], texture [Ru, Ru, 3],
-    weight [N] the bake's weights, resolution Ru). `prior`: a completion network
-    (dlacli.stages.completion) that corrects step 3 where the photo does not see the body."""
+    weight [N] the bake's weights, resolution Ru). `prior`: a completion prior
+    (stages/completion.CompletionPrior) whose `fill` corrects step 3 where the photo does not
+    see the body."""
     res = uv_resolution(rgb.shape[0]) if resolution is None else int(resolution)
     displaced, offsets = displaced_body(alpha, camera, vertices)
     colour, weight = bake(rgb, alpha, camera, displaced, res)
     completed = complete(colour, weight, res)
     if prior is not None:
-        from dlacli.stages.completion import correct, photo_evidence, prior_inputs
-
-        r = prior.config.resolution
-        inputs = prior_inputs(*photo_evidence(rgb, alpha, camera, displaced, r), r)
-        completed = correct(prior, inputs, completed, weight, res)
+        completed = prior.fill(rgb, alpha, camera, displaced, completed, weight, res)
     texture = texture_map(completed, res)
     return {"vertices": displaced, "offsets": offsets, "texture": texture, "weight": weight, "resolution": res}
 
@@ -519,7 +516,7 @@ def body_views(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np
     """The body backend on a framed photo: rgb [R, R, 3], alpha [R, R], camera (the crop's),
     vertices [V, 3] the fitted body -> (images [A, R, R, 3] straight colours, masks [A, R, R],
     cameras [A], settings dict). View 0 is the photo itself. `prior`: see `textured_body`."""
-    from dlacli.stages.dream import AZIMUTHS, body_pivot, orbit_cameras
+    from dlacli.stages.orbit import AZIMUTHS, body_pivot, orbit_cameras
 
     azimuths = AZIMUTHS if azimuths is None else azimuths
     body = textured_body(rgb, alpha, camera, vertices, prior=prior)
@@ -537,5 +534,5 @@ def body_views(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np
         "max_offset_m": round(float(body["offsets"].max()), 4),
     }
     if prior is not None:
-        settings["prior"] = {"hash": getattr(prior, "checkpoint_hash", None)}
+        settings["prior"] = {"hash": prior.checkpoint_hash}
     return images, masks, cams, settings

@@ -102,8 +102,9 @@ def make_sample(folder: Path, resolution: int = 128) -> dict[str, np.ndarray]:
     from dlacli.io.detect import detect_person
     from dlacli.io.views import read_views
     from dlacli.stages.completion import photo_evidence
-    from dlacli.stages.dream import body_pivot, frame_crop, orbit_cameras
+    from dlacli.stages.dream import frame_crop
     from dlacli.stages.fit import fit_body
+    from dlacli.stages.orbit import body_pivot, orbit_cameras
     from dlacli.stages.texture import bake, displaced_body
 
     rec = synth_record(folder)
