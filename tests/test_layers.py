@@ -233,3 +233,62 @@ def test_version_and_info_do_not_import_torch(argv):
     assert status.startswith("exit=0 "), (argv, done.stderr[-2000:])
     assert status.endswith("torch=False"), f"dla {' '.join(argv)} imported torch"
     assert done.stdout.strip(), (argv, done.stdout)
+
+
+def _import_circles() -> list[list[str]]:
+    """The strongly connected components of more than one module in the graph of every import
+    between dlacli's modules (lazy ones included: a function-level import that closes a circle
+    is still a circle in the design), found with Tarjan's algorithm."""
+    graph: dict[str, set[str]] = {m: set() for m in MODULES}
+    for e in EDGES:
+        if e.target in MODULES and e.target != e.importer:
+            graph[e.importer].add(e.target)
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    circles: list[list[str]] = []
+
+    def connect(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                connect(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                circles.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            connect(v)
+    return circles
+
+
+def test_the_circle_finder_finds_a_circle():
+    """The oracle for the test below: a hand-made graph with one circle of three modules."""
+    saved = list(EDGES)
+    try:
+        a, b, c = sorted(MODULES)[:3]
+        EDGES.extend([Edge(a, b, 1, True), Edge(b, c, 1, True), Edge(c, a, 1, True)])
+        assert any({a, b, c} <= set(circle) for circle in _import_circles())
+    finally:
+        EDGES[:] = saved
+
+
+def test_no_import_circles():
+    circles = _import_circles()
+    assert not circles, "modules that import each other (directly or around a circle):\n" + "\n".join(
+        " <-> ".join(c) for c in circles
+    )
