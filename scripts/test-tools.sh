@@ -3,7 +3,9 @@
 # tool): headless Chromium for `dla view`, PlayCanvas splat-transform for .ply/.spz/.splat, and
 # Blender's Python module bpy for the USD files. bpy 5.0 pins numpy < 2, which the project's own
 # environment cannot share, so it gets its own venv, .venv-bpy (tests/blender/conftest.py finds it;
-# DLA_BPY_PYTHON points elsewhere). Run from the repository root.
+# DLA_BPY_PYTHON points elsewhere). It also installs MediaPipe's lite and heavy landmark models
+# into .venv the way users do (scripts/install-landmarks.sh), for the --landmarks tests. Run from
+# the repository root.
 set -euo pipefail
 if ! command -v chromium >/dev/null; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
@@ -21,6 +23,10 @@ if ! command -v splat-transform >/dev/null; then
   else
     echo "test-tools: no npm; the splat-transform round trips will skip" >&2
   fi
+fi
+if [ -x .venv/bin/python ]; then
+  bash scripts/install-landmarks.sh .venv/bin/python \
+    || echo "test-tools: the lite and heavy landmark models did not install; their tests will skip" >&2
 fi
 if [ ! -x .venv-bpy/bin/python ]; then
   python3 -m venv .venv-bpy && .venv-bpy/bin/pip install -q "bpy==5.0.1" \

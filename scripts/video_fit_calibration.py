@@ -10,6 +10,9 @@ never tune on them).
 
   PYTHONPATH=src python scripts/video_fit_calibration.py prep cal
   PYTHONPATH=src python scripts/video_fit_calibration.py fit cal TAG
+
+LANDMARKS=lite|full|heavy picks MediaPipe's landmark model (default full; each has its own cache of
+detections, the rendered clips are shared).
 """
 
 import json
@@ -22,6 +25,8 @@ import numpy as np
 
 CACHE = Path(os.environ.get("DLA_CALIB_CACHE", "/tmp/dla-video-calib"))
 CACHE.mkdir(parents=True, exist_ok=True)
+LANDMARKS = os.environ.get("LANDMARKS", "full")
+SUFFIX = "" if LANDMARKS == "full" else f"_{LANDMARKS}"  # the detections of each landmark model
 TP = Path(__file__).resolve().parents[1] / "tests/data/third_party/motion"
 MAJOR = (
     "upperleg01.L",
@@ -139,7 +144,7 @@ def truth_motion(name):
 
 
 def prep(name, seed):
-    out = CACHE / f"{name}_s{seed}.npz"
+    out = CACHE / f"{name}_s{seed}{SUFFIX}.npz"
     if out.exists():
         return
     from dlacli.data.video import render_motion_video
@@ -149,7 +154,8 @@ def prep(name, seed):
     truth = truth_motion(name)
     video = CACHE / f"{name}_s{seed}.mp4"
     t0 = time.process_time()
-    render_motion_video(truth, video, res=320, seed=seed)
+    if not video.exists():
+        render_motion_video(truth, video, res=320, seed=seed)
     t1 = time.process_time()
     # detection, also keeping MediaPipe's raw 33 landmarks (image x,y,z,vis,pres and world)
     from dlacli.io import detect as D
@@ -170,7 +176,7 @@ def prep(name, seed):
         return orig(result, h, w)
 
     D._detection = spy
-    det = mv.detect_clip(open_video(video))
+    det = mv.detect_clip(open_video(video), landmarks=LANDMARKS)
     D._detection = orig
     t2 = time.process_time()
     np.savez(
@@ -185,13 +191,16 @@ def prep(name, seed):
         raw_img=np.array(raw_img),
         raw_world=np.array(raw_world),
     )
-    print(f"prep {name} s{seed}: {truth.num_frames} frames render {t1 - t0:.1f}s detect {t2 - t1:.1f}s", flush=True)
+    print(
+        f"prep {name} s{seed} {LANDMARKS}: {truth.num_frames} frames render {t1 - t0:.1f}s detect {t2 - t1:.1f}s",
+        flush=True,
+    )
 
 
 def load_det(name, seed):
     from dlacli.stages.motion_video import ClipDetections, unswap_left_right
 
-    z = np.load(CACHE / f"{name}_s{seed}.npz")
+    z = np.load(CACHE / f"{name}_s{seed}{SUFFIX}.npz")
     # the cache holds the tracked, cleaned detections; what `detect_clip` does after them:
     kps, lms, unswapped = unswap_left_right(z["keypoints"], z["landmarks"], z["found"], float(z["fps"]))
     det = ClipDetections(
@@ -232,7 +241,7 @@ def run_fit(name, seed, steps=None):
 
     det, z = load_det(name, seed)
     orig = mv.detect_clip
-    mv.detect_clip = lambda clip, progress=None: det
+    mv.detect_clip = lambda clip, progress=None, landmarks=None: det
     try:
         t0 = time.process_time()
         res = mv.video_to_motion(None, steps=steps)

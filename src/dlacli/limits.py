@@ -22,6 +22,8 @@ BUDGET_TOLERANCE_DB = 0.2
 
 # --- lift
 FIT_STEPS = 150  # optimisation steps of dream's body fit (docs/fit.md: 300 fitted no better)
+LANDMARKS = ("lite", "full", "heavy")  # MediaPipe Pose landmark models (dlacli.io.detect; docs/motion.md)
+DEFAULT_LANDMARKS = "full"  # the one the mediapipe wheel ships
 DEFAULT_PRIOR = "shipped"  # dream's body backend: its completion prior (dlacli.stages.completion; docs/dream.md)
 LIFT_STEPS = 30  # refinement steps of the default lift (0 = mesh unprojection only), at LIFT_LR: as accurate on
 # held-out novel views and poses as 50 steps at 0.01, in 60 % of the time (docs/lift.md "Cost and accuracy")

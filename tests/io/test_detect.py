@@ -186,6 +186,7 @@ def test_cli_dream_detects_the_person_without_keypoints(third_party_data, tmp_pa
     assert body["format"] == "dla.body/1"
     transforms = json.loads((tmp_path / "views" / "transforms.json").read_text())
     assert len(transforms["frames"]) == 4
+    assert transforms["dla"]["dream"]["landmarks"] == "full"  # the detector ran, with the default model
     # the per-joint report: a 3-step fit is far off, so its worst joint is reported and warned about
     fit = transforms["dla"]["dream"]["fit"]
     worst = fit["worst_joint"]

@@ -62,6 +62,7 @@ def dream(
         "well-seen colour, blurred) or a checkpoint folder or hash from `dla train --method completion`. Default: "
         f"{DEFAULT_PRIOR}.",
     ),
+    landmarks: str = options.landmarks(),
 ) -> None:
     """Dream novel views of a person from one photo: fit the body, then write a view folder with
     the photo (azimuth 0) and views at azimuths 90, 180, 270, plus body.json and fit_overlay.png.
@@ -73,7 +74,8 @@ def dream(
     from dlacli.io.views import LAYOUT
 
     check_outputs(folders=[(output, (*LAYOUT, "fit_overlay.png"))], inputs=[photo, keypoints, mask])
-    detection = _start_detection(photo, mask, keypoints) if backend in ("body", "shell", "template") else None
+    detects = backend in ("body", "shell", "template")
+    detection = _start_detection(photo, mask, keypoints, landmarks) if detects else None
     from dlacli.stages.dream import dream as run  # imports torch: the detection runs meanwhile
 
     warnings: list[str] = []
@@ -101,6 +103,7 @@ def dream(
                 progress=report,
                 prior=prior,
                 detection=detection,
+                landmarks=landmarks,
             )
     finally:
         if detection is not None:
@@ -110,7 +113,7 @@ def dream(
     typer.echo(str(path))
 
 
-def _start_detection(photo: Path, mask: Optional[Path], keypoints: Optional[Path]):
+def _start_detection(photo: Path, mask: Optional[Path], keypoints: Optional[Path], landmarks: str):
     """A `BackgroundDetection` of the photo when dream will need the detector (no --mask or no
     --keypoints, and the photo has no alpha channel standing in for the mask), else None; None
     too when the photo cannot be read (dream then reports that itself, in its own order)."""
@@ -124,7 +127,7 @@ def _start_detection(photo: Path, mask: Optional[Path], keypoints: Optional[Path
         return None
     if alpha is not None and kps is not None:
         return None
-    return BackgroundDetection(image, alpha)
+    return BackgroundDetection(image, alpha, landmarks)
 
 
 def register(app: typer.Typer) -> None:

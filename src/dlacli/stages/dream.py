@@ -32,7 +32,7 @@ import torch
 from scipy import ndimage
 
 from dlacli.errors import DlaInputError
-from dlacli.limits import FIT_STEPS
+from dlacli.limits import DEFAULT_LANDMARKS, FIT_STEPS
 from dlacli.stages.orbit import AZIMUTHS, body_pivot, orbit_cameras
 from dlacli.stages.plausibility import plausibility
 from dlacli.types import Cameras, ViewSet
@@ -256,33 +256,36 @@ def diffusion_views(
 # ------------------------------------------------------------------------------- orchestration
 
 
-def _read_inputs(photo, mask_path, keypoints_path, notes: list[str], detection=None):
-    """-> image [H, W, 3], mask [H, W], keypoints [17, 3], 3D landmarks [17, 4] or None. Mask:
+def _read_inputs(photo, mask_path, keypoints_path, notes: list[str], detection=None, landmarks=DEFAULT_LANDMARKS):
+    """-> image [H, W, 3], mask [H, W], keypoints [17, 3], 3D landmarks [17, 4] or None, whether
+    the detector ran. Mask:
     --mask, else the photo's alpha channel (dlacli.io.photo's rule), else mediapipe; keypoints:
     --keypoints (with its optional "keypoints_3d"), else mediapipe (its world landmarks). When the
     mask is known, the detector sees the photo composited over grey (`detect_person`'s alpha), as
     the stored test keypoints were made. `detection`: a started `dlacli.io.detect.BackgroundDetection`
-    of the same photo and mask (the CLI starts one before importing torch), used instead."""
+    of the same photo and mask (the CLI starts one before importing torch), used instead;
+    `landmarks`: MediaPipe's landmark model (io.detect.landmark_model)."""
     from dlacli.io.photo import read_coco_keypoints_3d, read_photo
 
     image, mask, keypoints = read_photo(photo, mask_path=mask_path, keypoints_path=keypoints_path, notes=notes)
-    landmarks = None if keypoints_path is None else read_coco_keypoints_3d(keypoints_path)
-    if mask is None or keypoints is None:
+    world = None if keypoints_path is None else read_coco_keypoints_3d(keypoints_path)
+    detected = mask is None or keypoints is None
+    if detected:
         try:
             if detection is not None:
                 det = detection.result()
             else:
                 from dlacli.io.detect import detect_person
 
-                det = detect_person(image, alpha=mask)
+                det = detect_person(image, alpha=mask, landmarks=landmarks)
         except DlaInputError as err:
             missing = " and ".join(n for n, v in (("--mask", mask), ("--keypoints", keypoints)) if v is None)
             why = " (the photo has no alpha channel)" if mask is None else ""
             raise DlaInputError(photo, f"{err.problem}: pass {missing}{why}") from None
         mask = det.mask if mask is None else mask
         if keypoints is None:
-            keypoints, landmarks = det.keypoints, det.world
-    return image, np.asarray(mask, np.float32), np.asarray(keypoints, np.float32), landmarks
+            keypoints, world = det.keypoints, det.world
+    return image, np.asarray(mask, np.float32), np.asarray(keypoints, np.float32), world, detected
 
 
 def build_views(
@@ -351,9 +354,10 @@ def dream(
     progress: Progress | None = None,
     detection=None,
     prior: str | None = None,
+    landmarks: str = DEFAULT_LANDMARKS,
 ) -> Path:
     """One photo -> a view folder at `output` (written atomically; see the module docstring).
-    `detection`: see `_read_inputs`. `prior`: the body backend's completion prior, "none",
+    `detection`, `landmarks`: see `_read_inputs`. `prior`: the body backend's completion prior, "none",
     "shipped" or a checkpoint (dlacli.stages.completion.load_prior); None: its default."""
     from dlacli.stages.fit import fit_body
     from dlacli.stages.fit_report import fit_warning, overlay_png
@@ -373,7 +377,7 @@ def dream(
     if chosen.load is not None:
         pipe, model = chosen.load(model, device, res, frames, say)
     notes: list[str] = []
-    image, person, kps, landmarks = _read_inputs(photo, mask, keypoints, notes, detection)
+    image, person, kps, world, detected = _read_inputs(photo, mask, keypoints, notes, detection, landmarks)
     for note in notes:
         say(note)
     crop_box(person)  # fail early on an empty mask or a tiny person
@@ -383,7 +387,7 @@ def dream(
         person,
         kps,
         steps=fit_steps,
-        landmarks_3d=landmarks,
+        landmarks_3d=world,
         progress=lambda done, total: say(f"fitting the body {done}/{total}"),
     )
     warning = fit_warning(fit)
@@ -408,5 +412,7 @@ def dream(
         views.extra["dream"]["notes"] = notes
     if model is not None:
         views.extra["dream"]["model"] = str(model)
+    if detected:
+        views.extra["dream"]["landmarks"] = landmarks
     say("writing the view folder")
     return write_dream_folder(views, overlay_png(image * person[..., None], fit), output)

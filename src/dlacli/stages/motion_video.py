@@ -27,6 +27,7 @@ import numpy as np
 from dlacli.body.keypoints import COCO_MIRROR, HIPS, MIN_CONF, SHOULDERS, TORSO
 from dlacli.errors import DlaInputError
 from dlacli.io.video import VideoClip
+from dlacli.limits import DEFAULT_LANDMARKS
 from dlacli.types import Motion
 
 if TYPE_CHECKING:
@@ -152,12 +153,14 @@ def unswap_left_right(keypoints: np.ndarray, landmarks: np.ndarray, found: np.nd
     return kps, lms, [int(k) for k in fix]
 
 
-def detect_clip(clip: VideoClip, progress: Callable[[int, int | None], None] | None = None) -> ClipDetections:
-    """Stream the clip through the tracker (module doc, step 1)."""
+def detect_clip(
+    clip: VideoClip, progress: Callable[[int, int | None], None] | None = None, landmarks: str = DEFAULT_LANDMARKS
+) -> ClipDetections:
+    """Stream the clip through the tracker (module doc, step 1) with the landmark model `landmarks`."""
     from dlacli.io.detect import PoseTracker
 
     kps, lms, found, times = [], [], [], []
-    with PoseTracker() as tracker:
+    with PoseTracker(landmarks) as tracker:
         for k, t, frame in clip:
             det = tracker(frame)
             kp = np.zeros((17, 3), np.float32)
@@ -259,9 +262,10 @@ def video_to_motion(
     detect_progress: Callable[[int, int | None], None] | None = None,
     fit_progress: Callable[[int, int], None] | None = None,
     lifter: PoseLifter | None = None,
+    landmarks: str = DEFAULT_LANDMARKS,
 ) -> VideoMotion:
-    """Steps 1-4 of the module doc; `lifter` a `nn.lifter.PoseLifter` (None: the shipped weights).
-    DlaInputError when no frame shows a person."""
+    """Steps 1-4 of the module doc; `lifter` a `nn.lifter.PoseLifter` (None: the shipped weights),
+    `landmarks` MediaPipe's landmark model (io.detect). DlaInputError when no frame shows a person."""
     import time
 
     import torch
@@ -272,7 +276,7 @@ def video_to_motion(
     from dlacli.stages.motion_fit import ANKLES, VIDEO_BONES, fit_motion
 
     t0 = time.perf_counter()
-    det = detect_clip(clip, detect_progress)
+    det = detect_clip(clip, detect_progress, landmarks)
     t1 = time.perf_counter()
     frames = np.nonzero(det.found)[0]
     if len(frames) == 0:
