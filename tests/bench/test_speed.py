@@ -178,13 +178,16 @@ def test_a_tiny_motion_run(monkeypatch):
     cfg = quick_config()
     cfg.repeats = 1
     rows = S.run(["motion"], cfg, log=lambda s: None)
-    assert len(ran) == 2 and ran[0] == ran[1] and ran[1][:2] == ["motion", "from-video"]
+    models = speed_stages._installed_landmarks()  # full first, then lite / heavy where installed
+    assert models[0] == "full" and len(ran) == 1 + len(models) and ran[0][:2] == ["motion", "from-video"]
+    assert all(a == [*ran[0], "--landmarks", m] for a, m in zip(ran[1:], models))  # the warm-up, then each
     assert all(check_row(dict(r)) == r for r in rows)
-    by_case = {r["case"]: r for r in rows}
-    assert list(by_case) == ["from_video_command", "from_video_detect", "from_video_fit", "from_video_process_cpu"]
     frames = int(round(cfg.motion_seconds * 30)) + 1
     assert all(r["items"] == frames and r["config"]["frames"] == frames and r["seconds"] > 0 for r in rows)
-    assert by_case["from_video_command"]["seconds"] == 2.0
+    for m in models:  # the default's rows keep their old config (no "landmarks" key)
+        by_case = {r["case"]: r for r in rows if r["config"].get("landmarks", "full") == m}
+        assert list(by_case) == ["from_video_command", "from_video_detect", "from_video_fit", "from_video_process_cpu"]
+        assert by_case["from_video_command"]["seconds"] == 2.0
 
 
 @pytest.mark.slow

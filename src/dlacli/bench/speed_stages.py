@@ -316,6 +316,24 @@ def _motion_clip(name: str):
     return load_motion(name, fps=30.0)
 
 
+def _installed_landmarks() -> list[str]:
+    """The default landmark model, then the others that are installed (io.detect.landmark_model)."""
+    from dlacli.errors import DlaInputError
+    from dlacli.io.detect import landmark_model
+    from dlacli.limits import DEFAULT_LANDMARKS, LANDMARKS
+
+    out = [DEFAULT_LANDMARKS]
+    for name in LANDMARKS:
+        if name == DEFAULT_LANDMARKS:
+            continue
+        try:
+            landmark_model(name)
+        except DlaInputError:
+            continue
+        out.append(name)
+    return out
+
+
 def motion_suite(cfg: SpeedConfig, row, log) -> list[dict]:
     """`dla motion from-video` on a synthetic video of a known motion (data/video.py; the clip
     played forward and backward until `motion_seconds` long, at 30 fps): the whole command in a
@@ -328,6 +346,7 @@ def motion_suite(cfg: SpeedConfig, row, log) -> list[dict]:
 
     from dlacli.data.video import render_motion_video
     from dlacli.io.video import open_video
+    from dlacli.limits import DEFAULT_LANDMARKS
     from dlacli.stages.motion_video import video_to_motion
     from dlacli.types import Motion
 
@@ -337,26 +356,31 @@ def motion_suite(cfg: SpeedConfig, row, log) -> list[dict]:
     sel = np.arange(n) % period
     sel = np.where(sel < clip.num_frames, sel, period - sel)  # forward, backward, forward, ...
     clip = Motion(clip.bone_labels, clip.rotations[sel], clip.root_rotation[sel], clip.root_translation[sel], clip.fps)
-    c = {"res": cfg.motion_res, "frames": n, "clip": cfg.motion_clip}
+    base = {"res": cfg.motion_res, "frames": n, "clip": cfg.motion_clip}
     out = []
     with tempfile.TemporaryDirectory(prefix="dla-speed-motion-") as tmp:
         video = Path(tmp) / "clip.mp4"
         render_motion_video(clip, video, res=cfg.motion_res)
         argv = ["motion", "from-video", str(video), "-o", str(Path(tmp) / "m.npz")]
         cli_seconds(argv)  # warm-up
-        times = [cli_seconds(argv)[0] for _ in range(max(1, min(cfg.repeats, 3)))]
-        med = statistics.median(times)
-        out.append(row("motion", "from_video_command", "cli", c, med, len(times), min_seconds=min(times), items=n))
-        log(f"motion from-video, {n} frames at {cfg.motion_res} px: {med:.1f} s = {n / med:.1f} video frames/s")
-        parts = []
-        for _ in range(max(1, min(cfg.repeats, 3))):
-            cpu = time.process_time()
-            sec = dict(video_to_motion(open_video(video)).seconds)
-            sec["cpu"] = time.process_time() - cpu
-            parts.append(sec)
-        for stage in ("detect", "fit", "cpu"):
-            sec = statistics.median(p[stage] for p in parts)
-            case = "from_video_process_cpu" if stage == "cpu" else f"from_video_{stage}"
-            out.append(row("motion", case, "cpu", c, sec, len(parts), items=n))
-            log(f"motion from-video {stage}: {sec:.2f} s = {n / sec:.1f} frames/s")
+        for landmarks in _installed_landmarks():  # the default's rows first, keyed as before
+            c = base if landmarks == DEFAULT_LANDMARKS else {**base, "landmarks": landmarks}
+            times = [cli_seconds([*argv, "--landmarks", landmarks])[0] for _ in range(max(1, min(cfg.repeats, 3)))]
+            med = statistics.median(times)
+            out.append(row("motion", "from_video_command", "cli", c, med, len(times), min_seconds=min(times), items=n))
+            log(
+                f"motion from-video ({landmarks} landmarks), {n} frames at {cfg.motion_res} px: {med:.1f} s = "
+                f"{n / med:.1f} video frames/s"
+            )
+            parts = []
+            for _ in range(max(1, min(cfg.repeats, 3))):
+                cpu = time.process_time()
+                sec = dict(video_to_motion(open_video(video), landmarks=landmarks).seconds)
+                sec["cpu"] = time.process_time() - cpu
+                parts.append(sec)
+            for stage in ("detect", "fit", "cpu"):
+                sec = statistics.median(p[stage] for p in parts)
+                case = "from_video_process_cpu" if stage == "cpu" else f"from_video_{stage}"
+                out.append(row("motion", case, "cpu", c, sec, len(parts), items=n))
+                log(f"motion from-video {stage} ({landmarks}): {sec:.2f} s = {n / sec:.1f} frames/s")
     return out
