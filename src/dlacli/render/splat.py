@@ -299,23 +299,28 @@ def _raster_cpu(means2d, conics, colors, opacities, radii, depths, width, height
     return acc, tfin, (params, offsets, lists, trect, *saved)
 
 
-def _composite(params, offsets, lists, ncam, width, height):
+def _composite(params, offsets, lists, ncam, width, height, exact: bool = True):
     """`K.raster_forward` over the binned pairs -> (acc [C, H, W, 4] in params' dtype, t_final
-    [C, H, W] float64, (t_final, last, work) for the backward pass)."""
+    [C, H, W] float64, (t_final, last, work) for the backward pass); `exact=False` (float32
+    params only): `K.raster_forward_fast`, whose third item is (t_final, None, work)."""
     cost = np.diff(offsets).astype(np.float64)
     wptr, wtiles = B.assign_workers(cost, K.num_threads())
     acc = np.empty((ncam, height, width, 4), dtype=params.dtype)
     tfin = np.empty((ncam, height, width), dtype=np.float64)
-    last = np.empty((ncam, height, width), dtype=np.int64)
     work = np.zeros(cost.shape[0], dtype=np.float64)
+    if not exact and params.dtype == np.float32:
+        K.raster_forward_fast(params, offsets, lists, wptr, wtiles, ncam, width, height, acc, tfin, work)
+        return acc, tfin, (tfin, None, work)
+    last = np.empty((ncam, height, width), dtype=np.int64)
     K.raster_forward(params, offsets, lists, wptr, wtiles, ncam, width, height, acc, tfin, last, work)
     return acc, tfin, (tfin, last, work)
 
 
-def _render_plain_cpu(g: Gaussians, viewmats, Ks, width, height, bg, degree) -> RenderOutput:
+def _render_plain_cpu(g: Gaussians, viewmats, Ks, width, height, bg, degree, exact: bool = True) -> RenderOutput:
     """`render_gaussians` without autograd on the CPU: projection and packing in one numba pass
     (`B.project_and_pack`), then the same binning, compositing and `K.compose` as the autograd
-    route, whose images it equals bit for bit (tests/render/test_splat.py)."""
+    route, whose images it equals bit for bit (tests/render/test_splat.py); `exact=False`
+    composites with `K.raster_forward_fast` (float32; tests/render/test_splat_fast.py)."""
     dtype = g.means.dtype
     npd = np.float64 if dtype == torch.float64 else np.float32
     ncam, n = viewmats.shape[0], len(g)
@@ -340,7 +345,7 @@ def _render_plain_cpu(g: Gaussians, viewmats, Ks, width, height, bg, degree) -> 
         keys,
     )
     offsets, lists = B.tile_lists(keys.view(np.uint32), trect, width, height)
-    acc, tfin, _ = _composite(params, offsets, lists, ncam, width, height)
+    acc, tfin, _ = _composite(params, offsets, lists, ncam, width, height, exact)
     out = RenderOutput(*(torch.empty(s, dtype=dtype) for s in ((ncam, height, width, 3), *[(ncam, height, width)] * 2)))
     K.compose(acc, tfin, bg.detach().contiguous().numpy(), *(t.numpy() for t in out))
     return out
@@ -465,6 +470,7 @@ def render_gaussians(
     *,
     background=None,  # [3] or [C, 3], default black
     sh_degree: int | None = None,
+    exact: bool = True,
 ) -> RenderOutput:
     """Render C views of N Gaussians; differentiable w.r.t. every Gaussian parameter.
 
@@ -473,13 +479,17 @@ def render_gaussians(
     cameras; item b equals rendering `gaussians.item(b)` alone, values and gradients.
     Device and dtype follow `gaussians.means`; cameras are moved there. float32 CUDA tensors with
     gsplat installed -> gsplat; otherwise the numba CPU path (CUDA tensors without gsplat, or
-    not float32, are rendered on the CPU and the results moved back).
+    not float32, are rendered on the CPU and the results moved back). `exact=False`: where no
+    gradient is asked for, float32 on the CPU composites with the fast kernel
+    (`splat_kernels.raster_forward_fast`: a polynomial exponential, float32 state; images within
+    the tolerance docs/rendering.md states of the exact ones, the same bits run to run); ignored
+    elsewhere.
     """
     lead = gaussians.batch_shape
     if lead:
         flat = Gaussians(*(t.reshape(-1, *t.shape[len(lead) :]) for t in gaussians._tensors()))
         outs = [
-            render_gaussians(flat.item(b), cameras, background=background, sh_degree=sh_degree)
+            render_gaussians(flat.item(b), cameras, background=background, sh_degree=sh_degree, exact=exact)
             for b in range(flat.means.shape[0])
         ]
         return RenderOutput(*(torch.stack(parts).reshape(*lead, *parts[0].shape) for parts in zip(*outs)))
@@ -511,7 +521,7 @@ def render_gaussians(
         out = RenderOutput(out_rgb, alpha, depth)
     else:  # no autograd: the same images without the torch intermediates
         with torch.no_grad():
-            out = _render_plain_cpu(g, viewmats, Ks, w, h, bg, degree)
+            out = _render_plain_cpu(g, viewmats, Ks, w, h, bg, degree, exact)
     if device.type != "cpu":
         out = RenderOutput(*(t.to(device) for t in out))
     return out
