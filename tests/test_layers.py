@@ -1,4 +1,4 @@
-"""The layering of DESIGN.md section 3, checked on the source with `ast` (every import, at any
+"""The layering of docs/architecture.md ("The layers"), checked on the source with `ast` (every import, at any
 depth: module level, inside functions, under `if TYPE_CHECKING:`), plus the start-up promise that
 `dla --version` and `dla info` on the small artifacts never load torch.
 
@@ -50,7 +50,7 @@ RANK = {
 # (importer, imported) pairs allowed between two units of the same rank, with the reason.
 ALLOWED = {
     ("dlacli.body.uv", "dlacli.io.atomic"): (
-        "body writes its UV-raster cache with the toolkit's one atomic writer (DESIGN 5.7); "
+        "body writes its UV-raster cache with the toolkit's one atomic writer (docs/architecture.md, Writing files); "
         "io.atomic is a leaf of io (it imports only errors and io.files)"
     ),
     ("dlacli.data.poses", "dlacli.stages.motion_source"): (
@@ -147,7 +147,7 @@ def test_the_scan_sees_the_package():
 
 def test_every_module_has_a_layer():
     missing = sorted({_unit(m) for m in MODULES} - set(RANK))
-    assert not missing, f"modules outside every layer (add them to RANK, DESIGN.md section 3): {missing}"
+    assert not missing, f"modules outside every layer (add them to RANK, docs/architecture.md: The layers): {missing}"
 
 
 def test_imports_point_down_the_layers():
@@ -166,7 +166,7 @@ def test_imports_point_down_the_layers():
             continue
         rel = "a higher layer than" if RANK[dst] > RANK[src] else "the same layer as"
         bad.append(f"{e.where()} ({dst} is on {rel} {src})")
-    assert not bad, "imports against DESIGN.md's direction:\n" + "\n".join(bad)
+    assert not bad, "imports against the direction of docs/architecture.md's layers:\n" + "\n".join(bad)
     assert used == set(ALLOWED), f"ALLOWED lists edges the code no longer has: {set(ALLOWED) - used}"
 
 

@@ -1,5 +1,5 @@
 """The code style CI holds the project to: ruff's linter and formatter, with pyproject.toml's
-configuration, over src and tests (DESIGN.md section 3: "ruff (format + lint) passes")."""
+configuration, over src and tests (docs/architecture.md, "The layers": ruff passes over src and tests)."""
 
 from __future__ import annotations
 

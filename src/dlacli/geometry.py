@@ -1,6 +1,6 @@
 """Geometry shared by every layer: rotations, pinhole projection, look-at cameras, Plucker rays.
 
-Bottom layer (DESIGN.md §3): imports only numpy, torch and dlacli.types. Conventions are those of
+Bottom layer (docs/architecture.md, "The layers"): imports only numpy, torch and dlacli.types. Conventions are those of
 docs/conventions.md, not restated here beyond what a signature needs:
 - rotations: matrices rotate column vectors (x' = R x); axis-angle = rotation vector (direction =
   axis, norm = angle, radians); quaternions (w, x, y, z), Hamilton product; `matrix_to_quat` and

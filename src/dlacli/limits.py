@@ -3,12 +3,12 @@ imports this module to build its options and help texts without loading torch).
 
 A stage reads its defaults from here, and the CLI's options and help texts quote the same names, so
 a default changes in one place. Limits bound what a file or an option may ask for (memory and time
-follow from them; DESIGN.md section 3, "limits.py").
+follow from them; docs/architecture.md, "limits.py").
 """
 
 from __future__ import annotations
 
-# --- Gaussians sampled from an avatar's UV map (DESIGN.md section 1, "Animate")
+# --- Gaussians sampled from an avatar's UV map (docs/architecture.md, "The method": Animate)
 DEFAULT_GAUSSIANS = 131_072  # the paper's count: 65,536 uniform in UV + 65,536 uniform on the surface
 # what the default lift refines with and records: refined at this count, an avatar scores better on
 # novel views than refined at DEFAULT_GAUSSIANS, in a third of the time (docs/lift.md "Cost and accuracy")

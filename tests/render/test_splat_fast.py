@@ -56,7 +56,9 @@ def walking_avatar(tmp_path_factory):
     from dlacli.stages.methods import make_spec
     from dlacli.types import Motion
 
-    folder = synth(9007, tmp_path_factory.mktemp("fast") / "s", res=256, novel_views=0, novel_poses=0, wardrobe="heldout")
+    folder = synth(
+        9007, tmp_path_factory.mktemp("fast") / "s", res=256, novel_views=0, novel_poses=0, wardrobe="heldout"
+    )
     avatar = make_spec("unproject", steps=0).lift(read_views(folder)).avatar
     walk = builtin_motion("walk")
     idx = np.arange(0, walk.num_frames, max(1, walk.num_frames // 4))[:4]

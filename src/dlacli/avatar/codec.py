@@ -1,9 +1,9 @@
 """The codec: the one place that maps an avatar's `encoder` / `decoder` / `checkpoint` to code.
 
-Method (DESIGN.md §1, "Animate"): the Gaussian Parameter Decoder turns the latent Z into the UV
-Gaussian map F = F_c(Z) + F_delta(Z, pose maps, Plücker rays). F_c is the canonical part,
-computed once per avatar (and cacheable in avatar.npz); F_delta depends on the target pose and,
-for a view-conditioned decoder, on the camera. Callers never test method names: `Decoded` asks
+Method (docs/architecture.md, "The method" and "The codec"): the Gaussian Parameter Decoder turns
+the latent Z into the UV Gaussian map F = F_c(Z) + F_delta(Z, pose maps, Plücker rays). F_c is the
+canonical part, computed once per avatar (and cacheable in avatar.npz); F_delta depends on the
+target pose and, for a view-conditioned decoder, on the camera. Callers never test method names: `Decoded` asks
 the decoder what it needs (`pose_conditioned`, `view_conditioned`, `linear`) and calls
 `canonical` once and `delta` per frame (and per camera when view-conditioned); the one path from
 a Decoded avatar to posed Gaussians is avatar/posed.py.

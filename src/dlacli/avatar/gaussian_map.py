@@ -1,4 +1,4 @@
-"""The UV Gaussian map F and the Gaussians drawn from it (DESIGN.md §1 "Animate").
+"""The UV Gaussian map F and the Gaussians drawn from it (docs/architecture.md "The method", Animate).
 
 F is a [14, R, R] map over the body's UV space (docs/conventions.md "UV space"), CHANNELS channels
 (the slices OPACITY, RGB, OFFSET, ROTATION, LOG_SCALE below, defined once in dlacli.types):

@@ -1,4 +1,4 @@
-"""The one path from an avatar to posed Gaussians (DESIGN.md section 3, "avatar/"):
+"""The one path from an avatar to posed Gaussians (docs/architecture.md, "The layers": avatar/):
 
     avatar --Decoded--> F_c (once) --+ F_delta(pose p, camera c)--> F --lookup at the samples,
         skinning on body p (gaussian_map)--> Gaussians of body p seen from camera c --> splatting

@@ -13,6 +13,6 @@ bytes on every run. One concept per module, imported in this order:
 - `synth`: one subject as a view folder (`dla synth`);
 - `dataset`: many subjects in a dataset folder with a manifest (`dla synth --seeds`).
 
-Layer (DESIGN.md section 3): beside `dlacli.stages`; `poses` reads motion clips through the stage
+Layer (docs/architecture.md, "The layers"): beside `dlacli.stages`; `poses` reads motion clips through the stage
 `dlacli.stages.motion_source` (the one edge between the two, listed in tests/test_layers.py).
 """

@@ -5,7 +5,7 @@ norm), one 4x4 stride-1 conv with a norm, and a 4x4 stride-1 conv to one score p
 0.2 between them. Affine InstanceNorm replaces BatchNorm, so DDP gives the same result as one
 process with the combined batch. `layers=3` is the classic 70x70 receptive field; the paper preset
 uses 4 (142x142 patches) to reach the paper's 7 M parameters. The losses are LSGAN's (Mao et al.
-2017) with targets real = 1, fake = 0 (DESIGN.md §1 "Training").
+2017) with targets real = 1, fake = 0 (docs/architecture.md "The method", Training).
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""The encoder E: unstructured Gaussians -> the avatar code Z on the body's UV space (DESIGN.md §1 "Lift, part 2").
+"""The encoder E: unstructured Gaussians -> the avatar code Z on the body's UV space
+(docs/architecture.md "The method", Lift part 2).
 
 The U-Net's pixel-aligned Gaussians of one item (N of them, flattened over its views) become tokens:
 a linear projection of their raw parameters and U-Net features, plus a projection of a Fourier

@@ -1,4 +1,5 @@
-"""The Gaussian Parameter Decoder (GPD): the avatar code Z -> the UV Gaussian map F (DESIGN.md §1 "Animate").
+"""The Gaussian Parameter Decoder (GPD): the avatar code Z -> the UV Gaussian map F
+(docs/architecture.md "The method", Animate).
 
 A SPADE ConvNet (Park et al. 2019): residual blocks whose parameter-free instance normalisation is
 modulated per texel by gamma / beta predicted from the one-hot UV part segmentation

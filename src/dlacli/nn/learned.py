@@ -1,4 +1,4 @@
-"""The learned avatar network (DESIGN.md section 1; the paper's contribution) as one module.
+"""The learned avatar network (docs/architecture.md, "The method"; the paper's contribution) as one module.
 
     views (4 x RGB + Plücker rays)  --U-Net G-->  pixel-aligned Gaussians in the input pose (+ features)
         --encoder F (cross-attention, queries on the posed body's UV map)-->  latent Z [C, r, r]

@@ -1,7 +1,7 @@
 """Model G: the pose-space reconstruction U-Net (LGM-style, with cross-view self-attention).
 
 `ReconstructionUNet` takes V views of one person, each an image with its Plücker ray map
-(rgb 3 + ray 6 = 9 channels, DESIGN.md §1 "Lift, part 1"), and predicts one 3D Gaussian per pixel
+(rgb 3 + ray 6 = 9 channels, docs/architecture.md "The method", Lift part 1), and predicts one 3D Gaussian per pixel
 of a half-resolution map per view (256 px in -> 128 px out: the decoder has one level fewer than
 the encoder), plus per-pixel features for the encoder of Z. Residual blocks use GroupNorm (no
 BatchNorm: DDP gives the same result as one process); at the attention levels the tokens of all

@@ -1,6 +1,6 @@
 """The diffusion backend of `dla dream`: a pose-controlled video diffusion model (extra `diffusion`).
 
-The paper's procedure (DESIGN.md §1 "Dream"): render the fitted body's 2D skeleton from cameras
+The paper's procedure (docs/architecture.md "The method", Dream): render the fitted body's 2D skeleton from cameras
 on a 360-degree circle, run a pose-controlled video diffusion model with the photo as reference,
 and take evenly spaced frames as the novel views. The model is diffusers' `WanVACEPipeline`
 (e.g. Wan2.1-VACE-1.3B): its control video is the skeleton video, frame 0 of which is replaced by

@@ -1,4 +1,4 @@
-"""Edit and blend avatars in the UV-aligned latent space (DESIGN.md §1 "Edit / interp").
+"""Edit and blend avatars in the UV-aligned latent space (docs/architecture.md "The method", Edit and interp).
 
 Because the avatar code Z is aligned with the body's UV space, a body region is a set of texels of
 Z: `swap_region` takes those texels from another avatar, `interpolate` blends two codes. Both are

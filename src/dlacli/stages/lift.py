@@ -1,4 +1,4 @@
-"""Lift: a view folder -> unstructured pose-space Gaussians -> avatar code Z (DESIGN.md §1).
+"""Lift: a view folder -> unstructured pose-space Gaussians -> avatar code Z (docs/architecture.md, "The method").
 
 The non-learned path (paper ablation A.i, "mesh unprojection"), made as accurate as optimisation
 allows:

@@ -14,7 +14,7 @@ resamples the result; `allow_missing_joints` lets a file lacking joints its nami
 always has (a renamed LeftUpLeg, a cut AMASS layout) through, with those anny bones at rest.
 
 A stage (not part of `dlacli.body`): it reads files through `dlacli.io` and retargets them with
-`dlacli.body`, and only a layer above both may use both (DESIGN.md section 3).
+`dlacli.body`, and only a layer above both may use both (docs/architecture.md, "The layers").
 """
 
 from __future__ import annotations

@@ -1,1 +1,1 @@
-"""Training the learned method (DESIGN.md §1): synthetic datasets, the loop, DDP via torchrun."""
+"""Training the learned method (docs/architecture.md, "The method"): synthetic datasets, the loop, DDP via torchrun."""

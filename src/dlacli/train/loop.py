@@ -1,6 +1,6 @@
 """`dla train`: the learned method trained end to end through skinning and splatting.
 
-One step, per item of the batch (DESIGN.md §1 "Training"):
+One step, per item of the batch (docs/architecture.md "The method", Training):
   1. the U-Net G turns the 4 input views into pixel-aligned Gaussians; L_UG renders them at the
      input cameras and at the item's same-pose targets (L1 + mask);
   2. the encoder maps them into Z (posterior mean + noise, KL to N(0, I));
