@@ -56,6 +56,19 @@ SPAN_MIN_WIDTH = 10
 
 
 @njit(cache=True, inline="always")
+def _tile_box(tid, ntiles, tw, width, height):
+    """Tile id (camera-major, rows of tiles) -> (camera, x0, y0, x1, y1), ends exclusive and
+    clipped to the image."""
+    c = tid // ntiles
+    rem = tid - c * ntiles
+    ty = rem // tw
+    tx = rem - ty * tw
+    x0 = tx * TILE
+    y0 = ty * TILE
+    return c, x0, y0, min(x0 + TILE, width), min(y0 + TILE, height)
+
+
+@njit(cache=True, inline="always")
 def _load_batch(params, lists, k0, nb, buf):
     """buf[j] = params[lists[k0 + j]] for j < nb: one tight loop of independent row loads."""
     for j in range(nb):
@@ -111,14 +124,7 @@ def raster_forward(params, tile_offsets, lists, wptr, wtiles, ncam, width, heigh
         buf = np.empty((BATCH, NPARAM), dtype=params.dtype)
         for it in range(wptr[wk], wptr[wk + 1]):
             tid = wtiles[it]
-            c = tid // ntiles
-            rem = tid - c * ntiles
-            ty = rem // tw
-            tx = rem - ty * tw
-            x0 = tx * TILE
-            y0 = ty * TILE
-            x1 = min(x0 + TILE, width)  # exclusive
-            y1 = min(y0 + TILE, height)
+            c, x0, y0, x1, y1 = _tile_box(tid, ntiles, tw, width, height)
             npix = (x1 - x0) * (y1 - y0)
             for p in range(TILE * TILE):
                 tr[p] = 1.0
@@ -268,14 +274,7 @@ def raster_forward_fast(params, tile_offsets, lists, wptr, wtiles, ncam, width, 
         buf = np.empty((BATCH, NPARAM), dtype=params.dtype)
         for it in range(wptr[wk], wptr[wk + 1]):
             tid = wtiles[it]
-            c = tid // ntiles
-            rem = tid - c * ntiles
-            ty = rem // tw
-            tx = rem - ty * tw
-            x0 = tx * TILE
-            y0 = ty * TILE
-            x1 = min(x0 + TILE, width)  # exclusive
-            y1 = min(y0 + TILE, height)
+            c, x0, y0, x1, y1 = _tile_box(tid, ntiles, tw, width, height)
             nx = x1 - x0
             for r in range(TILE):
                 for i in range(TILE):
@@ -397,14 +396,8 @@ def raster_backward(
         hits = np.zeros(BATCH, dtype=np.bool_)
         for it in range(wptr[wk], wptr[wk + 1]):
             tid = wtiles[it]
-            c = tid // ntiles
-            rem = tid - c * ntiles
-            ty = rem // tw
-            tx = rem - ty * tw
-            x0 = tx * TILE
-            y0 = ty * TILE
-            x1 = min(x0 + TILE, width)
-            y1 = min(y0 + TILE, height)
+            c, x0, y0, x1, y1 = _tile_box(tid, ntiles, tw, width, height)
+            ty, tx = y0 // TILE, x0 // TILE
             kmax = -1
             for p in range(TILE * TILE):
                 last[p] = -1
