@@ -284,3 +284,61 @@ def test_uv_resolution_rule():
     from dlacli.stages.texture import uv_resolution
 
     assert [uv_resolution(r) for r in (64, 256, 300, 512, 700, 4096)] == [256, 256, 256, 512, 512, 1024]
+
+
+@pytest.fixture(scope="module")
+def hand_on_thigh(scene):
+    """The left hand moved onto the front of the left thigh (4 cm in front of it), painted red on a
+    blue-green body, photographed from the front (a 512 px crop); the "fit" is the same body with
+    the hand 5 cm off to the side and 3 cm higher (an occluder the fit misplaced by ~14 px)."""
+    from dlacli.body.regions import PARTS
+    from dlacli.stages.dream import frame_crop
+    from dlacli.stages.texture import _rest, _vertex_parts_and_adjacency, texel_points, texel_samples
+
+    part, _ = _vertex_parts_and_adjacency()
+    hand, leg = part == PARTS.index("left_hand"), part == PARTS.index("left_leg")
+    verts = scene["verts"].copy()
+    centre = verts[hand].mean(0)
+    near = leg & (np.abs(verts[:, 2] - centre[2]) < 0.05)  # the thigh at the hand's height
+    target = np.array([verts[near, 0].mean(), verts[near, 1].min() - 0.04, centre[2]])
+    verts[hand] += target - centre
+    fitted = verts.copy()
+    fitted[hand] += [0.05, 0.0, 0.03]
+    _, _, tpart = texel_samples(UV)
+    # clothes of one colour, shaded a little (+-0.03 over ~30 cm); the hand a glove of another
+    texels = np.clip([0.1, 0.5, 0.6] + 0.03 * np.sin(texel_points(_rest(), UV) * 19.0), 0, 1)
+    texels[tpart == PARTS.index("left_hand")] = [0.95, 0.05, 0.05]
+    cam0 = _camera(w=768, h=1024, f=1200.0)
+    photo = _render(verts, _map(texels), cam0)[0]
+    rgb, alpha, cam = frame_crop(_straight(photo), photo[..., 3], cam0, 2 * RES)
+    return {"rgb": rgb, "alpha": alpha, "cam": cam, "fitted": fitted, "leg": tpart == PARTS.index("left_leg")}
+
+
+def _red(colour):
+    return (colour[:, 0] > 0.5) & (colour[:, 1] < 0.35) & (colour[:, 2] < 0.4)
+
+
+def test_an_occluder_the_fit_misplaced_leaves_no_colour_on_what_it_covers(hand_on_thigh, monkeypatch):
+    """(f) the thigh under the real hand, which the misplaced fitted hand does not cover, is seen
+    by the depth test; without the occluder rule it bakes the hand's red (the test can fail),
+    with it no thigh texel is baked red and the completed thigh takes its own colour there, while
+    the texels away from the hand keep their weights exactly."""
+    import dlacli.stages.texture as tx
+
+    s, leg = hand_on_thigh, hand_on_thigh["leg"]
+    colour, weight = tx.bake(s["rgb"], s["alpha"], s["cam"], s["fitted"], UV)
+    monkeypatch.setattr(tx, "occluded_texels", lambda *a, **k: np.zeros(len(a[6]), bool))
+    colour0, weight0 = tx.bake(s["rgb"], s["alpha"], s["cam"], s["fitted"], UV)
+    monkeypatch.undo()
+    red0 = leg & (weight0 > 0) & _red(colour0)
+    print("thigh texels baked red without the rule:", red0.sum(), "with it:", (leg & (weight > 0) & _red(colour)).sum())
+    assert red0.sum() > 50
+    assert not (leg & (weight > 0) & _red(colour)).any()
+    dropped = (weight0 > 0) & (weight == 0)
+    assert dropped[red0].all()
+    # only texels near the hand lose their weight: those that kept it are unchanged, and most of
+    # the thigh's seen texels are kept
+    np.testing.assert_array_equal(weight[weight > 0], weight0[weight > 0])
+    assert (weight[leg] > 0).sum() > 0.8 * (weight0[leg] > 0).sum()
+    done = tx.complete(colour, weight, UV)
+    assert not _red(done[red0]).any()
