@@ -27,6 +27,9 @@ def test_speed_rows_pass_the_schema():
         ({"run": 3}, "run"),
         ({"peak_mb": float("inf")}, "peak_mb"),
         ({"torch_loaded": "no"}, "torch_loaded"),
+        ({"counts": [1.0]}, "counts"),
+        ({"counts": {"covering_per_pixel": -1.0}}, "covering_per_pixel"),
+        ({"counts": {"covering_per_pixel": "many"}}, "covering_per_pixel"),
     ):
         with pytest.raises(DlaInputError, match=needle):
             check_row({**row, **change})
@@ -216,3 +219,23 @@ def test_a_tiny_render_run_against_a_baseline_copy():
     md = "\n".join(speed_markdown(rows))
     assert md.count("baseline / current") == 3 * 2  # the current rows of both rounds
     assert "turntable_image" in md
+
+
+@pytest.mark.slow
+def test_the_render_suite_counts_a_frame_and_draws_its_heat_map(tmp_path):
+    """The composite_frame row: the exact kernel's time for one walk frame with its compositing
+    counts (consistent: composited <= covering, a covered share in (0, 1)); --heatmap writes the
+    PNG, and the report prints the counts."""
+    from PIL import Image
+
+    from dlacli.bench.speed_config import quick_config
+
+    cfg = replace(quick_config(), repeats=1, heatmap=str(tmp_path / "maps"))
+    rows = S.run(["render"], cfg, log=lambda s: None)
+    (row,) = [r for r in rows if r["case"] == "composite_frame"]
+    assert check_row(dict(row)) == row and row["seconds"] > 0
+    c = row["counts"]
+    assert 0 < c["covered_share"] < 1 and 0 < c["contributing_per_pixel"] <= c["covering_per_pixel"]
+    png = tmp_path / "maps" / f"composite_{cfg.gaussians}_{cfg.res}px.png"
+    assert Image.open(png).size[0] > 1000
+    assert "a covered pixel" in "\n".join(speed_markdown(rows))

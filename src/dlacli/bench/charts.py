@@ -220,3 +220,45 @@ def draw_budget_chart(rows: list[dict], path: str | os.PathLike) -> Path:
     h2, l2 = size_ax.get_legend_handles_labels()
     right.legend(h1 + h2, l1 + l2, fontsize=7, loc="upper left")
     return _save(fig, path)
+
+
+def composite_heatmap(stats, path: str | os.PathLike, title: str) -> Path:
+    """Where a frame's compositing time goes (dlacli.render.splat_stats.CompositeStats, camera 0),
+    four panels: the Gaussians each 16 x 16 tile lists and the exact kernel's pixel evaluations
+    per pixel of each tile (what the time follows), the Gaussians covering each pixel and those it
+    composited before its transmittance ran out (what the image needs)."""
+    import numpy as np
+
+    from dlacli.render.splat import TILE
+
+    plt = _pyplot()
+    h, w = stats.covering.shape[1:]
+    tiles = np.ones((TILE, TILE))
+    per_tile = [np.kron(a[0], tiles)[:h, :w] for a in (stats.listed, stats.evaluations / (TILE * TILE))]
+    s = stats.summary()
+    panels = (
+        ("Gaussians listed per tile", per_tile[0], f"mean {s.get('listed_per_tile', 0):.0f} over listed tiles"),
+        (
+            "kernel evaluations per pixel (tile mean)",
+            per_tile[1],
+            f"mean {s.get('evaluations_per_pixel', 0):.1f} over listed tiles",
+        ),
+        (
+            "Gaussians covering each pixel",
+            stats.covering[0],
+            f"mean {s.get('covering_per_pixel', 0):.1f} where covered",
+        ),
+        (
+            "Gaussians composited per pixel",
+            stats.contributing[0],
+            f"mean {s.get('contributing_per_pixel', 0):.1f} where covered",
+        ),
+    )
+    fig, axes = plt.subplots(1, 4, figsize=(17, 4.6))
+    for ax, (name, img, mean) in zip(axes, panels, strict=True):
+        shown = ax.imshow(img, cmap="magma", interpolation="nearest")
+        ax.set_title(f"{name}\n{mean}, max {img.max():.0f}", fontsize=9)
+        ax.axis("off")
+        fig.colorbar(shown, ax=ax, fraction=0.046, pad=0.02)
+    fig.suptitle(title, fontsize=11)
+    return _save(fig, path, rect=(0, 0, 1, 0.95))

@@ -278,6 +278,14 @@ def speed_markdown(rows: list[dict], intro: bool = True) -> list[str]:
                 more.append(f"{ratio_torch[(r['run'], r['case'], key, r['method'])]:.3g}x torch")
             if r["method"] == BASELINED.get(suite) and (r["run"], r["case"], key) in ratio_base:
                 more.append(f"baseline / current {ratio_base[(r['run'], r['case'], key)]:.3f}")
+            if r.get("counts", {}).get("covered_share"):
+                c = r["counts"]
+                more.append(
+                    "{covered_share:.0%} of pixels covered; a listed tile: {listed_per_tile:.0f} Gaussians, "
+                    "{evaluations_per_pixel:.1f} evaluations per pixel; a covered pixel: "
+                    "{covering_per_pixel:.1f} covering (p99 {covering_p99:.0f}), {contributing_per_pixel:.1f} "
+                    "composited (p99 {contributing_p99:.0f})".format(**c)
+                )
             for name, fmt in (
                 ("first_seconds", "first call {:.0f} ms"),
                 ("peak_mb", "peak {:.0f} MB"),

@@ -33,8 +33,9 @@ Rows with a `kind` carry more (a row without one is an accuracy row, as above; `
 - "speed" (`dla bench speed`): `suite`, `case`, `method`, `config`, `run` (one id per invocation,
   so ratios pair rows of one run), `seconds` (median per call), `repeats`, and optionally
   `min_seconds`, `first_seconds`, `peak_mb`, `size_mib`, `items` (work per call: frames, ...),
-  `torch_loaded`, or `skipped` (why it was not measured; then `seconds` is null). No split, no
-  subject, no metrics.
+  `torch_loaded`, `counts` (named finite numbers >= 0: the render suite's compositing counts per
+  pixel, dlacli.render.splat_stats), or `skipped` (why it was not measured; then `seconds` is
+  null). No split, no subject, no metrics.
 """
 
 from __future__ import annotations
@@ -91,6 +92,7 @@ _SPEED_OPTIONAL = {
     "size_mib": _OPT_NUMBER,
     "items": _OPT_NUMBER,
     "torch_loaded": bool,
+    "counts": dict,
     "skipped": str,
 }
 
@@ -155,7 +157,14 @@ def check_row(row: Any, where: str = "row") -> dict:
             raise DlaInputError(where, "seconds is null but the row does not say why (skipped)")
         if row["repeats"] < 0:
             raise DlaInputError(where, f"repeats = {row['repeats']!r} is negative")
-        _check_cost(row, ("seconds", *[n for n in _SPEED_OPTIONAL if n not in ("torch_loaded", "skipped")]), where)
+        _check_cost(
+            row, ("seconds", *[n for n in _SPEED_OPTIONAL if n not in ("torch_loaded", "counts", "skipped")]), where
+        )
+        counts = row.get("counts", {})
+        for name, v in counts.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise DlaInputError(where, f"counts[{name!r}] = {v!r} is not a number")
+        _check_cost(counts, list(counts), where)
         return row
     for name, types in _FIELDS.items():
         if name not in row or not isinstance(row[name], types) or isinstance(row[name], bool):

@@ -38,6 +38,7 @@ class SpeedConfig:
     gaussians: int = DEFAULT_GAUSSIANS  # body, animate, render
     frames: int = 30  # animate, render, usd
     res: int = 512  # lift subject, render size
+    heatmap: str | None = None  # render: a folder for the compositing heat map of the frame it counts
     lift_steps: tuple[int, ...] = (0, LIFT_STEPS)
     seed: int = 1001  # the lift subject (a seed no test uses)
     startup_runs: int = 10

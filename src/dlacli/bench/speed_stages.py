@@ -211,7 +211,45 @@ def render_suite(cfg: SpeedConfig, row, log) -> list[dict]:
     per_image = (time.perf_counter() - t0) / 8
     log(f"render {cfg.gaussians} Gaussians at {cfg.res} px: turntable {per_image * 1e3:.0f} ms/image")
     turntable = {"gaussians": cfg.gaussians, "size": cfg.res, "cameras": 8}
-    return out + [row("render", "turntable_image", "cpu", turntable, per_image, 8, items=1)]
+    out.append(row("render", "turntable_image", "cpu", turntable, per_image, 8, items=1))
+    return out + [_composite_counts(cfg, avatar, row, log)]
+
+
+def _composite_counts(cfg: SpeedConfig, avatar, row, log) -> dict:
+    """Where a playback frame's compositing time goes: the walk's first frame from the following
+    camera, rendered by the exact kernel (median ms) with its counts per pixel
+    (dlacli.render.splat_stats); with cfg.heatmap, their heat map as a PNG there."""
+    import torch
+
+    from dlacli.render.splat import render_gaussians
+    from dlacli.render.splat_stats import composite_stats
+    from dlacli.stages.animate import follow_cameras, pose_avatar
+
+    anim = pose_avatar(avatar, _walk(1), cfg.gaussians)
+    g, cam = anim.frame(0), follow_cameras(anim.pelvis, anim.fps, cfg.res).select(0)
+
+    def render():
+        with torch.no_grad():
+            render_gaussians(g, cam)
+
+    med, lo = median_min(render, cfg.repeats)
+    stats = composite_stats(g, cam)
+    counts = {k: round(v, 3) for k, v in stats.summary().items()}
+    if counts["covered_share"]:
+        log(
+            f"render {cfg.gaussians} Gaussians at {cfg.res} px, one walk frame: {counts['covered_share']:.0%} of "
+            f"pixels covered; a listed tile: {counts['listed_per_tile']:.0f} Gaussians, "
+            f"{counts['evaluations_per_pixel']:.1f} evaluations per pixel; a covered pixel: "
+            f"{counts['covering_per_pixel']:.1f} covering, {counts['contributing_per_pixel']:.1f} composited"
+        )
+    if cfg.heatmap:
+        from dlacli.bench.charts import composite_heatmap
+
+        path = Path(cfg.heatmap) / f"composite_{cfg.gaussians}_{cfg.res}px.png"
+        composite_heatmap(stats, path, f"{cfg.gaussians:,} Gaussians, {cfg.res} x {cfg.res}, one walk frame")
+        log(f"render: heat map {path}")
+    c = {"gaussians": cfg.gaussians, "size": cfg.res}
+    return row("render", "composite_frame", "cpu", c, med, cfg.repeats, min_seconds=lo, items=1, counts=counts)
 
 
 def view_suite(cfg: SpeedConfig, row, log) -> list[dict]:

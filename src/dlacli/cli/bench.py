@@ -371,6 +371,14 @@ def speed(
     rounds: int = typer.Option(
         1, "--rounds", min=1, max=100, help="With --baseline: alternate the two versions this many times per case."
     ),
+    heatmap: Optional[Path] = typer.Option(
+        None,
+        "--heatmap",
+        help=(
+            "render: write the compositing heat map of one walk frame (Gaussians per tile, kernel evaluations, "
+            "Gaussians covering and composited per pixel) as a PNG in this folder."
+        ),
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the rows as JSON lines instead of tables."),
     jsonl: Optional[Path] = _results("rows"),
 ) -> None:
@@ -403,6 +411,10 @@ def speed(
         changes["cold"] = True
     if baseline is not None:
         changes.update(baseline=str(baseline.resolve()), rounds=rounds)
+    if heatmap is not None:
+        if heatmap.exists() and not heatmap.is_dir():
+            raise DlaInputError(heatmap, "is not a folder")
+        changes["heatmap"] = str(heatmap)
     rows = run(suites, replace(cfg, **changes), log=_stderr)
     _emit(rows, jsonl, as_json, lambda r: "\n".join(speed_markdown(r, intro=False)).rstrip())
 

@@ -316,11 +316,10 @@ def _composite(params, offsets, lists, ncam, width, height, exact: bool = True):
     return acc, tfin, (tfin, last, work)
 
 
-def _render_plain_cpu(g: Gaussians, viewmats, Ks, width, height, bg, degree, exact: bool = True) -> RenderOutput:
-    """`render_gaussians` without autograd on the CPU: projection and packing in one numba pass
-    (`B.project_and_pack`), then the same binning, compositing and `K.compose` as the autograd
-    route, whose images it equals bit for bit (tests/render/test_splat.py); `exact=False`
-    composites with `K.raster_forward_fast` (float32; tests/render/test_splat_fast.py)."""
+def binned_plain(g: Gaussians, viewmats, Ks, width, height, degree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Projection and packing in one numba pass (`B.project_and_pack`), then the tiles' depth-sorted
+    lists (`B.tile_lists`) -> (params [C * N, B.NPARAM], tile offsets, lists): what the compositing
+    kernels read (also `dlacli.render.splat_stats`)."""
     dtype = g.means.dtype
     npd = np.float64 if dtype == torch.float64 else np.float32
     ncam, n = viewmats.shape[0], len(g)
@@ -345,6 +344,17 @@ def _render_plain_cpu(g: Gaussians, viewmats, Ks, width, height, bg, degree, exa
         keys,
     )
     offsets, lists = B.tile_lists(keys.view(np.uint32), trect, width, height)
+    return params, offsets, lists
+
+
+def _render_plain_cpu(g: Gaussians, viewmats, Ks, width, height, bg, degree, exact: bool = True) -> RenderOutput:
+    """`render_gaussians` without autograd on the CPU: `binned_plain`, then the same compositing
+    and `K.compose` as the autograd route, whose images it equals bit for bit
+    (tests/render/test_splat.py); `exact=False` composites with `K.raster_forward_fast` (float32;
+    tests/render/test_splat_fast.py)."""
+    dtype = g.means.dtype
+    ncam = viewmats.shape[0]
+    params, offsets, lists = binned_plain(g, viewmats, Ks, width, height, degree)
     acc, tfin, _ = _composite(params, offsets, lists, ncam, width, height, exact)
     out = RenderOutput(*(torch.empty(s, dtype=dtype) for s in ((ncam, height, width, 3), *[(ncam, height, width)] * 2)))
     K.compose(acc, tfin, bg.detach().contiguous().numpy(), *(t.numpy() for t in out))
