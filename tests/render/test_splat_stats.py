@@ -1,6 +1,6 @@
 """The compositing counts (dlacli.render.splat_stats) against the exact kernel and analytic cases.
 
-Oracles: the exact kernel's own colour sums (`splat._composite`; the numpy compositing that counts
+Oracles: the exact kernel's own colour sums (`splat.composite_lists`; the numpy compositing that counts
 must reproduce them to round-off, or its counts would not be the kernel's), its list lengths, and
 stacks of identical Gaussians on one pixel, where the stop rule (transmittance <= 1e-4 ends a
 pixel) gives the number composited in closed form.
@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from tests.render.test_splat import look_at_cameras, random_gaussians
 
-from dlacli.render.splat import TILE, _composite, binned_plain
+from dlacli.render.splat import TILE, binned_plain, composite_lists
 from dlacli.render.splat_stats import composite_stats
 from dlacli.types import Gaussians
 
@@ -24,7 +24,7 @@ def test_the_counting_compositing_is_the_exact_kernels():
     cams = look_at_cameras([(0.5, -2.6, 0.6), (-2.4, 0.9, -0.2)], 97, 75, 80.0)  # not a multiple of the tile
     stats = composite_stats(g, cams)
     params, offsets, lists = binned_plain(g, cams.viewmats, cams.Ks, 97, 75, 0)
-    acc, _, (_, _, work) = _composite(params, offsets, lists, 2, 97, 75)
+    acc, _, (_, _, work) = composite_lists(params, offsets, lists, 2, 97, 75)
     np.testing.assert_allclose(stats.acc, acc, rtol=0, atol=1e-9)
     assert stats.listed.shape == (2, math.ceil(75 / TILE), math.ceil(97 / TILE))
     assert stats.listed.sum() == len(lists)

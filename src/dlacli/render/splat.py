@@ -295,11 +295,11 @@ def _raster_cpu(means2d, conics, colors, opacities, radii, depths, width, height
     params, offsets, lists, trect = B.bin_gaussians(
         arr(means2d, npd), arr(conics, npd), arr(opacities, npd), arr(colors, npd), rd, dk, width, height
     )
-    acc, tfin, saved = _composite(params, offsets, lists, means2d.shape[0], width, height)
+    acc, tfin, saved = composite_lists(params, offsets, lists, means2d.shape[0], width, height)
     return acc, tfin, (params, offsets, lists, trect, *saved)
 
 
-def _composite(params, offsets, lists, ncam, width, height, exact: bool = True):
+def composite_lists(params, offsets, lists, ncam, width, height, exact: bool = True):
     """`K.raster_forward` over the binned pairs -> (acc [C, H, W, 4] in params' dtype, t_final
     [C, H, W] float64, (t_final, last, work) for the backward pass); `exact=False` (float32
     params only): `K.raster_forward_fast`, whose third item is (t_final, None, work)."""
@@ -355,7 +355,7 @@ def _render_plain_cpu(g: Gaussians, viewmats, Ks, width, height, bg, degree, exa
     dtype = g.means.dtype
     ncam = viewmats.shape[0]
     params, offsets, lists = binned_plain(g, viewmats, Ks, width, height, degree)
-    acc, tfin, _ = _composite(params, offsets, lists, ncam, width, height, exact)
+    acc, tfin, _ = composite_lists(params, offsets, lists, ncam, width, height, exact)
     out = RenderOutput(*(torch.empty(s, dtype=dtype) for s in ((ncam, height, width, 3), *[(ncam, height, width)] * 2)))
     K.compose(acc, tfin, bg.detach().contiguous().numpy(), *(t.numpy() for t in out))
     return out
@@ -441,7 +441,7 @@ def rasterize_projected(
     return _RasterizeCPU.apply(means2d, conics, colors, opacities, radii, depths, width, height)
 
 
-def _check_inputs(g: Gaussians, cameras: Cameras, background, sh_degree):
+def check_render_inputs(g: Gaussians, cameras: Cameras, background, sh_degree):
     n = len(g)
     for name, t, shape in (
         ("gaussians.means", g.means, (n, 3)),
@@ -503,7 +503,7 @@ def render_gaussians(
             for b in range(flat.means.shape[0])
         ]
         return RenderOutput(*(torch.stack(parts).reshape(*lead, *parts[0].shape) for parts in zip(*outs)))
-    degree, bg = _check_inputs(gaussians, cameras, background, sh_degree)
+    degree, bg = check_render_inputs(gaussians, cameras, background, sh_degree)
     device, dtype = gaussians.means.device, gaussians.means.dtype
     viewmats = cameras.viewmats.to(device=device, dtype=dtype)
     Ks = cameras.Ks.to(device=device, dtype=dtype)

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from dlacli.render import splat_kernels as K
-from dlacli.render.splat import TILE, _check_inputs, _composite, binned_plain
+from dlacli.render.splat import TILE, binned_plain, check_render_inputs, composite_lists
 from dlacli.types import Cameras, Gaussians
 
 CHUNK = 2048  # list entries composited at once (memory: CHUNK x 256 pixels x a few float64 arrays)
@@ -53,14 +53,14 @@ class CompositeStats(NamedTuple):
 def composite_stats(gaussians: Gaussians, cameras: Cameras, *, sh_degree: int | None = None) -> CompositeStats:
     """The counts of a render of `gaussians` (no batch dimensions) by `cameras` on the CPU, as
     `render_gaussians` would composite it with the exact kernel."""
-    degree, _ = _check_inputs(gaussians, cameras, None, sh_degree)
+    degree, _ = check_render_inputs(gaussians, cameras, None, sh_degree)
     g = gaussians.to(torch.device("cpu"))
     dtype = g.means.dtype
     viewmats, Ks = cameras.viewmats.to(dtype=dtype), cameras.Ks.to(dtype=dtype)
     w, h, ncam = int(cameras.width), int(cameras.height), len(cameras)
     with torch.no_grad():
         params, offsets, lists = binned_plain(g, viewmats, Ks, w, h, degree)
-    _, _, (_, _, work) = _composite(params, offsets, lists, ncam, w, h)
+    _, _, (_, _, work) = composite_lists(params, offsets, lists, ncam, w, h)
     tw, th = (w + TILE - 1) // TILE, (h + TILE - 1) // TILE
     covering = np.zeros((ncam, h, w), np.int32)
     contributing = np.zeros((ncam, h, w), np.int32)
