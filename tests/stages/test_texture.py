@@ -323,11 +323,12 @@ def test_an_occluder_the_fit_misplaced_leaves_no_colour_on_what_it_covers(hand_o
     by the depth test; without the occluder rule it bakes the hand's red (the test can fail),
     with it no thigh texel is baked red and the completed thigh takes its own colour there, while
     the texels away from the hand keep their weights exactly."""
+    import dlacli.stages.occluders as occ
     import dlacli.stages.texture as tx
 
     s, leg = hand_on_thigh, hand_on_thigh["leg"]
     colour, weight = tx.bake(s["rgb"], s["alpha"], s["cam"], s["fitted"], UV)
-    monkeypatch.setattr(tx, "occluded_texels", lambda *a, **k: np.zeros(len(a[6]), bool))
+    monkeypatch.setattr(occ, "occluded_texels", lambda *a, **k: np.zeros(len(a[6]), bool))
     colour0, weight0 = tx.bake(s["rgb"], s["alpha"], s["cam"], s["fitted"], UV)
     monkeypatch.undo()
     red0 = leg & (weight0 > 0) & _red(colour0)
