@@ -6,7 +6,11 @@ and per joint (the test's 14 joints on the default body, per-frame similarity), 
 the fit's CPU seconds. Sets: `cal` the built-in motions x subject seeds 0-2; `shrug` idle and
 turnaround with the clavicles lifted 0.15-0.55 rad; `rand` idle plus smooth random flexions of the
 limbs, clavicles and spine (pose-diverse); `test` the held-out CMU clips of the tests (report only,
-never tune on them).
+never tune on them); `val` eight clips of CMU subject 6 (held out of the pose lifter's training;
+BVH files in $DLA_LIFTER_MOTIONS); `bn` twelve clips of the Bandai Namco Research Motion dataset
+(CC BY-NC 4.0: evaluation only; `bash scripts/fetch-bandai-namco.sh DIR` and DLA_BANDAI=DIR),
+each 2.5 s from the middle of the clip. `fit` prints PA-MPJPE, the jitter ratio and foot skating
+(the fit's horizontal foot speed where the truth's foot is planted, against the truth's own).
 
   PYTHONPATH=src python scripts/video_fit_calibration.py prep cal
   PYTHONPATH=src python scripts/video_fit_calibration.py fit cal TAG
@@ -49,6 +53,9 @@ CAL = [(m, s) for m in ("idle", "walk", "turnaround", "wave") for s in (0, 1, 2)
 RAND = [("rand1", 1), ("rand2", 2), ("rand3", 0), ("rand4", 1)]
 SHRUG = [("idle_shrug", 3), ("turnaround_shrug", 5)]
 TEST = [("131_01", 0), ("131_02", 0), ("01_01", 0)]
+# the Bandai Namco clips (dataset-1_{content}_normal_001.bvh): motions that stay in the camera's view
+BN_CLIPS = ("walk", "walk-back", "bow", "bye", "byebye", "call", "guide", "respond", "kick", "punch", "slash")
+BN = [(f"bn_{c}", k % 3) for k, c in enumerate((*BN_CLIPS, "dance-short"))]
 # CMU subject 006 (basketball dribbling), held out of the lifter's training motions: its validation
 # set (BVH files from $DLA_LIFTER_MOTIONS, 2.5 s from the middle of each clip)
 VAL = [
@@ -132,10 +139,13 @@ def truth_motion(name):
         return Motion(labels, rot, m.root_rotation, m.root_translation, m.fps)
     if name in ("idle", "walk", "turnaround", "wave"):
         return load_motion(name, fps=30)
-    if name.startswith("cc"):
+    if name.startswith(("cc", "bn_")):
         from dlacli.types import Motion
 
-        m = load_motion(Path(os.environ["DLA_LIFTER_MOTIONS"]) / f"{name[2:]}.bvh", fps=30)
+        if name.startswith("bn_"):
+            m = load_motion(Path(os.environ["DLA_BANDAI"]) / f"dataset-1_{name[3:]}_normal_001.bvh", fps=30)
+        else:
+            m = load_motion(Path(os.environ["DLA_LIFTER_MOTIONS"]) / f"{name[2:]}.bvh", fps=30)
         lo = max(0, (m.num_frames - 75) // 2)
         sl = slice(lo, lo + 75)
         return Motion(list(m.bone_labels), m.rotations[sl], m.root_rotation[sl], m.root_translation[sl], m.fps)
@@ -230,6 +240,17 @@ def jitter(j):
     return float(np.linalg.norm(j[2:] - 2 * j[1:-1] + j[:-2], axis=-1).mean())
 
 
+def skating(jf, jt, fps=30.0):
+    """(fit, truth) mean horizontal speed (m/s) of the feet where the truth's foot is planted
+    (slower than 0.3 m/s, within 5 cm of its lowest height), as the tests measure it."""
+    ft, ff = jt[:, [4, 5]], jf[:, [4, 5]]
+    planted = (np.linalg.norm(ft[1:] - ft[:-1], axis=-1) * fps < 0.3) & (ft[:-1, :, 2] < ft[..., 2].min() + 0.05)
+    if not planted.any():
+        return float("nan"), float("nan")
+    speed = lambda f: float((np.linalg.norm(f[1:, :, :2] - f[:-1, :, :2], axis=-1) * fps)[planted].mean())  # noqa: E731
+    return speed(ff), speed(ft)
+
+
 def run_fit(name, seed, steps=None):
     from dlacli.nn import lifter
     from dlacli.stages import motion_fit as mf
@@ -251,7 +272,7 @@ def run_fit(name, seed, steps=None):
     truth = truth_motion(name)
     jt, jf = major_joints(truth), major_joints(res.motion)
     e = pa_err(jf, jt)
-    return e, jitter(jf) / jitter(jt), cpu
+    return e, jitter(jf) / jitter(jt), cpu, skating(jf, jt)
 
 
 def main():
@@ -265,6 +286,7 @@ def main():
         "rand": RAND,
         "cal3": CAL + SHRUG + RAND,
         "val": VAL,
+        "bn": BN,
     }
     which = sets[sys.argv[2]] if len(sys.argv) > 2 else CAL
     if cmd == "prep":
@@ -278,11 +300,12 @@ def main():
         steps = int(os.environ.get("STEPS", "0")) or None
         rows, per = [], []
         for n, s in which:
-            e, jr, cpu = run_fit(n, s, steps)
-            rows.append((n, s, e.mean(), jr, cpu))
+            e, jr, cpu, skate = run_fit(n, s, steps)
+            rows.append((n, s, e.mean(), jr, cpu, *skate, float(np.percentile(e.mean(1), 90))))
             per.append(e.mean(0))
             print(
-                f"{n:10s} s{s} {1000 * e.mean():6.1f} mm  jitter x{jr:.2f}  cpu {cpu:.1f}s  | "
+                f"{n:10s} s{s} {1000 * e.mean():6.1f} mm  p90 {1000 * rows[-1][-1]:5.1f}  jitter x{jr:.2f}  "
+                f"skate {skate[0]:.2f}/{skate[1]:.2f} m/s  cpu {cpu:.1f}s  | "
                 + " ".join(f"{k}:{1000 * v:.0f}" for k, v in zip(SHORT, e.mean(0))),
                 flush=True,
             )
@@ -298,7 +321,7 @@ def main():
                     {
                         "tag": tag,
                         "set": sys.argv[2],
-                        "rows": [(r[0], r[1], float(r[2]), float(r[3]), float(r[4])) for r in rows],
+                        "rows": [(r[0], r[1], *(float(x) for x in r[2:])) for r in rows],
                     }
                 )
                 + "\n"

@@ -331,3 +331,53 @@ def test_character_creator_names_give_the_same_motion(clips, motions, rig):
     np.testing.assert_array_equal(got.rotations, want.rotations)
     np.testing.assert_array_equal(got.root_rotation, want.root_rotation)
     np.testing.assert_array_equal(got.root_translation, want.root_translation)
+
+
+# MotionBuilder-style CMU names -> the Bandai Namco Research Motion dataset's: its trunk has two
+# joints (Spine, Chest) where CMU has three, so LowerBack and Neck1 get names no table knows
+_BANDAI_NAMES = {
+    "LowerBack": "LowerBack_unmapped",
+    "Spine1": "Chest",
+    "Neck1": "Neck1_unmapped",
+    **{
+        f"{side}{mb}": f"{bn}_{side[0]}"
+        for side in ("Left", "Right")
+        for mb, bn in (
+            ("Shoulder", "Shoulder"),
+            ("Arm", "UpperArm"),
+            ("ForeArm", "LowerArm"),
+            ("Hand", "Hand"),
+            ("UpLeg", "UpperLeg"),
+            ("Leg", "LowerLeg"),
+            ("Foot", "Foot"),
+        )
+    },
+}
+
+_LIMB_BONES = ("clavicle", "upperarm01", "lowerarm01", "wrist", "upperleg01", "lowerleg01")
+_LIMBS = [f"{b}.{s}" for s in "LR" for b in _LIMB_BONES]
+
+
+def _world_rotations(motion, rig):
+    """[T, J] world rotations of anny's bones: local-ref rotations composed root first."""
+    local = Rotation.from_rotvec(motion.rotations.reshape(-1, 3)).as_matrix().reshape(*motion.rotations.shape, 3)
+    world = np.empty_like(local)
+    root = Rotation.from_rotvec(motion.root_rotation).as_matrix()
+    for j, p in enumerate(rig.bone_parents):
+        world[:, j] = (root if p < 0 else world[:, p]) @ local[:, j]
+    return world
+
+
+def test_bandai_namco_names_move_the_limbs_as_the_cmu_names_do(clips, motions, rig):
+    """The Bandai Namco skeleton's names ("UpperArm_L", "Chest") map onto anny: the CMU clip
+    renamed to them moves every limb bone to the same world rotation as the CMU names do (a limb
+    follows its source bone's world rotation, whatever the trunk's joints), on the same path."""
+    skel = clips["cmu_01_01.bvh"]
+    renamed = type(skel)(**{**vars(skel), "names": [_BANDAI_NAMES.get(n, n) for n in skel.names]})
+    assert match_joints(renamed.names)[0] == "bandai-namco"
+    got, want = retarget(renamed, rig), motions["cmu_01_01.bvh"]
+    wg, ww = _world_rotations(got, rig), _world_rotations(want, rig)
+    idx = [rig.index(b) for b in _LIMBS]
+    # float64 products of <= 12 rotations, stored as float32 axis-angles: ~1e-6
+    np.testing.assert_allclose(wg[:, idx], ww[:, idx], atol=1e-5)
+    np.testing.assert_allclose(got.root_translation, want.root_translation, atol=1e-6)

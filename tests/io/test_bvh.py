@@ -139,3 +139,54 @@ def test_summary_and_info(third_party_data, frames_in):
     assert s["duration_s"] == pytest.approx((n - 1) / 120)
     assert 1.2 < s["height_m"] < 2.0  # a grown-up's joints, toes to head top
     assert summarize(path)["kind"] == "bvh"
+
+
+BVH_CARRIED_ROOT = """HIERARCHY
+ROOT joint_Root
+{{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  JOINT Hips
+  {{
+    OFFSET 1 90 -4
+    CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+    JOINT Spine
+    {{
+      OFFSET 15 0 0
+      CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+      End Site
+      {{
+        OFFSET 0 10 0
+      }}
+    }}
+  }}
+}}
+MOTION
+Frames: {frames}
+Frame Time: 0.0333333
+{data}"""
+
+
+def test_a_fixed_root_whose_only_child_carries_the_path_moves_the_body(tmp_path):
+    """An exporter that puts a still joint above the hips (joint_Root -> Hips, all joints with 6
+    channels, as the Bandai Namco Research Motion dataset writes): the hips' per-frame positions
+    are the body's path. Every joint sits where composing the file's channels by hand (scipy)
+    puts it; the Spine's own position channels are its offset (constant, as such files hold)."""
+    rng = np.random.default_rng(3)
+    n = 4
+    root_rot = np.round(rng.uniform(-40, 40, (n, 3)), 4)
+    hips_pos = np.round(np.stack([np.linspace(0, 30, n), 90 + rng.uniform(-2, 2, n), np.linspace(-4, -200, n)], 1), 4)
+    hips_rot = np.round(rng.uniform(-90, 90, (n, 3)), 4)
+    spine_rot = np.round(rng.uniform(-90, 90, (n, 3)), 4)
+    rows = [[0, 0, 0, *root_rot[f], *hips_pos[f], *hips_rot[f], 15, 0, 0, *spine_rot[f]] for f in range(n)]
+    data = "\n".join(" ".join(f"{v:.4f}" for v in row) for row in rows)
+    skel = read_bvh(_write(tmp_path, BVH_CARRIED_ROOT.format(frames=n, data=data)))
+    glob, pos = forward_kinematics(skel)
+    for f in range(n):
+        r0 = Rotation.from_euler("ZXY", root_rot[f], degrees=True)
+        r1 = r0 * Rotation.from_euler("ZXY", hips_rot[f], degrees=True)
+        r2 = r1 * Rotation.from_euler("ZXY", spine_rot[f], degrees=True)
+        hips = r0.apply(hips_pos[f])
+        np.testing.assert_allclose(pos[f, 1], hips, atol=1e-9)
+        np.testing.assert_allclose(pos[f, 2], hips + r1.apply([15, 0, 0]), atol=1e-9)
+        np.testing.assert_allclose(glob[f, 2], r2.as_matrix(), atol=1e-9)

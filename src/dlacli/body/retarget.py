@@ -2,8 +2,9 @@
 
 Method (docs/motion.md has the derivation):
 1. Joints are matched to anny bones by name (`DIALECTS`: CMU 3dsMax-style and MotionBuilder-style
-   BVH names, CMU ASF bone names, Mixamo, Character Creator / iClone, SMPL). Source joints without
-   a counterpart (fingers, toes, twist, hip and collar helpers) are ignored; their rotations
+   BVH names, CMU ASF bone names, Mixamo, Character Creator / iClone, the Bandai Namco Research
+   Motion dataset, SMPL). Source joints without a counterpart (fingers, toes, twist, hip and
+   collar helpers) are ignored; their rotations
    still reach the mapped joints below them, because the transfer works on world rotations.
    Every anny bone of the chosen table is needed (`NEEDED`): a file lacking one is refused
    unless missing joints are allowed, and then those bones stay at rest (relative to their
@@ -157,6 +158,24 @@ _TABLES: dict[str, dict[str, str]] = {  # source joint name (as written) -> anny
             "CC_Base_{s}_Thigh": "upperleg01.{side}",
             "CC_Base_{s}_Calf": "lowerleg01.{side}",
             "CC_Base_{s}_Foot": "foot.{side}",
+        },
+        "L",
+        "R",
+    ),
+    "bandai-namco": _sided(  # Bandai Namco Research Motion dataset (22 joints, "_L"/"_R" suffixes)
+        {
+            "Hips": "root",
+            "Spine": "spine04",
+            "Chest": "spine01",
+            "Neck": "neck01",
+            "Head": "head",
+            "Shoulder_{s}": "clavicle.{side}",
+            "UpperArm_{s}": "upperarm01.{side}",
+            "LowerArm_{s}": "lowerarm01.{side}",
+            "Hand_{s}": "wrist.{side}",
+            "UpperLeg_{s}": "upperleg01.{side}",
+            "LowerLeg_{s}": "lowerleg01.{side}",
+            "Foot_{s}": "foot.{side}",
         },
         "L",
         "R",

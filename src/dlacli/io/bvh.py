@@ -7,8 +7,10 @@ turns it into a native Motion on anny's rig. This module only parses.
 
 BVH specifics: a rotation channel list such as "Zrotation Yrotation Xrotation" means
 R = Rz @ Ry @ Rx (the first listed rotation is the outermost); angles are degrees. Any order of
-one to three distinct rotation axes is accepted. Position channels on a joint replace its offset
-for that frame. BVH has no unit: `guess_bvh_units` infers it from the skeleton's height.
+one to three distinct rotation axes is accepted. Position channels on the root give its path; on
+another joint they give its offset from frame 0, except on the root's only child, whose path
+then moves the root (exporters that put a fixed joint above the hips, such as the Bandai Namco
+Research Motion dataset's `joint_Root`). BVH has no unit: `guess_bvh_units` infers it from the skeleton's height.
 
 Hostile files: the readers of this module, `asf_amc` and `amass` share the limits below
 (`MAX_*` (MAX_FPS and MAX_FRAMES come from `dlacli.types`), `check_motion_size`, and
@@ -291,6 +293,11 @@ def read_bvh(path: str | os.PathLike, metres_per_unit: float | None = None) -> S
     offsets = np.array([j["offset"] for j in joints], dtype=np.float64)
     rotations = np.broadcast_to(np.eye(3), (frames, len(joints), 3, 3)).copy()
     root_positions = np.broadcast_to(offsets[0], (frames, 3)).copy()
+    # A root with one child that carries the translation (joint_Root -> Hips, as some exporters
+    # write): that child's per-frame positions become the root's path (`carried`)
+    children = [k for k, j in enumerate(joints) if j["parent"] == 0]
+    carrier = children[0] if len(children) == 1 else None
+    carried = None if carrier is None else np.broadcast_to(offsets[carrier], (frames, 3)).copy()
     col = 0
     for k, joint in enumerate(joints):
         chans = [c.lower() for c in joint["channels"]]
@@ -305,8 +312,16 @@ def read_bvh(path: str | os.PathLike, metres_per_unit: float | None = None) -> S
         for axis, i in pos_cols.items():
             if k == 0:
                 root_positions[:, axis] = block[:, i]
+            elif k == carrier:  # the root's only child moves the body: its path is the root's
+                carried[:, axis] = block[:, i]
             else:  # a non-root joint's translation: bones keep their length, take frame 0's
                 offsets[k, axis] = block[0, i]
+    if carrier is not None and np.ptp(carried, axis=0).max() > 0:
+        # Exact: the root's own position moves to its child's, everything below is where it was.
+        root_positions += np.einsum("tij,tj->ti", rotations[:, 0], carried)
+        offsets[carrier] = 0.0
+    elif carrier is not None:
+        offsets[carrier] = carried[0]
 
     skel = SkeletonMotion(
         names=names,
