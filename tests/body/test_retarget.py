@@ -381,3 +381,66 @@ def test_bandai_namco_names_move_the_limbs_as_the_cmu_names_do(clips, motions, r
     # float64 products of <= 12 rotations, stored as float32 axis-angles: ~1e-6
     np.testing.assert_allclose(wg[:, idx], ww[:, idx], atol=1e-5)
     np.testing.assert_allclose(got.root_translation, want.root_translation, atol=1e-6)
+
+
+def _twist_trunk(skel, joint: str, angle: float):
+    """The same motion with `angle` of twist baked into `joint`'s rotation channels: its rest
+    subtree turned by -angle about the rest axis from the joint to the skeleton's top, its rotation
+    R T and every rotation below it T^-1 R T, so that the posed skeleton is unchanged."""
+    from dlacli.kinematics import rest_positions
+
+    j = skel.names.index(joint)
+    rest = rest_positions(skel)
+    below = set()
+    for k in range(skel.num_joints):
+        p = int(skel.parents[k])
+        if p == j or p in below:
+            below.add(k)
+    top = max(below, key=lambda k: rest[k, 1])  # the head end of the chain (Y up)
+    axis = (rest[top] - rest[j]) / np.linalg.norm(rest[top] - rest[j])
+    t = Rotation.from_rotvec(angle * axis).as_matrix()
+    rot, off = skel.rotations.copy(), skel.offsets.copy()
+    rot[:, j] = rot[:, j] @ t
+    idx = sorted(below)
+    rot[:, idx] = t.T @ rot[:, idx] @ t
+    off[idx] = off[idx] @ t  # T^-1 applied to each row
+    ends = {k: (v @ t if k in below else v) for k, v in skel.end_sites.items()}
+    return type(skel)(**{**vars(skel), "rotations": rot, "offsets": off, "end_sites": ends}), axis
+
+
+def test_a_trunk_twist_baked_into_the_rotation_channels_does_not_turn_the_torso(clips, motions, rig):
+    """Some exporters write a trunk joint's orientation into its channels (the Bandai Namco files
+    twist "Spine" by 90 degrees: in their rest pose the shoulders cross the hips). The same CMU clip
+    with such a twist baked into LowerBack moves every trunk bone (spine, neck, head) as the clip
+    does, to within the clip's own rest misalignment of shoulders and hips (under a degree), and
+    every limb joint to the same place; the root and its path are untouched."""
+    from dlacli.kinematics import forward_kinematics, rest_positions
+
+    skel = clips["cmu_01_01.bvh"]
+    twisted, axis = _twist_trunk(skel, "LowerBack", np.pi / 2)
+    frames = np.arange(0, skel.num_frames, 25)
+    # the oracle's own check: the posed skeletons are the same
+    np.testing.assert_allclose(forward_kinematics(twisted, frames)[1], forward_kinematics(skel, frames)[1], atol=1e-9)
+    rest = rest_positions(skel)
+    names = skel.names
+
+    def flat(v):  # the component across the twist axis, normalised
+        v = v - np.dot(v, axis) * axis
+        return v / np.linalg.norm(v)
+
+    hips = flat(rest[names.index("LeftUpLeg")] - rest[names.index("RightUpLeg")])
+    arms = flat(rest[names.index("LeftArm")] - rest[names.index("RightArm")])
+    misalignment = np.arccos(np.clip(hips @ arms, -1, 1))  # ~0.8 degrees in this clip
+    got, want = retarget(twisted, rig), motions["cmu_01_01.bvh"]
+    wg, ww = _world_rotations(got, rig), _world_rotations(want, rig)
+    trunk = [rig.index(b) for b in ("spine05", "spine03", "spine01", "neck01", "neck02", "head")]
+    angle = Rotation.from_matrix((np.swapaxes(wg[:, trunk], -1, -2) @ ww[:, trunk]).reshape(-1, 3, 3)).magnitude()
+    assert angle.max() <= misalignment + 1e-5, (np.degrees(angle.max()), np.degrees(misalignment))
+    np.testing.assert_allclose(wg[:, rig.index("root")], ww[:, rig.index("root")], atol=1e-6)
+    np.testing.assert_allclose(got.root_translation, want.root_translation, atol=1e-6)
+    model = get_body_model()
+    heads_got = model.forward_motion({}, got, frames=frames).bone_heads.numpy()
+    heads_want = model.forward_motion({}, want, frames=frames).bone_heads.numpy()
+    limbs = [model.bone_index(f"{b}.{s}") for s in "LR" for b in ("lowerarm01", "wrist", "lowerleg01", "foot")]
+    # a trunk turned by under a degree moves the arms' joints by under 2 cm (0.6 m levers)
+    np.testing.assert_allclose(heads_got[:, limbs], heads_want[:, limbs], atol=np.sin(misalignment) * 0.6 + 1e-5)

@@ -312,6 +312,50 @@ def _segment_end(skel: SkeletonMotion, rest: np.ndarray, s: int, mapped: dict[in
     return first_far
 
 
+# A standing rest pose has its shoulders parallel to its hips; a source whose rest shoulders are
+# turned further than this from its hips (about its spine) has orientations baked into its trunk's
+# rotation channels (the Bandai Namco files: a 90 degree twist in "Spine").
+TRUNK_TWIST_DEG = 20.0
+
+
+def _upper_torso(skel, rest, rig, mapped, by_label, src_top, q_torso) -> tuple[set[int], np.ndarray]:
+    """(torso source joints that move the shoulders, their correction): the chest frame (up as the
+    pelvis frame's, left = the right -> left upper arm) where the rest trunk is twisted by more than
+    TRUNK_TWIST_DEG, else (empty, q_torso). Those joints are the trunk joints above the root whose
+    rotation carries the shoulders (ancestors of an upper arm) and the neck and head above them."""
+    arms = [by_label.get(f"upperarm01.{side}") for side in "LR"]
+    root = by_label.get("root", 0)
+    if src_top is None or None in arms or not ("upperleg01.L" in by_label and "upperleg01.R" in by_label):
+        return set(), q_torso
+    up = rest[src_top] - rest[root]
+    src = _frame(up, rest[arms[0]] - rest[arms[1]])
+    heads = rig.rest_heads
+    dst_top = next(b for b in ("head", "neck02", "neck01", "spine01") if b in by_label)
+    dst = _frame(
+        heads[rig.index(dst_top)] - heads[rig.index("root")],
+        heads[rig.index("upperarm01.L")] - heads[rig.index("upperarm01.R")],
+    )
+    q_chest = dst @ src.T
+    twist = np.degrees(np.arccos(np.clip((np.trace(q_chest.T @ q_torso) - 1.0) / 2.0, -1.0, 1.0)))
+    if twist <= TRUNK_TWIST_DEG:
+        return set(), q_torso
+    ancestors = set()
+    for a in arms:
+        p = int(skel.parents[a])
+        while p >= 0 and p != root:
+            ancestors.add(p)
+            p = int(skel.parents[p])
+    moved = {s for s, label in mapped.items() if label in TORSO and s != root and s in ancestors}
+    # the neck and head: torso joints below the upper trunk
+    for s, label in mapped.items():
+        p = int(skel.parents[s])
+        while label in TORSO and p >= 0 and s not in moved:
+            if p in moved:
+                moved.add(s)
+            p = int(skel.parents[p])
+    return moved, q_chest
+
+
 def rest_corrections(skel: SkeletonMotion, rig: AnnyRig, mapped: dict[int, str]) -> dict[int, np.ndarray]:
     """{source joint: Q [3, 3]} taking the source rest bone (in anny axes) onto anny's zero pose."""
     rest = rest_positions(skel) @ Y_UP_TO_ANNY.T  # [J, 3] rest skeleton in anny axes
@@ -335,12 +379,13 @@ def rest_corrections(skel: SkeletonMotion, rig: AnnyRig, mapped: dict[int, str])
         )
         dst = _frame(anny_head(dst_top) - anny_head("root"), anny_head("upperleg01.L") - anny_head("upperleg01.R"))
         q_torso = dst @ src.T
+    upper = _upper_torso(skel, rest, rig, mapped, by_label, src_top, q_torso)
 
     q: dict[int, np.ndarray] = {}
     for s in sorted(mapped):
         label = mapped[s]
         if label in TORSO:
-            q[s] = q_torso
+            q[s] = upper[1] if s in upper[0] else q_torso
             continue
         end = _segment_end(skel, rest, s, mapped, children)
         b = rig.index(label)
