@@ -272,7 +272,7 @@ def run_fit(name, seed, steps=None):
     truth = truth_motion(name)
     jt, jf = major_joints(truth), major_joints(res.motion)
     e = pa_err(jf, jt)
-    return e, jitter(jf) / jitter(jt), cpu, skating(jf, jt)
+    return e, (jitter(jf), jitter(jt)), cpu, skating(jf, jt)
 
 
 def main():
@@ -300,11 +300,13 @@ def main():
         steps = int(os.environ.get("STEPS", "0")) or None
         rows, per = [], []
         for n, s in which:
-            e, jr, cpu, skate = run_fit(n, s, steps)
-            rows.append((n, s, e.mean(), jr, cpu, *skate, float(np.percentile(e.mean(1), 90))))
+            e, (jit_f, jit_t), cpu, skate = run_fit(n, s, steps)
+            jr = jit_f / jit_t
+            rows.append((n, s, e.mean(), jr, cpu, *skate, float(np.percentile(e.mean(1), 90)), jit_f, jit_t))
             per.append(e.mean(0))
             print(
-                f"{n:10s} s{s} {1000 * e.mean():6.1f} mm  p90 {1000 * rows[-1][-1]:5.1f}  jitter x{jr:.2f}  "
+                f"{n:10s} s{s} {1000 * e.mean():6.1f} mm  p90 {1000 * rows[-1][-3]:5.1f}  jitter x{jr:.2f} "
+                f"({1000 * jit_f:.1f}/{1000 * jit_t:.1f} mm/frame²)  "
                 f"skate {skate[0]:.2f}/{skate[1]:.2f} m/s  cpu {cpu:.1f}s  | "
                 + " ".join(f"{k}:{1000 * v:.0f}" for k, v in zip(SHORT, e.mean(0))),
                 flush=True,
