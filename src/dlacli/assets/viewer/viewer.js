@@ -520,22 +520,25 @@ void main() { frag = vec4(texelFetch(u_src, ivec2(gl_FragCoord.xy), 0).rgb, 1.0)
   }
 
   // timeFrames(count): draw `count` successive motion frames as fast as the browser can (each one
-  // skinned + sorted in JS, drawn and finished on the GL side) and return {fps, js_ms, gl_ms}: the
-  // frames per second of playback when nothing waits for the display, and the median milliseconds
-  // per frame of the JS part (skinning the centres + the depth sort) and of the rest (draw +
-  // gl.finish); the page then shows the frame it showed before (`dla bench speed --suite view`).
+  // skinned + sorted in JS, drawn, and read back: a one-pixel readPixels waits until the frame is
+  // drawn, where Chromium's gl.finish() returns before its GPU process has drawn it) and return
+  // {fps, js_ms, gl_ms}: the frames per second of playback when nothing waits for the display, and
+  // the median milliseconds per frame of the JS part (skinning the centres + the depth sort) and of
+  // the rest (draw + read-back); the page then shows the frame it showed before (`dla bench speed
+  // --suite view`).
   function timeFrames(count) {
     return api.ready.then(() => {
       const was = S.playing, from = S.frame, frames = S.data.frames;
       const median = (x) => x.slice().sort((p, q) => p - q)[x.length >> 1];
       setPlaying(false);
       const whole = [], js = [];
+      const probe = new Uint8Array(4);
       const t0 = performance.now();
       for (let i = 1; i <= count; i++) {
         showFrame((from + i) % frames);
         const a = performance.now();
         draw();
-        gl.finish();
+        gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, probe);
         whole.push(performance.now() - a);
       }
       const fps = (count * 1000) / (performance.now() - t0);
