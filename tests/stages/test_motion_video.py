@@ -163,6 +163,43 @@ def test_limb_directions_are_the_mean_of_lifter_and_landmarks_where_both_see():
     np.testing.assert_allclose(dirs[1, shin], mp_u[1, shin], atol=1e-6)
 
 
+
+def test_a_segment_no_estimate_sees_takes_mediapipes_guess_at_a_low_weight():
+    """A wrist hidden behind the back (keypoint and landmark confidence 0, as the detector
+    reports it): the forearm's direction is MediaPipe's guess from its world landmarks, weighted
+    UNSEEN_LIMB_CONF, instead of no direction at all; seen segments are unchanged, and a frame
+    without world landmarks (all zero) gets no guess."""
+    import torch
+
+    from dlacli.nn.lifter import PoseLifter
+    from dlacli.stages import motion_fit as mf
+    from dlacli.stages.fit import photo_intrinsics
+
+    rng = np.random.default_rng(1)
+    kp = np.concatenate([rng.uniform(100, 200, (3, 17, 2)), np.ones((3, 17, 1))], -1).astype(np.float32)
+    lm = np.concatenate([rng.normal(size=(3, 17, 3)), np.ones((3, 17, 1))], -1).astype(np.float32)
+    kp[:, 9, 2] = lm[:, 9, 3] = 0.0  # the left wrist unseen in every frame
+    lm[2] = 0.0  # frame 2: no world landmarks
+    K = photo_intrinsics(320, 320)
+    torch.manual_seed(0)
+    lifter = PoseLifter().eval()
+    dirs, conf = (t.numpy() for t in mf._limb_directions(kp, lm, K, lifter))
+    forearm = mf.VIDEO_SEGMENTS.index((7, 9))
+    d = lm[:2, 9, :3] - lm[:2, 7, :3]
+    np.testing.assert_allclose(dirs[:2, forearm], d / np.linalg.norm(d, axis=-1, keepdims=True), atol=1e-6)
+    assert conf[:2, forearm].tolist() == [pytest.approx(mf.UNSEEN_LIMB_CONF)] * 2 and conf[2, forearm] == 0.0
+    # the rest as without the rule
+    old = mf.UNSEEN_LIMB_CONF
+    try:
+        mf.UNSEEN_LIMB_CONF = 0.0
+        dirs0, conf0 = (t.numpy() for t in mf._limb_directions(kp, lm, K, lifter))
+    finally:
+        mf.UNSEEN_LIMB_CONF = old
+    others = [k for k in range(len(mf.VIDEO_SEGMENTS)) if k != forearm]
+    np.testing.assert_array_equal(dirs[:, others], dirs0[:, others])
+    np.testing.assert_array_equal(conf[:, others], conf0[:, others])
+    assert conf0[:, forearm].tolist() == [0.0, 0.0, 0.0]
+
 def test_foot_contacts():
     n = 20
     kp = np.zeros((n, 17, 3), np.float32)

@@ -335,27 +335,42 @@ class _Window:
 
 
 LIMB_SOURCE = "both"  # where the limb prior's directions come from: lifter, landmarks or both (their mean)
+# the weight of MediaPipe's 3D guess for a segment that neither estimate sees (an end keypoint
+# below MIN_CONF: hidden behind the body or out of the frame), where it would otherwise have none
+# (chosen on the calibration sets: 0.05-0.6 measured, docs/motion.md)
+UNSEEN_LIMB_CONF = 0.05
 
 
 def _limb_directions(
     kp: np.ndarray, lm: np.ndarray, K: np.ndarray, lifter: PoseLifter | None
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The limb prior's unit directions [N, S, 3] (camera axes) and confidences [N, S]: those of
-    the pose lifter's 3D keypoints (`nn.lifter`), of MediaPipe's 3D landmarks, or their mean."""
+    the pose lifter's 3D keypoints (`nn.lifter`), of MediaPipe's 3D landmarks, or their mean; a
+    segment none of them sees takes MediaPipe's guess at `UNSEEN_LIMB_CONF`."""
+    mp = _limb_targets_batched(lm)
     if LIMB_SOURCE == "landmarks":
-        return _limb_targets_batched(lm)
+        return _unseen_from_landmarks(*mp, lm)
     from dlacli.nn.lifter import lift_keypoints
 
     lifted = _limb_targets_batched(lift_keypoints(kp, K, lifter))
     if LIMB_SOURCE == "lifter":
-        return lifted
-    mp = _limb_targets_batched(lm)
+        return _unseen_from_landmarks(*lifted, lm)
     # the mean where both see the segment; else the one that does (a keypoint out of the frame
     # leaves the lifter without the segment, MediaPipe still guesses it)
     has_l, has_m = (lifted[1] > 0)[..., None], (mp[1] > 0)[..., None]
     mean = torch.nn.functional.normalize(lifted[0] * has_l + mp[0] * has_m, dim=-1)
     conf = torch.where(has_l[..., 0] & has_m[..., 0], torch.minimum(lifted[1], mp[1]), lifted[1] + mp[1])
-    return mean, conf
+    return _unseen_from_landmarks(mean, conf, lm)
+
+
+def _unseen_from_landmarks(dirs: torch.Tensor, conf: torch.Tensor, lm: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    """Segments with confidence 0 take MediaPipe's direction (its world landmarks are a full
+    skeleton wherever it found the person, seen or not) at confidence UNSEEN_LIMB_CONF; frames
+    without landmarks (all zero) keep none."""
+    guess = _limb_targets_batched(np.concatenate([lm[..., :3], np.ones_like(lm[..., 3:])], -1))
+    fill = (conf <= 0) & (guess[1] > 0)
+    dirs = torch.where(fill[..., None], guess[0], dirs)
+    return dirs, torch.where(fill, torch.full_like(conf, UNSEEN_LIMB_CONF), conf)
 
 
 def _windows(n: int, size: int, overlap: int) -> list[tuple[int, int]]:
