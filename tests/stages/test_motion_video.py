@@ -163,7 +163,6 @@ def test_limb_directions_are_the_mean_of_lifter_and_landmarks_where_both_see():
     np.testing.assert_allclose(dirs[1, shin], mp_u[1, shin], atol=1e-6)
 
 
-
 def test_a_segment_no_estimate_sees_takes_mediapipes_guess_at_a_low_weight():
     """A wrist hidden behind the back (keypoint and landmark confidence 0, as the detector
     reports it): the forearm's direction is MediaPipe's guess from its world landmarks, weighted
@@ -199,6 +198,7 @@ def test_a_segment_no_estimate_sees_takes_mediapipes_guess_at_a_low_weight():
     np.testing.assert_array_equal(dirs[:, others], dirs0[:, others])
     np.testing.assert_array_equal(conf[:, others], conf0[:, others])
     assert conf0[:, forearm].tolist() == [0.0, 0.0, 0.0]
+
 
 def test_foot_contacts():
     n = 20
