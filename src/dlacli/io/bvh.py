@@ -10,7 +10,8 @@ R = Rz @ Ry @ Rx (the first listed rotation is the outermost); angles are degree
 one to three distinct rotation axes is accepted. Position channels on the root give its path; on
 another joint they give its offset from frame 0, except on the root's only child, whose path
 then moves the root (exporters that put a fixed joint above the hips, such as the Bandai Namco
-Research Motion dataset's `joint_Root`). BVH has no unit: `guess_bvh_units` infers it from the skeleton's height.
+Research Motion dataset's `joint_Root`). BVH has no unit: `guess_bvh_units` infers it from the
+skeleton's height.
 
 Hostile files: the readers of this module, `asf_amc` and `amass` share the limits below
 (`MAX_*` (MAX_FPS and MAX_FRAMES come from `dlacli.types`), `check_motion_size`, and

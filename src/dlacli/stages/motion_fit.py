@@ -14,7 +14,8 @@ by window, overlapping, the shape from the first) are optimised together by Adam
   weighted by confidence (keypoints below `MIN_CONF` or outside the image count 0);
 - the photo fit's limb-direction prior (`fit.limb_loss`), per frame, toward the mean of two 3D
   estimates of each limb's direction: MediaPipe's 3D landmarks and the pose lifter's 3D keypoints
-  (`nn.lifter`, trained on CMU motion capture; docs/motion.md has how the two were chosen);
+  (`nn.lifter`, trained on CMU motion capture; docs/motion.md has how the two were chosen), and
+  for a segment neither sees MediaPipe's guess at a low weight (`UNSEEN_LIMB_CONF`);
 - the photo fit's pose prior and joint limits;
 - temporal smoothness: squared accelerations (second differences over consecutive detected
   frames) of the 3D keypoints, of the bone rotations and of the root;
