@@ -318,42 +318,24 @@ def _segment_end(skel: SkeletonMotion, rest: np.ndarray, s: int, mapped: dict[in
 TRUNK_TWIST_DEG = 20.0
 
 
-def _upper_torso(skel, rest, rig, mapped, by_label, src_top, q_torso) -> tuple[set[int], np.ndarray]:
-    """(torso source joints that move the shoulders, their correction): the chest frame (up as the
-    pelvis frame's, left = the right -> left upper arm) where the rest trunk is twisted by more than
-    TRUNK_TWIST_DEG, else (empty, q_torso). Those joints are the trunk joints above the root whose
-    rotation carries the shoulders (ancestors of an upper arm) and the neck and head above them."""
-    arms = [by_label.get(f"upperarm01.{side}") for side in "LR"]
+def _upper_torso(skel: SkeletonMotion, mapped: dict[int, str], by_label: dict[str, int]) -> set[int]:
+    """The torso source joints that carry the shoulders: the trunk joints above the root that are
+    ancestors of an upper arm, and the neck and head above them."""
     root = by_label.get("root", 0)
-    if src_top is None or None in arms or not ("upperleg01.L" in by_label and "upperleg01.R" in by_label):
-        return set(), q_torso
-    up = rest[src_top] - rest[root]
-    src = _frame(up, rest[arms[0]] - rest[arms[1]])
-    heads = rig.rest_heads
-    dst_top = next(b for b in ("head", "neck02", "neck01", "spine01") if b in by_label)
-    dst = _frame(
-        heads[rig.index(dst_top)] - heads[rig.index("root")],
-        heads[rig.index("upperarm01.L")] - heads[rig.index("upperarm01.R")],
-    )
-    q_chest = dst @ src.T
-    twist = np.degrees(np.arccos(np.clip((np.trace(q_chest.T @ q_torso) - 1.0) / 2.0, -1.0, 1.0)))
-    if twist <= TRUNK_TWIST_DEG:
-        return set(), q_torso
-    ancestors = set()
-    for a in arms:
-        p = int(skel.parents[a])
+    moved = set()
+    for side in "LR":
+        p = int(skel.parents[by_label[f"upperarm01.{side}"]])
         while p >= 0 and p != root:
-            ancestors.add(p)
+            if mapped.get(p) in TORSO:
+                moved.add(p)
             p = int(skel.parents[p])
-    moved = {s for s, label in mapped.items() if label in TORSO and s != root and s in ancestors}
-    # the neck and head: torso joints below the upper trunk
-    for s, label in mapped.items():
+    for s, label in mapped.items():  # the neck and head: torso joints below the upper trunk
         p = int(skel.parents[s])
         while label in TORSO and p >= 0 and s not in moved:
             if p in moved:
                 moved.add(s)
             p = int(skel.parents[p])
-    return moved, q_chest
+    return moved
 
 
 def rest_corrections(skel: SkeletonMotion, rig: AnnyRig, mapped: dict[int, str]) -> dict[int, np.ndarray]:
@@ -368,24 +350,29 @@ def rest_corrections(skel: SkeletonMotion, rig: AnnyRig, mapped: dict[int, str])
     def anny_head(label: str) -> np.ndarray:
         return heads[rig.index(label)]
 
-    # torso: align pelvis frames
+    # torso: align pelvis frames (up = root -> top, left = right -> left hip)
     src_top = next((by_label[b] for b in ("head", "neck02", "neck01", "spine01") if b in by_label), None)
-    q_torso = np.eye(3)
+    q_torso, q_chest, upper = np.eye(3), None, set()
     if src_top is not None and "upperleg01.L" in by_label and "upperleg01.R" in by_label:
         dst_top = next(b for b in ("head", "neck02", "neck01", "spine01") if b in by_label)
-        src = _frame(
-            rest[src_top] - rest[by_label.get("root", 0)],
-            rest[by_label["upperleg01.L"]] - rest[by_label["upperleg01.R"]],
-        )
-        dst = _frame(anny_head(dst_top) - anny_head("root"), anny_head("upperleg01.L") - anny_head("upperleg01.R"))
-        q_torso = dst @ src.T
-    upper = _upper_torso(skel, rest, rig, mapped, by_label, src_top, q_torso)
+        src_up, dst_up = rest[src_top] - rest[by_label.get("root", 0)], anny_head(dst_top) - anny_head("root")
+
+        def align(left: str, right: str) -> np.ndarray:  # the frame with this pair's left
+            src = _frame(src_up, rest[by_label[left]] - rest[by_label[right]])
+            return _frame(dst_up, anny_head(left) - anny_head(right)) @ src.T
+
+        q_torso = align("upperleg01.L", "upperleg01.R")
+        if "upperarm01.L" in by_label and "upperarm01.R" in by_label:
+            # the chest frame (left = the upper arms) where the rest trunk is twisted (TRUNK_TWIST_DEG)
+            q_chest = align("upperarm01.L", "upperarm01.R")
+            twist = np.degrees(np.arccos(np.clip((np.trace(q_chest.T @ q_torso) - 1.0) / 2.0, -1.0, 1.0)))
+            upper = _upper_torso(skel, mapped, by_label) if twist > TRUNK_TWIST_DEG else set()
 
     q: dict[int, np.ndarray] = {}
     for s in sorted(mapped):
         label = mapped[s]
         if label in TORSO:
-            q[s] = upper[1] if s in upper[0] else q_torso
+            q[s] = q_chest if s in upper else q_torso
             continue
         end = _segment_end(skel, rest, s, mapped, children)
         b = rig.index(label)
