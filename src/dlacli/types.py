@@ -292,6 +292,10 @@ class ViewSet:
     file_paths: list[str]  # [V] image paths relative to the folder
     times: list[int | None]  # [V] motion frame index per view, or None
     extra: dict[str, Any] = field(default_factory=dict)  # the top-level "dla" object
+    # [V, H, W] float32 in [0, 1]: how far each pixel's colour shows the surface the body puts
+    # there (0: a limb in front that the fit placed elsewhere); None: every pixel, as a mask
+    # allows. Only the lift's colour bake reads it (formats/views.md, "Colour trust")
+    trust: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.images.shape[0]

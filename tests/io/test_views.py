@@ -392,3 +392,57 @@ def test_palette_jpeg_and_one_bit_inputs(tmp_path):
     np.testing.assert_array_equal(vs.images[0][expect > 0], np.tile([1.0, 0.0, 0.0], (9, 1)))
     np.testing.assert_array_equal(vs.masks[1], bits.astype(np.float32))
     np.testing.assert_allclose(vs.images[1], 128 / 255, atol=2 / 255)
+
+
+def test_colour_trust_round_trips_and_is_written_only_where_it_is_not_one(tmp_path):
+    """A view's colour trust goes to images/trust_NNN.png (8-bit gray) only when some pixel is below
+    1; reading gives it back to 8-bit rounding, views without a file at 1, and `dla info`'s
+    summary the trusted share of each view's person (mask-weighted mean)."""
+    _, vs = _viewset()
+    trust = np.ones(vs.masks.shape, np.float32)
+    trust[1] = np.random.default_rng(1).uniform(size=trust[1].shape)
+    vs.trust = trust
+    write_views(vs, tmp_path / "out")
+    frames = json.loads((tmp_path / "out" / "transforms.json").read_text())["frames"]
+    assert [f.get("trust_path") for f in frames] == [None, "images/trust_001.png", None]
+    assert sorted(p.name for p in (tmp_path / "out" / "images").iterdir()) == [
+        "trust_001.png",
+        "view_000.png",
+        "view_001.png",
+        "view_002.png",
+    ]
+    gray = Image.open(tmp_path / "out" / "images" / "trust_001.png")
+    assert gray.mode == "L"
+    np.testing.assert_array_equal(np.asarray(gray), np.round(trust[1] * 255))
+    back = read_views(tmp_path / "out")
+    np.testing.assert_array_equal(back.trust[[0, 2]], 1.0)
+    np.testing.assert_allclose(back.trust[1], trust[1], atol=0.5 / 255 + 1e-6)
+    share = summarize_views(tmp_path / "out")["colour_trust"]
+    m = back.masks[1]
+    assert share[0] == share[2] == 1.0
+    assert share[1] == pytest.approx(float((m * back.trust[1]).sum() / m.sum()), abs=1e-4)
+
+    vs.trust = None  # no trust: no files, and the reader gives None
+    write_views(vs, tmp_path / "plain")
+    assert not list((tmp_path / "plain" / "images").glob("trust_*"))
+    assert read_views(tmp_path / "plain").trust is None
+    assert summarize_views(tmp_path / "plain")["colour_trust"] == [1.0, 1.0, 1.0]
+
+
+def test_colour_trust_problems_name_the_file(tmp_path):
+    folder = make_folder(tmp_path, [_frame(trust_path="images/t.png")])
+    t = folder / "images" / "t.png"
+    assert f"{t}: image file not found" in _error(read_views, folder)
+    Image.fromarray(np.full((H, W + 1), 255, np.uint8)).save(t)
+    assert f"{t}: image is 9x6" in _error(read_views, folder)
+    for bad in (np.full((H, W, 3), 255, np.uint8), np.full((H, W, 2), 255, np.uint8)):
+        Image.fromarray(bad).save(t)
+        assert f"{t}: a colour trust image must be grayscale without alpha" in _error(read_views, folder)
+    folder = make_folder(tmp_path, [_frame(trust_path="../t.png")], name="outside")
+    assert "trust_path" in _error(read_views, folder)
+    _, vs = _viewset()
+    vs.trust = np.ones((2, H, W), np.float32)
+    assert "views.trust: has shape (2, 6, 8)" in _error(write_views, vs, tmp_path / "x")
+    vs.trust = np.full((3, H, W), np.nan, np.float32)
+    assert "views.trust: has non-finite values" in _error(write_views, vs, tmp_path / "x")
+    assert not (tmp_path / "x").exists()

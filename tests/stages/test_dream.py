@@ -92,6 +92,17 @@ def test_folder_reads_back(folder, posed):
         np.testing.assert_allclose(vs.body.pose[key], value, atol=1e-6)
     for i in range(4):
         assert vs.masks[i].mean() > 0.02, f"view {i} is (almost) empty"
+    # view 0's colour trust: the dreamed views need none; on the photo the fit is the true body, so
+    # the occluder rule finds no limb out of place, only pixels beside the limbs where this
+    # texture (a smooth function of the position) runs on across the part border
+    frames = meta["frames"]
+    assert [f.get("trust_path") for f in frames[1:]] == [None] * 3
+    assert [p.name for p in (folder / "images").glob("trust_*")] == (
+        ["trust_000.png"] if "trust_path" in frames[0] else []
+    )
+    if vs.trust is not None:
+        np.testing.assert_array_equal(vs.trust[1:], 1.0)
+        assert (vs.trust[0] * vs.masks[0]).sum() > 0.9 * vs.masks[0].sum()
 
 
 def test_view0_is_the_photo(folder, posed):

@@ -328,7 +328,7 @@ def test_an_occluder_the_fit_misplaced_leaves_no_colour_on_what_it_covers(hand_o
 
     s, leg = hand_on_thigh, hand_on_thigh["leg"]
     colour, weight = tx.bake(s["rgb"], s["alpha"], s["cam"], s["fitted"], UV)
-    monkeypatch.setattr(occ, "occluded_texels", lambda *a, **k: np.zeros(len(a[6]), bool))
+    monkeypatch.setattr(occ, "covered_pixels", lambda *a, **k: np.zeros(a[1].shape, bool))
     colour0, weight0 = tx.bake(s["rgb"], s["alpha"], s["cam"], s["fitted"], UV)
     monkeypatch.undo()
     red0 = leg & (weight0 > 0) & _red(colour0)
@@ -343,3 +343,44 @@ def test_an_occluder_the_fit_misplaced_leaves_no_colour_on_what_it_covers(hand_o
     assert (weight[leg] > 0).sum() > 0.8 * (weight0[leg] > 0).sum()
     done = tx.complete(colour, weight, UV)
     assert not _red(done[red0]).any()
+
+
+def test_the_photos_colour_trust_keeps_the_limb_in_front_off_what_it_covers_in_the_lift(hand_on_thigh):
+    """(g) View 0 of a dream is the photo itself, and the lift bakes its texels from it as well:
+    without view 0's colour trust (`photo_trust`) the thigh texels beside the misplaced fitted hand
+    take the real hand's red from the photo (the test can fail); with it no texel sees red on
+    the thigh, the trust only takes views away, and what it keeps bakes the same colours."""
+    from dlacli.body.regions import PARTS, part_map
+    from dlacli.stages.bake import bake_colours, body_depth_maps, texel_views
+    from dlacli.stages.texture import photo_trust
+    from dlacli.types import ViewSet
+
+    s = hand_on_thigh
+    views = ViewSet(
+        s["rgb"][None].astype(np.float32), s["alpha"][None].astype(np.float32), s["cam"], None, ["p"], [None]
+    )
+    fmap = np.zeros((14, UV, UV), np.float32)
+    depth = body_depth_maps(s["fitted"], views)
+    plain = texel_views(fmap, s["fitted"], views, depth)
+    trust = photo_trust(s["rgb"], s["alpha"], s["cam"], s["fitted"])
+    assert trust.shape == s["alpha"].shape and set(np.unique(trust)) == {0.0, 1.0}
+    views.trust = trust[None]
+    trusted = texel_views(fmap, s["fitted"], views, depth)
+    leg = part_map(UV)[plain.valid] == PARTS.index("left_leg")
+    red = leg & plain.seen[0] & _red(plain.rgb[0])
+    print(
+        "thigh texels seeing red without the trust:",
+        red.sum(),
+        "with it:",
+        (leg & trusted.seen[0] & _red(trusted.rgb[0])).sum(),
+    )
+    assert red.sum() > 50
+    assert not (leg & trusted.seen[0] & _red(trusted.rgb[0])).any()
+    assert not (trusted.seen & ~plain.seen).any()
+    assert trusted.seen.sum() > 0.95 * plain.seen.sum()  # only the pixels beside the hand are dropped
+    kept = trusted.seen[0]
+    rgb = np.s_[1:4]
+    np.testing.assert_array_equal(
+        bake_colours(fmap, trusted)[rgb][:, plain.valid][:, kept],
+        bake_colours(fmap, plain)[rgb][:, plain.valid][:, kept],
+    )

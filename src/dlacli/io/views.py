@@ -3,7 +3,8 @@
 
 Cameras: pinhole, no distortion; transform_matrix is camera-to-world in OpenGL axes and is
 converted with `Cameras.from_c2w_opengl`. Images: RGBA (alpha = person mask) or RGB/gray plus a
-`mask_path`; 8- and 16-bit PNGs are scaled to [0, 1].
+`mask_path`; 8- and 16-bit PNGs are scaled to [0, 1]. A frame's optional `trust_path` is a gray
+image of its colour trust (`ViewSet.trust`).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ BODY = "body.json"
 CAMERA_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE")  # all read as a pinhole without distortion
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 INTRINSIC_KEYS = ("w", "h", "fl_x", "fl_y", "cx", "cy")
-LAYOUT = (TRANSFORMS, BODY, "images", "images/view_*.png")  # what write_views puts in a folder
+LAYOUT = (TRANSFORMS, BODY, "images", "images/view_*.png", "images/trust_*.png")  # what write_views puts in a folder
 MAX_FRAMES = 4096
 MAX_TOTAL_PIXELS = 1 << 27  # all views together: 128 MP (2 GiB as float32 RGB + mask)
 RIGID_TOL = 1e-3  # max |R^T R - I| and |det R - 1| accepted for a camera-to-world rotation
@@ -46,7 +47,8 @@ def read_transforms(folder: str | os.PathLike) -> dict[str, Any]:
     """Parse and check transforms.json without reading images.
 
     Returns {"c2w": [V, 4, 4] float64, "fx"/"fy"/"cx"/"cy": [V] float64, "width", "height",
-    "file_paths": [V] str, "mask_paths": [V] str | None, "times": [V] int | None,
+    "file_paths": [V] str, "mask_paths": [V] str | None, "trust_paths": [V] str | None,
+    "times": [V] int | None,
     "dla": the "dla" object without its format, "format": the dla.format found or None}.
     """
     folder = _folder_of(folder)
@@ -64,7 +66,7 @@ def read_transforms(folder: str | os.PathLike) -> dict[str, Any]:
         raise DlaInputError(where, "'frames' must be a non-empty list")
     _check_camera(meta, where, "top level")
 
-    c2w, intr, file_paths, mask_paths, times = [], {k: [] for k in INTRINSIC_KEYS}, [], [], []
+    c2w, intr, file_paths, mask_paths, trust_paths, times = [], {k: [] for k in INTRINSIC_KEYS}, [], [], [], []
     for i, frame in enumerate(frames):
         at = f"frames[{i}]"
         if not isinstance(frame, dict):
@@ -84,6 +86,7 @@ def read_transforms(folder: str | os.PathLike) -> dict[str, Any]:
                 raise DlaInputError(where, f"{at}: missing '{key}'")
         file_paths.append(_rel_path(frame["file_path"], where, f"{at}.file_path"))
         mask_paths.append(_rel_path(frame["mask_path"], where, f"{at}.mask_path") if "mask_path" in frame else None)
+        trust_paths.append(_rel_path(frame["trust_path"], where, f"{at}.trust_path") if "trust_path" in frame else None)
         c2w.append(_rigid(frame["transform_matrix"], where, f"{at}.transform_matrix"))
         times.append(_time(frame.get("time"), where, f"{at}.time"))
 
@@ -116,6 +119,7 @@ def read_transforms(folder: str | os.PathLike) -> dict[str, Any]:
         "height": height,
         "file_paths": file_paths,
         "mask_paths": mask_paths,
+        "trust_paths": trust_paths,
         "times": times,
         "dla": {k: v for k, v in dla.items() if k != "format"},
         "format": dla.get("format"),
@@ -218,8 +222,8 @@ def _decode(path: Path, width: int, height: int) -> tuple[np.ndarray, np.ndarray
     return arr, None
 
 
-def _load_view(folder: Path, t: dict, i: int, where: Path, allow_outside: bool) -> tuple[np.ndarray, np.ndarray]:
-    """([H, W, 3] rgb, [H, W] mask) of frame i."""
+def _load_view(folder: Path, t: dict, i: int, where: Path, allow_outside: bool):
+    """([H, W, 3] rgb, [H, W] mask, [H, W] colour trust or None) of frame i."""
     w, h = t["width"], t["height"]
     image_path = _resolve(folder, t["file_paths"][i], where, f"frames[{i}].file_path", allow_outside)
     colour, alpha = _decode(image_path, w, h)
@@ -240,7 +244,14 @@ def _load_view(folder: Path, t: dict, i: int, where: Path, allow_outside: bool) 
         )
     if not np.any(alpha > 0):
         raise DlaInputError(mask_file, "the person mask is empty (all zero)")
-    return rgb, alpha
+    trust = None
+    if t["trust_paths"][i] is not None:
+        trust_file = _resolve(folder, t["trust_paths"][i], where, f"frames[{i}].trust_path", allow_outside)
+        gray, trust_alpha = _decode(trust_file, w, h)
+        if trust_alpha is not None or gray.shape[-1] != 1:
+            raise DlaInputError(trust_file, "a colour trust image must be grayscale without alpha")
+        trust = gray[..., 0]
+    return rgb, alpha, trust
 
 
 def read_views(folder: str | os.PathLike, require_body: bool = True, allow_outside: bool = False) -> ViewSet:
@@ -264,27 +275,30 @@ def view_files(folder: str | os.PathLike, allow_outside: bool = False) -> list[P
         inside(folder, BODY, folder / BODY, "the link", allow_outside)
     for i, rel in enumerate(t["file_paths"]):
         files.append(_resolve(folder, rel, where, f"frames[{i}].file_path", allow_outside))
-    for i, rel in enumerate(t["mask_paths"]):
-        if rel is not None:
-            files.append(_resolve(folder, rel, where, f"frames[{i}].mask_path", allow_outside))
+    for key in ("mask_path", "trust_path"):
+        for i, rel in enumerate(t[f"{key}s"]):
+            if rel is not None:
+                files.append(_resolve(folder, rel, where, f"frames[{i}].{key}", allow_outside))
     return files
 
 
-def _load(
-    folder: Path, require_body: bool, allow_outside: bool
-) -> tuple[dict[str, Any], BodyParams | None, np.ndarray, np.ndarray]:
-    """(transforms, body or None, images [V, H, W, 3] float32, masks [V, H, W] float32): everything
-    but the Cameras (whose tensors need torch; `summarize_views` does without them)."""
+def _load(folder: Path, require_body: bool, allow_outside: bool):
+    """(transforms, body or None, images [V, H, W, 3] float32, masks [V, H, W] float32, colour trust
+    [V, H, W] float32 or None when no frame has one): everything but the Cameras (whose tensors
+    need torch; `summarize_views` does without them)."""
     where = folder / TRANSFORMS
     t = read_transforms(folder)
     body = _read_body(folder, require_body, allow_outside)
-    images, masks = zip(*(_load_view(folder, t, i, where, allow_outside) for i in range(len(t["file_paths"]))))
-    return t, body, np.stack(images).astype(np.float32), np.stack(masks).astype(np.float32)
+    images, masks, trusts = zip(*(_load_view(folder, t, i, where, allow_outside) for i in range(len(t["file_paths"]))))
+    trust = None
+    if any(x is not None for x in trusts):
+        trust = np.stack([np.ones_like(m) if x is None else x for x, m in zip(trusts, masks)]).astype(np.float32)
+    return t, body, np.stack(images).astype(np.float32), np.stack(masks).astype(np.float32), trust
 
 
 def _read(folder: str | os.PathLike, require_body: bool, allow_outside: bool = False) -> tuple[dict[str, Any], ViewSet]:
     folder = _folder_of(folder)
-    t, body, images, masks = _load(folder, require_body, allow_outside)
+    t, body, images, masks, trust = _load(folder, require_body, allow_outside)
     cameras = Cameras.from_c2w_opengl(t["c2w"], t["fx"], t["fy"], t["cx"], t["cy"], t["width"], t["height"])
     views = ViewSet(
         images=images,  # [V, H, W, 3]
@@ -294,6 +308,7 @@ def _read(folder: str | os.PathLike, require_body: bool, allow_outside: bool = F
         file_paths=list(t["file_paths"]),
         times=list(t["times"]),
         extra=t["dla"],
+        trust=trust,
     )
     return t, views
 
@@ -311,7 +326,8 @@ def _read_body(folder: Path, require: bool, allow_outside: bool = False) -> Body
 
 def write_views(views: ViewSet, folder: str | os.PathLike) -> None:
     """Write `views` as a view folder (atomic as a whole): images/view_{i:03d}.png (RGBA, 8-bit,
-    alpha = mask), transforms.json, and body.json when `views.body` is set."""
+    alpha = mask), images/trust_{i:03d}.png (8-bit gray) for each view whose colour trust is not 1
+    everywhere, transforms.json, and body.json when `views.body` is set."""
     from PIL import Image
 
     images = np.asarray(views.images)  # [V, H, W, 3]
@@ -324,7 +340,11 @@ def write_views(views: ViewSet, folder: str | os.PathLike) -> None:
         raise DlaInputError("views.images", f"has shape {images.shape}, expected ({v}, {h}, {w}, 3) from the cameras")
     if masks.shape != (v, h, w):
         raise DlaInputError("views.masks", f"has shape {masks.shape}, expected ({v}, {h}, {w})")
-    for name, arr in (("views.images", images), ("views.masks", masks)):
+    trust = None if views.trust is None else np.asarray(views.trust)
+    if trust is not None and trust.shape != (v, h, w):
+        raise DlaInputError("views.trust", f"has shape {trust.shape}, expected ({v}, {h}, {w})")
+    arrays = (("views.images", images), ("views.masks", masks), ("views.trust", trust))
+    for name, arr in (a for a in arrays if a[1] is not None):
         if not np.all(np.isfinite(arr)):
             raise DlaInputError(name, "has non-finite values")
     for i in range(v):
@@ -347,9 +367,12 @@ def write_views(views: ViewSet, folder: str | os.PathLike) -> None:
     if shared:
         meta.update({k: _f32(x) for k, x in zip(names, intr[0])})
     meta.update({"k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0})
+    trust8 = None if trust is None else np.round(np.clip(trust, 0.0, 1.0) * 255.0).astype(np.uint8)
     frames = []
     for i in range(v):
         frame: dict[str, Any] = {"file_path": f"images/view_{i:03d}.png"}
+        if trust8 is not None and (trust8[i] < 255).any():
+            frame["trust_path"] = f"images/trust_{i:03d}.png"
         if not shared:
             frame.update({k: _f32(x) for k, x in zip(names, intr[i])})
         frame["transform_matrix"] = [[_f32(x) for x in row] for row in c2w[i]]
@@ -373,6 +396,8 @@ def write_views(views: ViewSet, folder: str | os.PathLike) -> None:
             rgba = np.concatenate([images[i], masks[i][..., None]], axis=-1)  # [H, W, 4]
             u8 = np.round(np.clip(rgba, 0.0, 1.0) * 255.0).astype(np.uint8)
             Image.fromarray(u8, "RGBA").save(tmp / frames[i]["file_path"])
+            if "trust_path" in frames[i]:
+                Image.fromarray(trust8[i], "L").save(tmp / frames[i]["trust_path"])
         (tmp / TRANSFORMS).write_text(text, encoding="utf-8")
         if body is not None:
             (tmp / BODY).write_text(dump_json(body) + "\n", encoding="utf-8")
@@ -385,11 +410,15 @@ def _f32(x: float) -> float:
 
 def summarize_views(folder: str | os.PathLike) -> dict[str, Any]:
     """JSON-able summary of a view folder (works without body.json and says so; no torch)."""
-    t, body, _, masks = _load(_folder_of(folder), require_body=False, allow_outside=False)
+    t, body, _, masks, trust = _load(_folder_of(folder), require_body=False, allow_outside=False)
     centres = t["c2w"][:, :3, 3]  # [V, 3]
     dist = np.linalg.norm(centres, axis=1)
     same = all(np.all(t[k] == t[k][0]) for k in ("fx", "fy", "cx", "cy"))
     intr = {k: (float(t[k][0]) if same else t[k].tolist()) for k in ("fx", "fy", "cx", "cy")}
+    # per view, the share of the person's pixels whose colour is trusted (1 without trust images)
+    trusted = [1.0] * len(masks)
+    if trust is not None:
+        trusted = [round(float((m * x).sum() / m.sum()), 4) for m, x in zip(masks, trust)]
     return {
         "kind": "views",
         "format": t["format"] or "nerfstudio transforms.json (no dla.format)",
@@ -402,6 +431,7 @@ def summarize_views(folder: str | os.PathLike) -> dict[str, Any]:
         "camera_distance_max": float(dist.max()),
         "times": t["times"],
         "mask_coverage": [round(float(m.mean()), 4) for m in masks],
+        "colour_trust": trusted,
         "body": "present" if body is not None else "missing (body.json is required by dla lift)",
         "phenotype": None if body is None else dict(body.phenotype),
         "file_paths": t["file_paths"],

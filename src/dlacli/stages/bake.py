@@ -76,9 +76,10 @@ class TexelViews:
 
 def texel_views(fmap: np.ndarray, vertices: np.ndarray, views: ViewSet, body_depth: np.ndarray) -> TexelViews:
     """Each covered texel's point of the map F [14, R, R] on the body (vertices [V, 3]) and what
-    every view shows of it. A view sees a point that falls inside its image and mask (> 0.5),
-    faces it (cos > 0.05) and is not hidden by the body (camera depth at most VISIBLE_DEPTH behind
-    the body's depth there, `body_depth` [V, H, W] from `body_depth_maps`)."""
+    every view shows of it. A view sees a point that falls inside its image and mask (> 0.5) and
+    its colour trust (> 0.5, `ViewSet.trust`: not where a limb the body does not place there
+    covers it), faces it (cos > 0.05) and is not hidden by the body (camera depth at most
+    VISIBLE_DEPTH behind the body's depth there, `body_depth` [V, H, W] from `body_depth_maps`)."""
     from dlacli.body.uv import FRAME_RESOLUTION, texel_frames, uv_raster
 
     res = fmap.shape[-1]
@@ -101,6 +102,8 @@ def texel_views(fmap: np.ndarray, vertices: np.ndarray, views: ViewSet, body_dep
         row = np.clip(np.floor(px[:, 1]).astype(np.int64), 0, h - 1)
         inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h) & (z > 0)
         seen = inside & (z <= body_depth[v][row, col] + VISIBLE_DEPTH) & (cosine > 0.05) & (mask > 0.5)
+        if views.trust is not None:
+            seen &= _bilinear(views.trust[v][..., None], px[:, 0], px[:, 1])[:, 0] > 0.5
         per_view.append((sampled[:, :3] / np.maximum(mask, 1e-6)[:, None], mask, cosine, seen))
     rgb, mask, cosine, seen = (np.stack(parts) for parts in zip(*per_view))
     return TexelViews(valid, points, normals, rgb, mask, cosine, seen)

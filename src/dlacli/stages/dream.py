@@ -305,6 +305,7 @@ def build_views(
     """Photo [H, W, 3] + person mask [H, W] + body fit (`dlacli.stages.fit.FitResult`) -> the
     4 views (azimuths 0, 90, 180, 270) as a ViewSet with the fitted body. `prior`: see `Backend`."""
     from dlacli.stages.fit_report import fit_info
+    from dlacli.stages.texture import photo_trust
 
     say = progress or (lambda msg: None)
     rgb, alpha, cam = frame_crop(image, mask, fit.camera, res)
@@ -321,7 +322,9 @@ def build_views(
     info["plausibility"] = plausibility(images, masks, cams, fit.vertices)
     info["silhouette_excess"] = info["plausibility"]["excess"]
     names = [f"images/view_{i:03d}.png" for i in range(len(images))]
-    return ViewSet(images, masks, cams, fit.body, names, [None] * len(images), {"dream": info})
+    trust = np.ones(masks.shape, np.float32)  # views 1-3 show the backend's own surface
+    trust[0] = photo_trust(rgb, alpha, cam, fit.vertices)
+    return ViewSet(images, masks, cams, fit.body, names, [None] * len(images), {"dream": info}, trust)
 
 
 def write_dream_folder(views: ViewSet, overlay: np.ndarray, output: str | os.PathLike) -> Path:

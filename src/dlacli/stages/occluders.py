@@ -28,9 +28,9 @@ MIN_SAMPLES = 200  # a part with fewer pixels seen out of the limb's reach gives
 COLOUR_TOL = 0.06  # a pixel shows the limb when its colour is nearer to the limb's than its part's by this (RGB)
 
 
-def occluded_texels(rgb, pimg, pure, inside, depth, pixel, part, seen) -> np.ndarray:
-    """[N] bool: texels whose photo pixel shows a part in front of them, not themselves (a hand on a
-    thigh, crossed arms, a raised knee). The fit places an occluding limb only roughly (a hand's
+def covered_pixels(rgb, pimg, pure, inside, depth) -> np.ndarray:
+    """[H, W] bool: photo pixels that show a part in front of the fitted part there, not that part
+    itself (a hand on a thigh, crossed arms, a raised knee). The fit places an occluding limb only roughly (a hand's
     fingers and turn are not fitted at all), so geometry proposes and the photo's colours decide.
     For each limb q (`OCCLUDERS`), a pixel of another part P is covered by q when it lies within
     res / OCCLUDER_DIV px of q's fitted silhouette, q's nearest pixel is not behind it by more than
@@ -42,13 +42,11 @@ def occluded_texels(rgb, pimg, pure, inside, depth, pixel, part, seen) -> np.nda
     limb reaches past the fitted one they look like the limb. Where the two look alike the texel
     keeps its colour, which is then right either way. rgb [H, W, 3]; pimg [H, W] the part seen at
     each pixel (-1: none); pure [H, W] bool, away from a part border; inside [H, W] bool, the
-    person mask; depth [H, W] the z-buffer; pixel (rows, columns) [N] of each texel; part [N];
-    seen [N] bool."""
+    person mask; depth [H, W] the z-buffer."""
     from dlacli.body.regions import PARTS
 
     h, w = pimg.shape
     reach = max(1, w // OCCLUDER_DIV)
-    yi, xi = pixel
     smooth = ndimage.uniform_filter(rgb.astype(np.float64), size=(3, 3, 1), mode="nearest")
     rng = np.random.default_rng(0)
     covered = np.zeros((h, w), bool)
@@ -83,7 +81,7 @@ def occluded_texels(rgb, pimg, pure, inside, depth, pixel, part, seen) -> np.nda
             d_p = _colour_tree(samples, rng).query(sc[at], k=1)[0]
             looks[at] = d_p > d_q + COLOUR_TOL
         covered[crop] |= looks
-    return seen & covered[yi, xi]
+    return covered
 
 
 def _colour_tree(colours: np.ndarray, rng) -> cKDTree:

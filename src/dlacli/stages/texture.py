@@ -334,9 +334,9 @@ def bake(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarr
     between its normal and the direction to the camera x the mask there, 0 where the body's
     z-buffer hides it or it faces away."""
     from dlacli.body.model import get_body_model
-    from dlacli.body.regions import PARTS, face_parts
-    from dlacli.render.raster import rasterize, sample_texture, world_to_camera
-    from dlacli.stages.occluders import occluded_texels
+    from dlacli.body.regions import PARTS
+    from dlacli.render.raster import sample_texture, world_to_camera
+    from dlacli.stages.occluders import covered_pixels
 
     h, w = alpha.shape
     fid, bary, part = texel_samples(resolution)
@@ -350,15 +350,9 @@ def bake(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarr
     z = pc[:, 2]
     x, y = k[0, 0] * pc[:, 0] / z + k[0, 2], k[1, 1] * pc[:, 1] / z + k[1, 2]
     inside = (z > 0.01) & (x >= 0) & (x < w) & (y >= 0) & (y < h)
-    ras = rasterize(vertices, faces, camera)
-    depth = ras.depth[0]
+    pimg, pure, depth = _photo_parts(vertices, camera)
     xi, yi = np.clip(x.astype(np.int64), 0, w - 1), np.clip(y.astype(np.int64), 0, h - 1)
     visible = inside & (z <= depth[yi, xi] + DEPTH_TOL)
-    # part borders as the camera sees them (face / hair, an arm over the torso): the photo's pixels
-    # there mix both parts (and the fit's error moves the border), so they are not baked
-    pimg = np.where(ras.face_id[0] >= 0, face_parts()[np.maximum(ras.face_id[0], 0)], -1)
-    size = 2 * max(1, w // BORDER_DIV) + 1
-    pure = ndimage.maximum_filter(pimg, size) == ndimage.minimum_filter(pimg, size)  # [H, W]
     visible &= pure[yi, xi] & (pimg[yi, xi] == part)
     # a wider border between the face and the torso (the neck): the chin or a beard seen over the
     # fitted neck would be mirrored to the back of the neck (the hair keeps the narrow border: a
@@ -374,11 +368,38 @@ def bake(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarr
     uv = np.stack([x / w, 1.0 - y / h], axis=1)
     colour = sample_texture(rgb, uv)
     mask = sample_texture(alpha[..., None], uv)[:, 0]
-    seen = visible & (cos > 0) & (mask > 0.5)
-    visible &= ~occluded_texels(rgb, pimg, pure, alpha > 0.5, depth, (yi, xi), part, seen)
+    visible &= ~covered_pixels(rgb, pimg, pure, alpha > 0.5, depth)[yi, xi]
     weight = np.where(visible & (cos > 0), np.clip(cos, 0, 1) ** POWER * np.clip(mask, 0, 1), 0.0)
     weight = np.where(mask > 0.5, weight, 0.0)
     return colour.astype(np.float32), weight.astype(np.float32)
+
+
+def _photo_parts(vertices: np.ndarray, camera: Cameras) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the camera (1) sees of the body (vertices [V, 3]) at each pixel: (the body part [H, W],
+    -1 off the body; pure [H, W] bool, no other part within max(1, W // BORDER_DIV) px: at part
+    borders as the camera sees them (face / hair, an arm over the torso) the photo's pixels mix
+    both parts and the fit's error moves the border; the z-buffer depth [H, W])."""
+    from dlacli.body.model import get_body_model
+    from dlacli.body.regions import face_parts
+    from dlacli.render.raster import rasterize
+
+    ras = rasterize(vertices, get_body_model().faces, camera)
+    pimg = np.where(ras.face_id[0] >= 0, face_parts()[np.maximum(ras.face_id[0], 0)], -1)
+    size = 2 * max(1, camera.width // BORDER_DIV) + 1
+    pure = ndimage.maximum_filter(pimg, size) == ndimage.minimum_filter(pimg, size)
+    return pimg, pure, ras.depth[0]
+
+
+def photo_trust(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarray) -> np.ndarray:
+    """[H, W] float32: 1 where the photo (rgb [H, W, 3], person mask alpha [H, W], its camera)
+    shows the surface the fitted body (vertices [V, 3]) puts at the pixel, 0 where it shows a limb
+    in front of it that the fit placed elsewhere (`occluders.covered_pixels`: a hand on a thigh, a
+    raised knee over the belly). The view folder records it as view 0's colour trust
+    (formats/views.md), so that the lift does not give the covered surface the limb's colour."""
+    from dlacli.stages.occluders import covered_pixels
+
+    pimg, pure, depth = _photo_parts(np.asarray(vertices, np.float64), camera)
+    return (~covered_pixels(rgb, pimg, pure, alpha > 0.5, depth)).astype(np.float32)
 
 
 def _over(colour, conf, other, other_conf):
