@@ -209,3 +209,52 @@ def test_refinement_compares_a_window_that_loses_nothing(subject):
     for i in range(len(views)):
         inside = mask_t[i, y0[i] : y0[i] + h, x0[i] : x0[i] + w].sum()
         assert float(inside) == pytest.approx(float(mask_t[i].sum()), rel=1e-6)
+
+
+def test_roughness_is_the_mean_squared_step_between_covered_neighbours():
+    """`_roughness` against a direct count: 0 for offsets that move as a whole; for a checkerboard
+    of +-a on the covered texels, every covered neighbour pair differs by 2a, so the mean of
+    (2a / ROUGHNESS_UNIT)^2; the pairs are exactly the covered horizontal and vertical ones."""
+    import torch
+
+    from dlacli.body.uv import uv_raster
+    from dlacli.stages.lift import ROUGHNESS_UNIT, _neighbour_pairs, _roughness
+
+    res = 64
+    valid = uv_raster(res).mask
+    pairs = _neighbour_pairs(res)
+    expected = (valid[:, 1:] & valid[:, :-1]).sum() + (valid[1:] & valid[:-1]).sum()
+    assert len(pairs[0]) == expected
+    assert valid.reshape(-1)[pairs[0].numpy()].all() and valid.reshape(-1)[pairs[1].numpy()].all()
+    steps = np.abs(pairs[0].numpy() - pairs[1].numpy())
+    assert set(np.unique(steps)) == {1, res}
+    assert float(_roughness(torch.full((res, res), 0.02, dtype=torch.float64), pairs)) == 0.0
+    a = 0.004
+    board = torch.from_numpy(np.where((np.indices((res, res)).sum(0) % 2) == 0, a, -a))
+    np.testing.assert_allclose(float(_roughness(board, pairs)), (2 * a / ROUGHNESS_UNIT) ** 2, rtol=1e-12)
+
+
+def test_the_roughness_weight_smooths_the_refined_normal_offsets(subject):
+    """w_smooth > 0 makes the refined normal offsets smoother than w_smooth = 0 on the same views
+    and steps (on the demo's views 30 steps gave 17.9 mm neighbour RMS without it, 1.3 mm at 0.1)."""
+    import torch
+
+    from dlacli.avatar import gaussian_map as gm
+    from dlacli.stages.lift import _neighbour_pairs, _roughness
+
+    views = read_views(subject)
+    pairs = _neighbour_pairs(128)
+    rough = []
+    for w in (0.0, 0.1):
+        z = lift(views, LiftConfig(steps=8, gaussians=8192, resolution=128, w_smooth=w)).avatar.z
+        rough.append(float(_roughness(torch.from_numpy(np.asarray(z[gm.OFFSET][2], np.float64)), pairs)))
+    print("roughness without / with the weight:", rough)
+    assert rough[1] < 0.5 * rough[0]
+
+
+def test_a_negative_roughness_weight_is_refused():
+    from dlacli.errors import DlaInputError
+    from dlacli.stages.methods import parse_method
+
+    with pytest.raises(DlaInputError, match="w_smooth must be in"):
+        parse_method("unproject:steps=5,w_smooth=-1")

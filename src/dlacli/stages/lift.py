@@ -62,6 +62,7 @@ class LiftConfig:
     lr: float = LIFT_LR  # Adam
     w_mask: float = 1.0
     w_ssim: float = 0.2
+    w_smooth: float = 0.0  # the normal offsets' roughness (`_roughness`) in the refinement's loss
     seed: int = 0
     view_colour: bool = True  # measure the views' view-dependent falloff (`view_falloff`) and model it
 
@@ -351,18 +352,48 @@ def refine(
     win = min(SSIM_WINDOW, full[1], full[2]) | 1  # as ssim_map sizes its window
     n_ssim = full[0] * (full[1] - win + 1) * (full[2] - win + 1) * 3  # ssim_map's 'valid' values
 
+    pairs = _neighbour_pairs(fmap.shape[-1]) if cfg.w_smooth else None
+
     def loss() -> torch.Tensor:
-        (g,) = gm.gaussians_at_frames(base + delta * step_scale, samples, frames)
+        f = base + delta * step_scale
+        (g,) = gm.gaussians_at_frames(f, samples, frames)
         rgb, alpha = _render(g, cams, colours)
         value = _mean((rgb - target_rgb).abs()) * (rgb.numel() / (3 * n_pixels))
         value = value + cfg.w_mask * _mean((alpha - target_mask).abs()) * (alpha.numel() / n_pixels)
         if cfg.w_ssim:
             s = ssim_map(rgb, target_rgb)  # 1 - SSIM is 0 on the black outside the windows
             value = value + cfg.w_ssim * _mean(1.0 - s) * (s.numel() / n_ssim)
+        if cfg.w_smooth:
+            value = value + cfg.w_smooth * _roughness(f[gm.OFFSET][2], pairs)
         return value
 
     history = adam_refine([delta], loss, cfg.steps, cfg.lr, progress)
     return (base + delta.detach() * step_scale).numpy(), history
+
+
+ROUGHNESS_UNIT = 0.01  # metres: the normal offsets' neighbour differences are measured in cm
+
+
+def _neighbour_pairs(resolution: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Flat indices (i, j) [P] of the horizontally and vertically adjacent texel pairs that the UV
+    layout both covers."""
+    from dlacli.body.uv import uv_raster
+
+    valid = torch.from_numpy(uv_raster(resolution).mask)
+    idx = torch.arange(resolution * resolution).view(resolution, resolution)
+    right = valid[:, 1:] & valid[:, :-1]
+    down = valid[1:, :] & valid[:-1, :]
+    i = torch.cat([idx[:, :-1][right], idx[:-1, :][down]])
+    j = torch.cat([idx[:, 1:][right], idx[1:, :][down]])
+    return i, j
+
+
+def _roughness(normal_offset: torch.Tensor, pairs: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
+    """Mean squared difference of the normal offsets [R, R] of adjacent covered texels, in
+    ROUGHNESS_UNIT: 0 on a surface the offsets move as a whole."""
+    flat = normal_offset.reshape(-1)
+    d = (flat[pairs[0]] - flat[pairs[1]]) / ROUGHNESS_UNIT
+    return _mean(d * d)
 
 
 # ------------------------------------------------------------------------------------ driver

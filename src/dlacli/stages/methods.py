@@ -48,6 +48,7 @@ from dlacli.limits import (
 )
 
 Progress = Callable[[int, float], None]  # (step index, loss) after each refinement step
+MAX_WEIGHT = 1e6  # the largest loss weight a spec may set
 LiftFn = Callable[[Any, Any, "Progress | None", Any], Any]  # (views, config, progress, novel) -> LiftResult
 
 # result rows written before the registry: their method name -> the registry's
@@ -272,10 +273,15 @@ class UnprojectConfig:
     seed: int | None = None  # seed of the Gaussian sample points
     view_colour: bool | None = None  # measure and model the views' view-dependent falloff
     lr: float | None = None  # the refinement's Adam learning rate
+    w_smooth: float | None = None  # weight of the normal offsets' roughness in the refinement's loss
 
     def __post_init__(self):
         _check(0 <= self.steps <= MAX_LIFT_STEPS, f"steps must be in [0, {MAX_LIFT_STEPS}], got {self.steps}")
         _check(self.lr is None or 0 < self.lr <= 1, f"lr must be in (0, 1], got {self.lr}")
+        _check(
+            self.w_smooth is None or 0 <= self.w_smooth <= MAX_WEIGHT,
+            f"w_smooth must be in [0, {MAX_WEIGHT}], got {self.w_smooth}",
+        )
         _check(
             self.resolution is None or MIN_IMAGE_SIZE <= self.resolution <= MAX_LIFT_RESOLUTION,
             f"resolution must be in [{MIN_IMAGE_SIZE}, {MAX_LIFT_RESOLUTION}], got {self.resolution}",
