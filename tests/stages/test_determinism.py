@@ -80,7 +80,8 @@ from dlacli.io.views import read_views
 from dlacli.stages.lift import LiftConfig, lift
 
 views, out, n, steps = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
-result = lift(read_views(views), LiftConfig(steps=steps, gaussians=n, resolution=64))
+# w_smooth: the roughness term (the default for dreamed views) takes part in the check too
+result = lift(read_views(views), LiftConfig(steps=steps, gaussians=n, resolution=64, w_smooth=0.1))
 np.save(out + ".z32.npy", result.avatar.z)
 write_avatar(result.avatar, out)
 """

@@ -213,8 +213,9 @@ def test_refinement_compares_a_window_that_loses_nothing(subject):
 
 def test_roughness_is_the_mean_squared_step_between_covered_neighbours():
     """`_roughness` against a direct count: 0 for offsets that move as a whole; for a checkerboard
-    of +-a on the covered texels, every covered neighbour pair differs by 2a, so the mean of
-    (2a / ROUGHNESS_UNIT)^2; the pairs are exactly the covered horizontal and vertical ones."""
+    of +-a, every covered neighbour pair differs by 2a, so the mean is (2a / ROUGHNESS_UNIT)^2;
+    the pairs are exactly the covered horizontal and vertical ones; and one bump's value is the
+    sum over its covered pairs divided by their count."""
     import torch
 
     from dlacli.body.uv import uv_raster
@@ -222,16 +223,20 @@ def test_roughness_is_the_mean_squared_step_between_covered_neighbours():
 
     res = 64
     valid = uv_raster(res).mask
-    pairs = _neighbour_pairs(res)
-    expected = (valid[:, 1:] & valid[:, :-1]).sum() + (valid[1:] & valid[:-1]).sum()
-    assert len(pairs[0]) == expected
-    assert valid.reshape(-1)[pairs[0].numpy()].all() and valid.reshape(-1)[pairs[1].numpy()].all()
-    steps = np.abs(pairs[0].numpy() - pairs[1].numpy())
-    assert set(np.unique(steps)) == {1, res}
+    pairs = right, down = _neighbour_pairs(res)
+    np.testing.assert_array_equal(right.numpy(), valid[:, 1:] & valid[:, :-1])
+    np.testing.assert_array_equal(down.numpy(), valid[1:] & valid[:-1])
     assert float(_roughness(torch.full((res, res), 0.02, dtype=torch.float64), pairs)) == 0.0
     a = 0.004
     board = torch.from_numpy(np.where((np.indices((res, res)).sum(0) % 2) == 0, a, -a))
     np.testing.assert_allclose(float(_roughness(board, pairs)), (2 * a / ROUGHNESS_UNIT) ** 2, rtol=1e-12)
+    r, c = (
+        np.argwhere(valid[1:-1, 1:-1] & valid[:-2, 1:-1] & valid[2:, 1:-1] & valid[1:-1, :-2] & valid[1:-1, 2:])[0] + 1
+    )
+    bump = torch.zeros((res, res), dtype=torch.float64)
+    bump[r, c] = a  # 4 covered pairs differ by a
+    count = float(right.sum() + down.sum())
+    np.testing.assert_allclose(float(_roughness(bump, pairs)), 4 * (a / ROUGHNESS_UNIT) ** 2 / count, rtol=1e-12)
 
 
 def test_the_roughness_weight_smooths_the_refined_normal_offsets(subject):
@@ -246,7 +251,9 @@ def test_the_roughness_weight_smooths_the_refined_normal_offsets(subject):
     pairs = _neighbour_pairs(128)
     rough = []
     for w in (0.0, 0.1):
-        z = lift(views, LiftConfig(steps=8, gaussians=8192, resolution=128, w_smooth=w)).avatar.z
+        avatar = lift(views, LiftConfig(steps=8, gaussians=8192, resolution=128, w_smooth=w)).avatar
+        assert avatar.extra["lift"]["w_smooth"] == w
+        z = avatar.z
         rough.append(float(_roughness(torch.from_numpy(np.asarray(z[gm.OFFSET][2], np.float64)), pairs)))
     print("roughness without / with the weight:", rough)
     assert rough[1] < 0.5 * rough[0]
@@ -258,3 +265,18 @@ def test_a_negative_roughness_weight_is_refused():
 
     with pytest.raises(DlaInputError, match="w_smooth must be in"):
         parse_method("unproject:steps=5,w_smooth=-1")
+
+
+def test_the_roughness_weight_defaults_to_the_dreams_for_dreamed_views_only(subject):
+    """Unset, the weight is DREAM_W_SMOOTH for a folder that `dla dream` wrote (transforms.json's
+    `dla.dream`) and 0 for true views; a weight the spec sets wins either way."""
+    import dataclasses
+
+    from dlacli.stages.lift import DREAM_W_SMOOTH, smoothness
+
+    views = read_views(subject)
+    dreamed = dataclasses.replace(views, extra={**views.extra, "dream": {"backend": "body"}})
+    assert "dream" not in views.extra and DREAM_W_SMOOTH > 0
+    assert smoothness(LiftConfig(), views) == 0.0 and smoothness(LiftConfig(), dreamed) == DREAM_W_SMOOTH
+    assert smoothness(LiftConfig(w_smooth=0.0), dreamed) == 0.0
+    assert smoothness(LiftConfig(w_smooth=0.5), views) == 0.5
