@@ -280,3 +280,5 @@ def test_the_roughness_weight_defaults_to_the_dreams_for_dreamed_views_only(subj
     assert smoothness(LiftConfig(), views) == 0.0 and smoothness(LiftConfig(), dreamed) == DREAM_W_SMOOTH
     assert smoothness(LiftConfig(w_smooth=0.0), dreamed) == 0.0
     assert smoothness(LiftConfig(w_smooth=0.5), views) == 0.5
+    # without refinement no weight was used, and the avatar says so
+    assert lift(dreamed, LiftConfig(steps=0, gaussians=8192, resolution=64)).avatar.extra["lift"]["w_smooth"] == 0.0

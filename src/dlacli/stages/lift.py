@@ -517,7 +517,7 @@ def finish_lift(
             "grid": cfg.grid,
             "gaussians": cfg.gaussians,
             "final_loss": history[-1] if history else None,
-            "w_smooth": smoothness(cfg, views),
+            "w_smooth": smoothness(cfg, views) if cfg.steps > 0 else 0.0,  # the weight refinement used
             "view_falloff": falloff,
         },
         "samples": {"count": cfg.gaussians, "seed": cfg.seed},
