@@ -25,8 +25,9 @@ FIT_STEPS = 150  # optimisation steps of dream's body fit (docs/fit.md: 300 fitt
 LANDMARKS = ("lite", "full", "heavy")  # MediaPipe Pose landmark models (dlacli.io.detect; docs/motion.md)
 DEFAULT_LANDMARKS = "full"  # the one the mediapipe wheel ships
 DEFAULT_PRIOR = "shipped"  # dream's body backend: its completion prior (dlacli.stages.completion; docs/dream.md)
-LIFT_STEPS = 30  # refinement steps of the default lift (0 = mesh unprojection only), at LIFT_LR: as accurate on
-# held-out novel views and poses as 50 steps at 0.01, in 60 % of the time (docs/lift.md "Cost and accuracy")
+LIFT_STEPS = 40  # refinement steps of the default lift (0 = mesh unprojection only), at LIFT_LR: on held-out
+# novel views and poses at least as accurate as the session-3 default (50 steps at 131,072 Gaussians) in half its
+# time (docs/lift.md "Cost and accuracy")
 LIFT_LR = 0.03  # the refinement's Adam learning rate
 LIFT_RESOLUTION = 256  # side of the UV Gaussian map Z
 MAX_LIFT_STEPS = 100_000
