@@ -238,6 +238,33 @@ def test_lit_colour_follows_the_pose_albedo_does_not():
     assert ao[1][used & ~moved].mean() > ao[0][used & ~moved].mean()
 
 
+def test_lights_that_turn_with_the_camera():
+    """`light_view`: every camera sees the lights as the camera `light_view` is the rotation of.
+    Oracle: camera B with light_view R_A is world-lit with the lights turned by R_B^T R_A (what
+    B would see if the world's lights were those), and camera A itself is unchanged."""
+    import dataclasses
+
+    from dlacli.data.appearance import ambient_occlusion, sample_lighting
+    from dlacli.data.cameras import INPUT_ELEVATION, synth_orbit_cameras
+    from dlacli.data.garments import DressedBody
+    from dlacli.data.images import render
+    from dlacli.data.subject import sample_subject
+
+    spec = sample_subject(11)
+    body = DressedBody(spec)
+    verts = body.vertices(spec.rotations[None], torch.zeros(1, 3), torch.zeros(1, 3))[0]
+    cams = synth_orbit_cameras([0.0, 135.0], INPUT_ELEVATION, 48)
+    light, ao = sample_lighting(11), ambient_occlusion(verts, body.faces)
+    r = cams.viewmats[:, :3, :3].double().numpy()
+    world = render(body, verts, cams, 11, lighting=light, ao=ao)
+    turned = render(body, verts, cams, 11, lighting=light, ao=ao, light_view=r[0])
+    assert np.array_equal(turned[0], world[0])
+    moved = dataclasses.replace(light, directions=light.directions @ (r[1].T @ r[0]).T)
+    oracle = render(body, verts, cams.select(1), 11, lighting=moved, ao=ao)[0]
+    assert np.allclose(turned[1], oracle, atol=1e-6)
+    assert np.abs(turned[1] - world[1]).max() > 0.05  # the lights did turn
+
+
 def test_specular_depends_on_the_view_diffuse_does_not():
     """lit_terms of the same surface points seen from two eyes: equal diffuse, other specular;
     Blinn-Phong's peak (eye on the mirror direction) is the material's strength x light colour."""

@@ -120,3 +120,16 @@ def test_a_real_samples_target_agrees_with_its_photo(tmp_path):
     print("median |target - photo| on texels both see:", np.median(err))
     assert np.median(err) < 0.03
     assert s["photo"].shape == (512, 512, 4) and s["photo"].dtype == np.uint8
+    # the targets lit as the photo is (the lights turn with each target camera): the same evidence,
+    # the same match where the photo sees, other colours where it does not, a cache file of its own
+    # (the targets' weights may differ a little: the bake's occluder rule reads the colours)
+    from dlacli.train.completion import sample_path
+
+    p = make_sample(folder, resolution=64, target_light="photo")
+    for key in ("colour", "weight", "completed", "photo"):
+        assert np.array_equal(p[key], s[key]), key
+    assert np.mean(np.abs(p["target_weight"] - s["target_weight"]) > 0.05) < 0.02
+    assert np.median(np.abs(p["target"] - p["colour"]).mean(1)[both]) < 0.03
+    unseen = (s["weight"] == 0) & (s["target_weight"] > 0.5)
+    assert np.abs(p["target"] - s["target"]).mean(1)[unseen].mean() > 0.01
+    assert sample_path(folder, 64, "photo") != sample_path(folder, 64)

@@ -124,6 +124,12 @@ def train(
     jobs: int = typer.Option(
         1, "--jobs", min=1, max=64, help="Completion only: processes that make the training samples (cached)."
     ),
+    target_light: str = typer.Option(
+        "world",
+        "--target-light",
+        help="Completion only, lit subjects: world (the targets lit by the subject's lights, fixed in its world) or "
+        "photo (the lights turn with each target camera: the subject everywhere as lit as in the photo).",
+    ),
     supersample: int = typer.Option(
         1,
         "--supersample",
@@ -160,6 +166,7 @@ def train(
         "--stage": (stage != "both", ("learned",)),
         "--resume": (resume, ("learned", "residual", "completion")),
         "--jobs": (jobs != 1, ("completion",)),
+        "--target-light": (target_light != "world", ("completion",)),
         "--gain": (gain, ("residual",)),
         "--gain-only": (gain_only, ("residual",)),
         "--supersample": (supersample != 1, ("residual",)),
@@ -179,8 +186,9 @@ def train(
         return
     if method == "completion":
         _train_completion(
-            data, output, resume, steps_full, batch, lr_g, validation, eval_every, checkpoint_every, seed, jobs
-        )
+            data, output, resume, steps_full, batch, lr_g, validation, eval_every, checkpoint_every, seed, jobs,
+            target_light,
+        )  # fmt: skip
         return
     if method == "residual":
         _train_residual(
@@ -266,16 +274,19 @@ def _train_residual(
 
 
 def _train_completion(
-    data, output, resume, steps, batch, lr, validation, eval_every, checkpoint_every, seed, jobs
+    data, output, resume, steps, batch, lr, validation, eval_every, checkpoint_every, seed, jobs, target_light
 ) -> None:  # fmt: skip
-    from dlacli.train.completion import CompletionTrainConfig, train_completion
+    from dlacli.train.completion import TARGET_LIGHTS, CompletionTrainConfig, train_completion
 
+    if target_light not in TARGET_LIGHTS:
+        raise DlaInputError("--target-light", f"must be {' or '.join(TARGET_LIGHTS)}, got {target_light!r}")
     given = dict(steps=steps, batch=batch, lr=lr)
     cfg = CompletionTrainConfig(
         validation=validation,
         eval_every=eval_every,
         checkpoint_every=checkpoint_every,
         seed=seed,
+        target_light=target_light,
         **{k: v for k, v in given.items() if v is not None},
     )
     if cfg.total_steps == 0:

@@ -28,17 +28,21 @@ def render(
     *,
     lighting: Lighting | None = None,
     ao: np.ndarray | None = None,
+    light_view: np.ndarray | None = None,
 ) -> np.ndarray:
     """verts [V, 3] or [C, V, 3] -> RGBA [C, H, W, 4] float32 (straight alpha, see module doc),
     `chunk` cameras at a time (bounds the memory of the supersampled z-buffers). Appearance
-    "albedo" when `lighting` is None, else "lit" with the per-vertex ao [V] or [C, V]."""
+    "albedo" when `lighting` is None, else "lit" with the per-vertex ao [V] or [C, V].
+    `light_view` [3, 3] (lit only): a world-to-camera rotation; every camera then sees the lights
+    as that camera sees them (they turn with the camera), instead of fixed in the world."""
     if lighting is not None and ao is None:
         raise ValueError("the lit appearance needs the ambient occlusion of the posed vertices")
     parts = []
     for s in range(0, len(cameras), chunk):
         cams = Cameras(cameras.viewmats[s : s + chunk], cameras.Ks[s : s + chunk], cameras.width, cameras.height)
         sub_ao = None if ao is None else (ao if ao.ndim == 1 else ao[s : s + chunk])
-        parts.append(_render(body, verts if verts.ndim == 2 else verts[s : s + chunk], cams, seed, lighting, sub_ao))
+        sub_verts = verts if verts.ndim == 2 else verts[s : s + chunk]
+        parts.append(_render(body, sub_verts, cams, seed, lighting, sub_ao, light_view))
     return np.concatenate(parts)
 
 
@@ -49,8 +53,11 @@ def _render(
     seed: int,
     lighting: Lighting | None = None,
     ao: np.ndarray | None = None,
+    light_view: np.ndarray | None = None,
 ) -> np.ndarray:
     from dlacli.render.raster import rasterize_camera_space, vertex_normals, world_to_camera
+
+    light_view = None if light_view is None else np.asarray(light_view, np.float64)
 
     ss = SUPERSAMPLE
     ks = cameras.Ks.clone()
@@ -84,7 +91,7 @@ def _render(
         else:  # "lit": camera-space normals, eye at the origin, the world's lights turned into the camera
             unit = lambda a: a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-12)  # noqa: E731
             occlusion = np.einsum("nk,nk->n", bary, (ao if ao.ndim == 1 else ao[k])[corners])
-            turn = cameras.viewmats[k, :3, :3].double().numpy()
+            turn = cameras.viewmats[k, :3, :3].double().numpy() if light_view is None else light_view
             diffuse, spec = lit_terms(
                 body.face_material[f], unit(n), unit(-pt), occlusion, lighting, lighting.directions @ turn.T
             )

@@ -87,14 +87,16 @@ def _dressed_subject(seed: int, appearance: str, wardrobe: str):
     return spec, body, lighting, verts, ao
 
 
-def render_subject(seed: int, cameras: Cameras, *, appearance: str = "albedo", wardrobe: str = "default") -> np.ndarray:
+def render_subject(
+    seed: int, cameras: Cameras, *, appearance: str = "albedo", wardrobe: str = "default", light_view=None
+) -> np.ndarray:
     """The subject `seed` in its input pose (that of its input and novel views, in its world:
     body.json's pose, root at the origin) from any cameras -> RGBA [C, H, W, 4] float32 (straight
     alpha), rendered exactly as `synth` renders its views (the benchmarks' ground truth for
-    cameras the subject folder does not hold)."""
+    cameras the subject folder does not hold). `light_view`: see `dlacli.data.images.render`."""
     _check_options(16, 0, 0, appearance, wardrobe)
     _, body, lighting, verts, ao = _dressed_subject(seed, appearance, wardrobe)
-    return render(body, verts, cameras, seed, lighting=lighting, ao=ao)
+    return render(body, verts, cameras, seed, lighting=lighting, ao=ao, light_view=light_view)
 
 
 def synth(

@@ -9,7 +9,9 @@ resolution (stages/completion.photo_evidence): the network's inputs. The target:
 rendered from `TARGET_AZIMUTHS` around the fitted body (the dream's orbit, mapped into the
 subject's world through the bodies, as `dla bench accuracy --input photo` maps cameras) and baked
 onto the same displaced body, averaged with the bakes' weights. So the target is what the truth
-looks like on the fitted body, fit errors and all.
+looks like on the fitted body, fit errors and all; lit by the subject's lights fixed in its world
+(`target_light` "world") or turned with each target camera as the photo's camera sees them
+("photo": the subject as lit as in the photo from wherever it is seen).
 
 One step: a batch of samples, each mirrored left-right with probability 1/2 (through the UV
 map's mirror texels) and given a random colour gain and offset (the same for inputs and target:
@@ -38,6 +40,10 @@ SAMPLE_VERSION = "completion-sample/1"  # bump when the sample's recipe changes
 TARGET_AZIMUTHS = tuple(float(a) for a in range(0, 360, 45))  # degrees, the dream's orbit
 TARGET_SIZE = 256  # pixels of the target renders
 PHOTO_RES = 512  # the framing of the photo (dla dream's default --res)
+# how the target renders are lit (lit subjects): "world", the subject's lights fixed in its world
+# (as its views are rendered); "photo", the lights turned with every target camera as the photo's
+# camera sees them, so the target is the subject as lit as the photo from wherever it is seen
+TARGET_LIGHTS = ("world", "photo")
 FIELDS = ("colour", "weight", "completed", "target", "target_weight")
 
 
@@ -56,6 +62,7 @@ class CompletionTrainConfig:
     eval_every: int = 250
     checkpoint_every: int = 250
     seed: int = 0
+    target_light: str = "world"  # TARGET_LIGHTS
 
     @property
     def total_steps(self) -> int:
@@ -91,10 +98,11 @@ def _scaled(cameras, size: int):
     return Cameras(cameras.viewmats.clone(), ks.to(cameras.Ks.dtype), size, size)
 
 
-def make_sample(folder: Path, resolution: int = 128) -> dict[str, np.ndarray]:
+def make_sample(folder: Path, resolution: int = 128, target_light: str = "world") -> dict[str, np.ndarray]:
     """One subject folder (`dla synth`) -> the network's evidence and its target (module doc):
     colour [N, 3], weight [N], completed [N, 3], target [N, 3], target_weight [N] over
-    valid_texels(resolution), and photo [PHOTO_RES, PHOTO_RES, 4] uint8 (the framed photo)."""
+    valid_texels(resolution), and photo [PHOTO_RES, PHOTO_RES, 4] uint8 (the framed photo).
+    target_light: one of TARGET_LIGHTS."""
     from dlacli.body.alignment import align_bodies, surface_weights
     from dlacli.body.model import get_body_model
     from dlacli.data.dataset import synth_record
@@ -123,7 +131,9 @@ def make_sample(folder: Path, resolution: int = 128) -> dict[str, np.ndarray]:
         true_v = model.forward_body(views.body).vertices[0].double().numpy()
     align = align_bodies(fit.vertices, true_v, surface_weights(true_v, np.asarray(model.faces, np.int64)))
     cams = _scaled(orbit_cameras(cam, body_pivot(fit.vertices), TARGET_AZIMUTHS), TARGET_SIZE)
-    rgba = np.clip(render_subject(seed, align.to_true(cams), appearance=appearance, wardrobe=wardrobe), 0.0, 1.0)
+    light_view = views.cameras.viewmats[k, :3, :3].double().numpy() if target_light == "photo" else None
+    rgba = render_subject(seed, align.to_true(cams), appearance=appearance, wardrobe=wardrobe, light_view=light_view)
+    rgba = np.clip(rgba, 0.0, 1.0)
     acc = np.zeros_like(completed, dtype=np.float64)
     wsum = np.zeros(completed.shape[0])
     for c in range(len(TARGET_AZIMUTHS)):
@@ -142,22 +152,25 @@ def make_sample(folder: Path, resolution: int = 128) -> dict[str, np.ndarray]:
     }
 
 
-def sample_path(folder: Path, resolution: int) -> Path:
+def sample_path(folder: Path, resolution: int, target_light: str = "world") -> Path:
     """The cache file of a subject's sample, keyed by the recipe, the folder and its files."""
     from dlacli.paths import cache_dir
 
     folder = Path(folder).resolve()
     stamps = [(f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in sorted(folder.glob("*.json"))]
-    key = hashlib.sha256(repr((SAMPLE_VERSION, resolution, PHOTO_RES, str(folder), stamps)).encode()).hexdigest()[:20]
+    recipe = (SAMPLE_VERSION, resolution, PHOTO_RES, str(folder), stamps)
+    if target_light != "world":  # the world-lit samples keep the keys they were cached under
+        recipe += (target_light,)
+    key = hashlib.sha256(repr(recipe).encode()).hexdigest()[:20]
     return cache_dir("completion_samples") / f"{folder.name}-{key}.npz"
 
 
-def cached_sample(folder: Path, resolution: int) -> dict[str, np.ndarray] | None:
+def cached_sample(folder: Path, resolution: int, target_light: str = "world") -> dict[str, np.ndarray] | None:
     """A subject's sample from the cache, or made (and cached) now; None when the detector finds
     no person in its photo (recorded in the cache too, as an empty file)."""
     from dlacli.io.atomic import atomic_path
 
-    path = sample_path(folder, resolution)
+    path = sample_path(folder, resolution, target_light)
     if path.is_file():
         try:
             with np.load(path) as z:
@@ -165,7 +178,7 @@ def cached_sample(folder: Path, resolution: int) -> dict[str, np.ndarray] | None
         except (OSError, KeyError, ValueError):
             pass  # a damaged cache file is made again
     try:
-        sample = make_sample(folder, resolution)
+        sample = make_sample(folder, resolution, target_light)
     except DlaInputError:
         sample = None
     with atomic_path(path, cache=True) as tmp:
@@ -174,23 +187,25 @@ def cached_sample(folder: Path, resolution: int) -> dict[str, np.ndarray] | None
     return sample
 
 
-def _sample_worker(task: tuple[str, int]) -> tuple[str, bool]:
+def _sample_worker(task: tuple[str, int, str]) -> tuple[str, bool]:
     from dlacli.data.dataset import _single_threaded
 
     _single_threaded()
-    folder, resolution = task
-    return folder, cached_sample(Path(folder), resolution) is not None
+    folder, resolution, target_light = task
+    return folder, cached_sample(Path(folder), resolution, target_light) is not None
 
 
-def prepare_samples(folders: list[Path], resolution: int, jobs: int = 1, log=None) -> list[Path]:
+def prepare_samples(
+    folders: list[Path], resolution: int, jobs: int = 1, log=None, target_light: str = "world"
+) -> list[Path]:
     """Make (or find) every subject's sample, `jobs` processes in parallel; -> the folders that
     have one (a subject whose photo shows no detectable person is left out)."""
     say = log or (lambda line: None)
-    todo = [f for f in folders if not sample_path(f, resolution).is_file()]
+    todo = [f for f in folders if not sample_path(f, resolution, target_light).is_file()]
     if todo:
         say(f"making {len(todo)} completion samples ({len(folders) - len(todo)} cached), {jobs} jobs")
     t0 = time.perf_counter()
-    tasks = [(str(f), resolution) for f in todo]
+    tasks = [(str(f), resolution, target_light) for f in todo]
     if jobs > 1 and len(tasks) > 1:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
@@ -201,10 +216,10 @@ def prepare_samples(folders: list[Path], resolution: int, jobs: int = 1, log=Non
                     say(f"  {n}/{len(tasks)} samples, {time.perf_counter() - t0:.0f} s")
     else:
         for n, task in enumerate(tasks, 1):
-            _sample_worker(task) if jobs > 1 else cached_sample(Path(task[0]), resolution)
+            _sample_worker(task) if jobs > 1 else cached_sample(Path(task[0]), resolution, target_light)
             if n % 10 == 0 or n == len(tasks):
                 say(f"  {n}/{len(tasks)} samples, {time.perf_counter() - t0:.0f} s")
-    return [f for f in folders if cached_sample(f, resolution) is not None]
+    return [f for f in folders if cached_sample(f, resolution, target_light) is not None]
 
 
 # ------------------------------------------------------------------------------ batches
@@ -299,10 +314,10 @@ def load_samples(data, cfg: CompletionTrainConfig, jobs: int = 1, log=None):
     say = log or (lambda line: None)
     train_ids, val_ids = split_subjects(data, cfg.validation)
     folders = {name: folder for _, name, folder in _discover(Path(data))}
-    prepare_samples([folders[n] for n in val_ids + train_ids], cfg.resolution, jobs, say)
+    prepare_samples([folders[n] for n in val_ids + train_ids], cfg.resolution, jobs, say, cfg.target_light)
     out = []
     for ids in (train_ids, val_ids):
-        kept = [(n, cached_sample(folders[n], cfg.resolution)) for n in ids]
+        kept = [(n, cached_sample(folders[n], cfg.resolution, cfg.target_light)) for n in ids]
         if len(kept) > sum(s is not None for _, s in kept):
             say(f"left out (no person detected): {', '.join(n for n, s in kept if s is None)}")
         out.append([(n, s) for n, s in kept if s is not None])
