@@ -97,6 +97,12 @@ def test_train_cli_refuses_options_of_other_methods(dataset, tmp_path, capsys):
             main(["train", "--data", str(dataset), "-o", str(tmp_path / "r"), *args])
         assert exit_.value.code == 2
         assert "applies to --method" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:  # an unknown target lighting: one line, nothing written
+        bad = ["--method", "completion", "--target-light", "sun"]
+        main(["train", "--data", str(dataset), "-o", str(tmp_path / "t"), *bad])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.startswith("error: --target-light:") and err.count("\n") == 1
+    assert not (tmp_path / "t").exists()
 
 
 @pytest.mark.slow
