@@ -4,7 +4,8 @@ The non-learned path (paper ablation A.i, "mesh unprojection"), made as accurate
 allows:
 a. `unstructured_gaussians`: one Gaussian per (block of) masked pixel, placed along its ray at the
    depth of the fitted body (slightly in front of it, for clothing) or, where the body is not
-   seen (hair, loose clothing), at the front of the silhouettes' visual hull; colour from the pixel.
+   seen (hair, loose clothing), at the front of the silhouettes' visual hull, rounded for true
+   views (stages/hull.py); colour from the pixel.
 b. `unproject_to_uv`: each Gaussian goes to the nearest body texel that faces its camera; texels
    average what they receive (opacity, offset along the tangent frame), and texels no view saw
    take the values of the nearest seen texel in 3D. The result is the Gaussian map F = Z
@@ -27,7 +28,6 @@ from scipy.spatial import cKDTree
 
 from dlacli.avatar import gaussian_map as gm
 from dlacli.errors import DlaInputError
-from dlacli.geometry import project_points as _project  # points [..., 3] -> (pixels [..., 2], z [...])
 from dlacli.limits import LIFT_GAUSSIANS, LIFT_LR, LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS, MIN_VIEW_FALLOFF
 from dlacli.stages.bake import (
     VIEW_SHARPNESS,
@@ -38,6 +38,7 @@ from dlacli.stages.bake import (
     texel_views,
     view_falloff,
 )
+from dlacli.stages.hull import HullDepth, Silhouettes, hull_depth
 from dlacli.stages.sheet import contact_sheet as contact_sheet  # re-exported: the sheet lift writes
 from dlacli.stages.sheet import sheet_and_novel_view
 from dlacli.types import Avatar, Cameras, Gaussians, ViewSet, rgb_to_sh0
@@ -46,8 +47,6 @@ ENCODER = "unproject"
 DECODER = "identity"
 VIEW_DECODER = "view-cosine"  # when the views' colours depend on the view (`view_falloff`)
 CLOTH_MARGIN = 0.003  # metres in front of the body surface where the body is seen (tight clothing)
-HULL_STEPS = 128  # ray-marching samples through the body's bounding sphere
-HULL_BISECT = 6
 MAX_OFFSET = 0.08  # metres: farther Gaussians are not attached to a texel (loose clothing stays)
 MIN_FALLOFF = MIN_VIEW_FALLOFF  # |k| below this: the identity decoder (colour does not depend on the view)
 
@@ -67,6 +66,10 @@ class LiftConfig:
     w_smooth: float | None = None
     seed: int = 0
     view_colour: bool = True  # measure the views' view-dependent falloff (`view_falloff`) and model it
+    # where rays off the body stop: "round", the silhouettes' rounded hull, or "box", their
+    # intersection (stages/hull.py); None: round for true views, box for a folder `dla dream`
+    # wrote (`hull_shape`)
+    hull: str | None = None
 
 
 # ------------------------------------------------------------------------------ a. unstructured
@@ -79,67 +82,17 @@ def _block_mean(x: np.ndarray, s: int) -> np.ndarray:
     return x.reshape(h // s, s, w // s, s, *x.shape[2:]).mean(axis=(1, 3))
 
 
-def _inside_masks(points: np.ndarray, views: ViewSet, skip: int) -> np.ndarray:
-    """[..., 3] -> [...] bool: inside every other view's silhouette. View folders frame the whole
-    person, so a point outside a view's image (or behind its camera) is outside the hull."""
-    inside = np.ones(points.shape[:-1], dtype=bool)
-    w2cs = views.cameras.viewmats.numpy().astype(np.float64)
-    ks = views.cameras.Ks.numpy().astype(np.float64)
-    h, w = views.masks.shape[1:]
-    for v in range(len(views)):
-        if v == skip:
-            continue
-        px, z = _project(points, w2cs[v], ks[v])
-        col, row = np.floor(px[..., 0]).astype(np.int64), np.floor(px[..., 1]).astype(np.int64)
-        in_img = (z > 0) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
-        m = np.zeros_like(inside)
-        m[in_img] = views.masks[v][row[in_img], col[in_img]] > 0.5
-        inside &= m
-    return inside
-
-
-def _hull_depth(origin, dirs, views: ViewSet, v: int, centre, radius) -> np.ndarray:
-    """Camera-z depth [N] where rays (origin [3], dirs [N, 3] with unit camera-z component) first
-    enter the visual hull of the other views' silhouettes; inf where they never do."""
-    oc = origin - centre
-    d0 = max(float(np.linalg.norm(oc)) - radius, 1e-3)
-    ts = np.linspace(d0, d0 + 2.0 * radius, HULL_STEPS)  # [S]
-    pts = origin + dirs[:, None, :] * ts[None, :, None]  # [N, S, 3]
-    inside = _inside_masks(pts, views, v)
-    hit = inside.any(axis=1)
-    first = np.argmax(inside, axis=1)
-    lo = ts[np.maximum(first - 1, 0)].copy()
-    hi = ts[first].copy()
-    for _ in range(HULL_BISECT):
-        mid = 0.5 * (lo + hi)
-        m_in = _inside_masks(origin + dirs * mid[:, None], views, v)
-        hi = np.where(m_in, mid, hi)
-        lo = np.where(m_in, lo, mid)
-    return np.where(hit, hi, np.inf)
-
-
-def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128):
+def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128, hull: str = "round"):
     """Pixel-aligned Gaussians in the input pose.
 
-    views: the view folder; vertices [V, 3] the fitted body in the input pose.
+    views: the view folder; vertices [V, 3] the fitted body in the input pose; hull: where rays
+    off the body stop, "round" (the rounded hull) or "box" (the silhouettes' intersection).
     -> (Gaussians, view index per Gaussian [N] int64, camera centre per Gaussian [N, 3]).
     """
-    return _unstructured(views, vertices, grid)[:3]
+    return _unstructured(views, vertices, grid, hull)[:3]
 
 
-@dataclass
-class HullDepth:
-    """What step a. measured along the rays of a grid x grid downsampling of every view: the
-    camera depth [V, gh, gw] where each masked pixel's ray enters the visual hull of the other
-    views (inf off the mask or where it never does) and the body's depth there (inf off the
-    body), for the cameras of that grid."""
-
-    hull: np.ndarray
-    body: np.ndarray
-    cameras: Cameras
-
-
-def _unstructured(views: ViewSet, vertices: np.ndarray, grid: int):
+def _unstructured(views: ViewSet, vertices: np.ndarray, grid: int, hull_shape: str = "round"):
     """`unstructured_gaussians` plus the HullDepth it measured on the way."""
     from dlacli.body.model import get_body_model
     from dlacli.render.raster import rasterize
@@ -154,6 +107,7 @@ def _unstructured(views: ViewSet, vertices: np.ndarray, grid: int):
     radius = float(np.linalg.norm(vertices - centre, axis=1).max()) + 0.4
     out_means, out_rgb, out_alpha, out_scale, out_view, out_eye = [], [], [], [], [], []
     hulls = np.full((len(views), gh, gw), np.inf)
+    silhouettes = Silhouettes(views)
     for v in range(len(views)):
         alpha = _block_mean(views.masks[v], stride)  # [gh, gw]
         rgb = _block_mean(views.images[v] * views.masks[v][..., None], stride)
@@ -168,10 +122,13 @@ def _unstructured(views: ViewSet, vertices: np.ndarray, grid: int):
         yc = (rows + 0.5 - k[1, 2]) / k[1, 1]
         dirs = np.stack([xc, yc, np.ones_like(xc)], -1) @ c2w[:3, :3].T  # camera z = 1 per unit
         origin = c2w[:3, 3]
-        hull = _hull_depth(origin, dirs, views, v, centre, radius)
+        hull, rounded = hull_depth(origin, dirs, silhouettes, v, centre, radius)
         hulls[v][rows, cols] = hull
         bdepth = body.depth[v][rows, cols].astype(np.float64)
-        depth = np.where(np.isfinite(bdepth), np.maximum(hull, bdepth - CLOTH_MARGIN), hull)
+        # on the body: the body, unless the silhouettes' intersection says it lies farther; off
+        # it (hair, loose clothing): the rounded hull (stages/hull.py)
+        off_body = rounded if hull_shape == "round" else hull
+        depth = np.where(np.isfinite(bdepth), np.maximum(hull, bdepth - CLOTH_MARGIN), off_body)
         if not np.isfinite(hull).all():  # rays that miss the hull (inconsistent masks): use the body
             depth = np.where(np.isfinite(depth), depth, bdepth)
         ok = np.isfinite(depth)
@@ -387,7 +344,23 @@ def smoothness(cfg: LiftConfig, views: ViewSet) -> float:
     view folder `dla dream` wrote (its transforms.json holds `dla.dream`) and 0 for others."""
     if cfg.w_smooth is not None:
         return float(cfg.w_smooth)
-    return DREAM_W_SMOOTH if "dream" in (views.extra or {}) else 0.0
+    return DREAM_W_SMOOTH if dreamed(views) else 0.0
+
+
+def hull_shape(cfg: LiftConfig, views: ViewSet) -> str:
+    """Where the lift's rays off the body stop: cfg.hull when set, else "round" for true views and
+    "box" for a view folder `dla dream` wrote. Its side and back silhouettes are renders of the
+    fitted body already, so rounding them again buys nothing: on the single-photo benchmark
+    rounding cost 0.02 dB on novel views after 40 steps (0.10 dB unrefined) where four true views
+    gained 0.09-0.13 dB (docs/lift.md, "Loose clothing")."""
+    if cfg.hull is not None:
+        return cfg.hull
+    return "box" if dreamed(views) else "round"
+
+
+def dreamed(views: ViewSet) -> bool:
+    """Whether `dla dream` wrote the view folder (its transforms.json holds `dla.dream`)."""
+    return "dream" in (views.extra or {})
 
 
 def _neighbour_pairs(resolution: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -453,7 +426,7 @@ def unprojection(views: ViewSet, cfg: LiftConfig) -> Unprojected:
     if len(views) > MAX_VIEWS:
         raise DlaInputError("views", f"has {len(views)} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
     vertices = get_body_model().forward_body(views.body).vertices[0].numpy()
-    unstructured, _, eyes, hull = _unstructured(views, vertices, cfg.grid)
+    unstructured, _, eyes, hull = _unstructured(views, vertices, cfg.grid, hull_shape(cfg, views))
     depth = body_depth_maps(vertices, views)  # for the bakes and the falloff
     fmap = unproject_to_uv(unstructured, eyes, vertices, cfg.resolution)
     texels = texel_views(fmap, vertices, views, depth)

@@ -49,6 +49,7 @@ from dlacli.limits import (
 
 Progress = Callable[[int, float], None]  # (step index, loss) after each refinement step
 MAX_WEIGHT = 1e6  # the largest loss weight a spec may set
+HULLS = ("round", "box")  # where the lift's rays off the body stop (stages/hull.py)
 LiftFn = Callable[[Any, Any, "Progress | None", Any], Any]  # (views, config, progress, novel) -> LiftResult
 
 # result rows written before the registry: their method name -> the registry's
@@ -274,9 +275,11 @@ class UnprojectConfig:
     view_colour: bool | None = None  # measure and model the views' view-dependent falloff
     lr: float | None = None  # the refinement's Adam learning rate
     w_smooth: float | None = None  # weight of the normal offsets' roughness in the refinement's loss
+    hull: str | None = None  # where rays off the body stop: round (the rounded hull) or box
 
     def __post_init__(self):
         _check(0 <= self.steps <= MAX_LIFT_STEPS, f"steps must be in [0, {MAX_LIFT_STEPS}], got {self.steps}")
+        _check(self.hull in (None, *HULLS), f"hull must be one of {', '.join(HULLS)}, got {self.hull}")
         _check(self.lr is None or 0 < self.lr <= 1, f"lr must be in (0, 1], got {self.lr}")
         _check(
             self.w_smooth is None or 0 <= self.w_smooth <= MAX_WEIGHT,
@@ -350,9 +353,12 @@ class ResidualConfig:
     gaussians: int | None = None  # Gaussians sampled while refining and rendering
     render_size: int | None = None  # refinement renders at most this many pixels on the long side
     seed: int | None = None  # seed of the Gaussian sample points
+    hull: str | None = None  # where the unprojection's rays off the body stop: round or box
 
     def __post_init__(self):
-        UnprojectConfig(self.steps, self.resolution, self.gaussians, self.render_size, self.seed)  # the same bounds
+        UnprojectConfig(  # the same bounds
+            self.steps, self.resolution, self.gaussians, self.render_size, self.seed, hull=self.hull
+        )
 
 
 def _lift_residual(views, config: ResidualConfig, progress: Progress | None = None, novel=None):

@@ -61,7 +61,7 @@ def observation_features(texels: TexelViews, views: ViewSet, depth: np.ndarray, 
     """Features [feature_count(), R, R] float32 of an unprojected map F (module doc) from what the
     views show of its texels (`bake.texel_views`: F's texel points on the body in the views'
     pose), the views, the body's depth in them (depth [V, H, W], `bake.body_depth_maps`) and
-    step a's hull depths (`lift.HullDepth`)."""
+    step a's hull depths (`hull.HullDepth`)."""
     from dlacli.body.regions import segmentation_onehot
     from dlacli.stages.bake import VISIBLE_DEPTH
 
