@@ -110,7 +110,7 @@ def test_a_lift_spec_names_its_hull_and_refuses_an_unknown_one():
 
     # unset, the views decide: round for true views, box for a folder dla dream wrote
     views = _column_views()
-    assert hull_shape(LiftConfig(), views) == "round"
+    assert hull_shape(LiftConfig().hull, views) == "round"
     dreamed = ViewSet(views.images, views.masks, views.cameras, None, [""] * 4, [None] * 4, {"dream": {}})
-    assert hull_shape(LiftConfig(), dreamed) == "box"
-    assert hull_shape(LiftConfig(hull="round"), dreamed) == "round"
+    assert hull_shape(LiftConfig().hull, dreamed) == "box"
+    assert hull_shape("round", dreamed) == "round"

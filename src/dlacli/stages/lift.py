@@ -82,17 +82,18 @@ def _block_mean(x: np.ndarray, s: int) -> np.ndarray:
     return x.reshape(h // s, s, w // s, s, *x.shape[2:]).mean(axis=(1, 3))
 
 
-def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128, hull: str = "round"):
+def unstructured_gaussians(views: ViewSet, vertices: np.ndarray, grid: int = 128, hull: str | None = None):
     """Pixel-aligned Gaussians in the input pose.
 
     views: the view folder; vertices [V, 3] the fitted body in the input pose; hull: where rays
-    off the body stop, "round" (the rounded hull) or "box" (the silhouettes' intersection).
+    off the body stop, "round" (the rounded hull), "box" (the silhouettes' intersection) or None
+    (as `hull_shape` chooses for these views).
     -> (Gaussians, view index per Gaussian [N] int64, camera centre per Gaussian [N, 3]).
     """
-    return _unstructured(views, vertices, grid, hull)[:3]
+    return _unstructured(views, vertices, grid, hull_shape(hull, views))[:3]
 
 
-def _unstructured(views: ViewSet, vertices: np.ndarray, grid: int, hull_shape: str = "round"):
+def _unstructured(views: ViewSet, vertices: np.ndarray, grid: int, shape: str):
     """`unstructured_gaussians` plus the HullDepth it measured on the way."""
     from dlacli.body.model import get_body_model
     from dlacli.render.raster import rasterize
@@ -127,7 +128,7 @@ def _unstructured(views: ViewSet, vertices: np.ndarray, grid: int, hull_shape: s
         bdepth = body.depth[v][rows, cols].astype(np.float64)
         # on the body: the body, unless the silhouettes' intersection says it lies farther; off
         # it (hair, loose clothing): the rounded hull (stages/hull.py)
-        off_body = rounded if hull_shape == "round" else hull
+        off_body = rounded if shape == "round" else hull
         depth = np.where(np.isfinite(bdepth), np.maximum(hull, bdepth - CLOTH_MARGIN), off_body)
         if not np.isfinite(hull).all():  # rays that miss the hull (inconsistent masks): use the body
             depth = np.where(np.isfinite(depth), depth, bdepth)
@@ -347,14 +348,14 @@ def smoothness(cfg: LiftConfig, views: ViewSet) -> float:
     return DREAM_W_SMOOTH if dreamed(views) else 0.0
 
 
-def hull_shape(cfg: LiftConfig, views: ViewSet) -> str:
-    """Where the lift's rays off the body stop: cfg.hull when set, else "round" for true views and
+def hull_shape(hull: str | None, views: ViewSet) -> str:
+    """Where the lift's rays off the body stop: `hull` when set, else "round" for true views and
     "box" for a view folder `dla dream` wrote. Its side and back silhouettes are renders of the
     fitted body already, so rounding them again buys nothing: on the single-photo benchmark
     rounding cost 0.02 dB on novel views after 40 steps (0.10 dB unrefined) where four true views
     gained 0.09-0.13 dB (docs/lift.md, "Loose clothing")."""
-    if cfg.hull is not None:
-        return cfg.hull
+    if hull is not None:
+        return hull
     return "box" if dreamed(views) else "round"
 
 
@@ -426,7 +427,7 @@ def unprojection(views: ViewSet, cfg: LiftConfig) -> Unprojected:
     if len(views) > MAX_VIEWS:
         raise DlaInputError("views", f"has {len(views)} views; lift takes at most {MAX_VIEWS} (the method uses 4)")
     vertices = get_body_model().forward_body(views.body).vertices[0].numpy()
-    unstructured, _, eyes, hull = _unstructured(views, vertices, cfg.grid, hull_shape(cfg, views))
+    unstructured, _, eyes, hull = _unstructured(views, vertices, cfg.grid, hull_shape(cfg.hull, views))
     depth = body_depth_maps(vertices, views)  # for the bakes and the falloff
     fmap = unproject_to_uv(unstructured, eyes, vertices, cfg.resolution)
     texels = texel_views(fmap, vertices, views, depth)
