@@ -13,7 +13,7 @@ cross-section of radius r, (a_v . q) / r with a_v the camera's x-axis in the wor
 point's offset from the axis. The least-squares q / r over the views (`Silhouettes.spread`, a
 pseudo-inverse of the a_v) has length 1 on the ellipse that touches every silhouette's edges; the
 rounded hull keeps |q / r| <= 1. Where the ray never enters the rounded hull (views that disagree,
-the very edge of a silhouette) the intersection alone gives the depth, as before.
+the very edge of a silhouette) the intersection alone gives the depth.
 """
 
 from __future__ import annotations
