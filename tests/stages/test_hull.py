@@ -114,3 +114,14 @@ def test_a_lift_spec_names_its_hull_and_refuses_an_unknown_one():
     dreamed = ViewSet(views.images, views.masks, views.cameras, None, [""] * 4, [None] * 4, {"dream": {}})
     assert hull_shape(LiftConfig().hull, dreamed) == "box"
     assert hull_shape("round", dreamed) == "round"
+
+
+def test_without_rounding_the_intersection_is_the_same_and_stands_for_both():
+    views = _column_views()
+    silhouettes = Silhouettes(views)
+    cols = np.arange(SIZE // 4, 3 * SIZE // 4)
+    origin, dirs = _rays(views.cameras, 0, cols, np.full(cols.shape, SIZE // 2))
+    box, _ = hull_depth(origin, dirs, silhouettes, 0, np.zeros(3), RADIUS + 0.4)
+    only_box, second = hull_depth(origin, dirs, silhouettes, 0, np.zeros(3), RADIUS + 0.4, rounded=False)
+    np.testing.assert_array_equal(only_box, box)
+    np.testing.assert_array_equal(second, box)

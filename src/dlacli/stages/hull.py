@@ -64,14 +64,15 @@ class Silhouettes:
         axes = self.w2cs[:, 0, :3]  # [V, 3] each camera's x-axis (image columns) in the world
         self.spread = np.linalg.pinv(axes)  # [3, V]: t [.., V] -> q / r [.., 3] (least squares)
 
-    def inside(self, points: np.ndarray, skip: int) -> tuple[np.ndarray, np.ndarray]:
+    def inside(self, points: np.ndarray, skip: int, rounded: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """points [..., 3] -> (in the intersection of every view's silhouette but view `skip`'s,
-        in the rounded hull as well) [...] bool. View folders frame the whole person, so a point
-        outside a view's image (or behind its camera) is outside the hull. View `skip` (the ray's
-        own) counts for the rounding only, at the edge of its silhouette where it misses it."""
+        in the rounded hull as well; None unless `rounded`) [...] bool. View folders frame the
+        whole person, so a point outside a view's image (or behind its camera) is outside the
+        hull. View `skip` (the ray's own) counts for the rounding only, at the edge of its
+        silhouette where it misses it."""
         shape = points.shape[:-1]
         inside = np.ones(shape, dtype=bool)
-        t = np.ones((*shape, len(self.masks)))
+        t = np.ones((*shape, len(self.masks))) if rounded else None
         h, w = self.masks.shape[1:]
         for v, (mask, (centre, half)) in enumerate(zip(self.masks, self.runs)):
             px, z = project_points(points, self.w2cs[v], self.ks[v])
@@ -79,39 +80,48 @@ class Silhouettes:
             in_img = (z > 0) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
             on = np.zeros(shape, dtype=bool)
             on[in_img] = mask[row[in_img], col[in_img]]
-            r, c = row[on], col[on]
-            t[..., v][on] = (px[..., 0][on] - centre[r, c]) / np.maximum(half[r, c], 0.5)
+            if rounded:
+                r, c = row[on], col[on]
+                t[..., v][on] = (px[..., 0][on] - centre[r, c]) / np.maximum(half[r, c], 0.5)
             if v != skip:
                 inside &= on
+        if not rounded:
+            return inside, None
         q = t @ self.spread.T  # [..., 3]
         return inside, inside & (np.einsum("...i,...i->...", q, q) <= 1.0)
 
 
-def hull_depth(origin, dirs, silhouettes: Silhouettes, v: int, centre, radius) -> tuple[np.ndarray, np.ndarray]:
+def hull_depth(
+    origin, dirs, silhouettes: Silhouettes, v: int, centre, radius, rounded: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """Camera-z depths [N] where rays of view v (origin [3], dirs [N, 3] with unit camera-z
     component) first enter the views' silhouettes' intersection and their rounded hull; the
-    rounded one is the intersection's where the ray never enters the rounded hull, and both are
-    inf where the ray never enters the intersection."""
+    rounded one is the intersection's where the ray never enters the rounded hull (and
+    everywhere unless `rounded`: then the rounding is not computed), and both are inf where the
+    ray never enters the intersection."""
     oc = origin - centre
     d0 = max(float(np.linalg.norm(oc)) - radius, 1e-3)
     ts = np.linspace(d0, d0 + 2.0 * radius, HULL_STEPS)  # [S]
     pts = origin + dirs[:, None, :] * ts[None, :, None]  # [N, S, 3]
-    box, rounded = silhouettes.inside(pts, v)
-    use_round = rounded.any(axis=1)  # [N]
-    rounded = np.where(use_round[:, None], rounded, box)
+    box, in_round = silhouettes.inside(pts, v, rounded)
     n = len(dirs)
-    inside = np.concatenate([box, rounded])  # [2N, S]: both shapes bisected together
+    if not rounded:  # one shape: rows [N] of the intersection only
+        in_round, use_round = box[:0], np.zeros(0, dtype=bool)
+    else:
+        use_round = in_round.any(axis=1)  # [N]
+        in_round = np.where(use_round[:, None], in_round, box)
+    inside = np.concatenate([box, in_round])  # [N or 2N, S]: both shapes bisected together
     hit = inside.any(axis=1)
     first = np.argmax(inside, axis=1)
     lo = ts[np.maximum(first - 1, 0)]
     hi = ts[first]
     which = np.concatenate([np.zeros(n, dtype=bool), use_round])  # rows bisected in the rounded hull
-    ray_dirs = np.concatenate([dirs, dirs])
+    ray_dirs = np.concatenate([dirs, dirs[: len(use_round)]])
     for _ in range(HULL_BISECT):
         mid = 0.5 * (lo + hi)
-        m_box, m_round = silhouettes.inside(origin + ray_dirs * mid[:, None], v)
-        m_in = np.where(which, m_round, m_box)
+        m_box, m_round = silhouettes.inside(origin + ray_dirs * mid[:, None], v, rounded)
+        m_in = np.where(which, m_round, m_box) if rounded else m_box
         hi = np.where(m_in, mid, hi)
         lo = np.where(m_in, lo, mid)
     depth = np.where(hit, hi, np.inf)
-    return depth[:n], depth[n:]
+    return depth[:n], (depth[n:] if rounded else depth[:n])

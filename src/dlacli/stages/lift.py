@@ -123,12 +123,11 @@ def _unstructured(views: ViewSet, vertices: np.ndarray, grid: int, shape: str):
         yc = (rows + 0.5 - k[1, 2]) / k[1, 1]
         dirs = np.stack([xc, yc, np.ones_like(xc)], -1) @ c2w[:3, :3].T  # camera z = 1 per unit
         origin = c2w[:3, 3]
-        hull, rounded = hull_depth(origin, dirs, silhouettes, v, centre, radius)
+        hull, off_body = hull_depth(origin, dirs, silhouettes, v, centre, radius, rounded=shape == "round")
         hulls[v][rows, cols] = hull
         bdepth = body.depth[v][rows, cols].astype(np.float64)
         # on the body: the body, unless the silhouettes' intersection says it lies farther; off
-        # it (hair, loose clothing): the rounded hull (stages/hull.py)
-        off_body = rounded if shape == "round" else hull
+        # it (hair, loose clothing): the rounded hull (stages/hull.py) or, for "box", the intersection
         depth = np.where(np.isfinite(bdepth), np.maximum(hull, bdepth - CLOTH_MARGIN), off_body)
         if not np.isfinite(hull).all():  # rays that miss the hull (inconsistent masks): use the body
             depth = np.where(np.isfinite(depth), depth, bdepth)
