@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from dlacli.geometry import look_at_orbit_cameras
-from dlacli.stages.hull import Silhouettes, hull_depth, row_runs
+from dlacli.stages.hull import HULL_STEPS, Silhouettes, hull_depth, row_runs
 from dlacli.types import ViewSet
 
 RADIUS = 0.3  # metres: the column, a vertical cylinder about the z axis
@@ -123,5 +123,11 @@ def test_without_rounding_the_intersection_is_the_same_and_stands_for_both():
     origin, dirs = _rays(views.cameras, 0, cols, np.full(cols.shape, SIZE // 2))
     box, _ = hull_depth(origin, dirs, silhouettes, 0, np.zeros(3), RADIUS + 0.4)
     only_box, second = hull_depth(origin, dirs, silhouettes, 0, np.zeros(3), RADIUS + 0.4, rounded=False)
-    np.testing.assert_array_equal(only_box, box)
-    np.testing.assert_array_equal(second, box)
+    np.testing.assert_array_equal(second, only_box)  # one result stands for both
+    # the same rays marched alone: the projections' products may round otherwise for another
+    # row count (BLAS), which can move a sample across a mask edge, by at most one march step
+    step = 2.0 * (RADIUS + 0.4) / (HULL_STEPS - 1)
+    hit = np.isfinite(box)
+    assert 0 < hit.sum() < hit.size  # rays that meet the column and rays beside it
+    np.testing.assert_array_equal(np.isfinite(only_box), hit)
+    assert np.abs(only_box[hit] - box[hit]).max() <= step
