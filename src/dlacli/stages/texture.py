@@ -13,7 +13,10 @@ does not see the body, and rendered from the orbit cameras (docs/dream.md "Backe
    mirror within the same part (`back_texels`), then the nearest well-seen texel of the same part
    in 3D, blurred (`FALLBACK` when a part is not seen at all: hands from the arm's end, feet from
    the leg's, the hair never from the face).
-4. Render (`body_views`): the textured, displaced body through `dlacli.render.raster.render_textured`.
+4. Beyond the body (`dlacli.stages.beyond`): person pixels the displaced body does not cover
+   (a bun, a hat's tip, a skirt's hem) become a thin shell layer coloured from the photo.
+5. Render (`body_views`): the textured, displaced body and that layer in one z-buffer through
+   `dlacli.render.raster.render_textured`.
 
 Texels are handled as flat arrays over `dlacli.body.uv.valid_texels(R)` (row-major order).
 """
@@ -540,13 +543,15 @@ def body_views(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np
     """The body backend on a framed photo: rgb [R, R, 3], alpha [R, R], camera (the crop's),
     vertices [V, 3] the fitted body -> (images [A, R, R, 3] straight colours, masks [A, R, R],
     cameras [A], settings dict). View 0 is the photo itself. `prior`: see `textured_body`."""
+    from dlacli.stages.beyond import layer_mesh, render_with_layer
     from dlacli.stages.orbit import AZIMUTHS, body_pivot, orbit_cameras
 
     azimuths = AZIMUTHS if azimuths is None else azimuths
     body = textured_body(rgb, alpha, camera, vertices, prior=prior)
+    layer = layer_mesh(alpha, camera, body["vertices"])
     cams = orbit_cameras(camera, body_pivot(vertices), azimuths)
     novel = Cameras(cams.viewmats[1:], cams.Ks[1:], cams.width, cams.height)
-    rgba = render_body(body, novel)
+    rgba = render_with_layer(body, layer, rgb, novel)
     a = rgba[..., 3]
     straight = np.where(a[..., None] > 1e-6, rgba[..., :3] / np.maximum(a[..., None], 1e-6), 0.0)
     images = np.concatenate([rgb[None], np.clip(straight, 0, 1)]).astype(np.float32)
@@ -556,6 +561,7 @@ def body_views(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np
         "mask_iou_body": round(mask_iou(alpha, camera, vertices), 4),
         "mask_iou_displaced": round(mask_iou(alpha, camera, body["vertices"]), 4),
         "max_offset_m": round(float(body["offsets"].max()), 4),
+        "beyond_body_px": 0 if layer is None else int(layer.pixels.sum()),
     }
     if prior is not None:
         settings["prior"] = {"hash": prior.checkpoint_hash}
