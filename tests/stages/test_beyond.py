@@ -58,6 +58,21 @@ def test_only_the_bun_lies_beyond_the_body(bun_photo):
     assert (kept & s["bun"]).sum() > 0.8 * s["bun"].sum()
 
 
+def test_a_mask_that_took_the_background_makes_no_layer(bun_photo):
+    """A rectangle of background beside the body (larger than a quarter of the body's
+    silhouette) is the segmentation's error, not clothing: no layer, the bun stays."""
+    from dlacli.stages.beyond import MAX_SHARE, beyond_pixels
+
+    s = bun_photo
+    ys, xs = np.nonzero(s["body"])
+    wall = np.zeros_like(s["body"])
+    wall[ys.min() : ys.max(), xs.max() - 2 :] = True  # from the body's right edge to the border
+    assert (wall & ~s["body"]).sum() > MAX_SHARE * s["body"].sum()
+    kept = beyond_pixels((s["alpha"] > 0.5) | wall, s["body"])
+    assert not (kept & wall & ~ndimage.binary_dilation(s["bun"], iterations=1)).any()
+    assert (kept & s["bun"]).sum() > 0.8 * s["bun"].sum()
+
+
 def test_the_bun_is_seen_from_every_side(bun_photo):
     """Views 90 / 180 / 270 show the bun where the centre of its part beyond the displaced head,
     unprojected at the head's mid depth, projects, in the bun's colour; the body alone (the

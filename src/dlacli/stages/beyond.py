@@ -12,7 +12,9 @@ rendered together with the body in one z-buffer (`render_with_layer`).
 The displaced body never matches the mask to the pixel, so a fringe one or two pixels wide runs
 along most of the outline; an opening of radius max(1, res / OPEN_DIV) removes it, and what is
 left must touch the body and hold at least (res / MIN_AREA_DIV)^2 pixels, or it is mask noise
-(a shadow, a piece of background the segmentation took).
+(a shadow, a speck of background), and at most MAX_SHARE of the body's silhouette, or the mask
+took the background (a rectangle, a wall): a bun or a hat's tip is small beside the body, and a
+dress is already mostly within the clothing bound.
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ from dlacli.types import Cameras
 OPEN_DIV = 256  # opening radius (px) = max(1, res // OPEN_DIV): 2 px at 512
 MIN_AREA_DIV = 64  # a piece of the layer holds at least (res // MIN_AREA_DIV)^2 px: 64 at 512
 JOIN_DIV = 256  # the layer reaches max(1, res // JOIN_DIV) px into the body's silhouette
+MAX_SHARE = 0.25  # nor more than this share of the body's silhouette: a mask that took the background
+MAX_HALF = 0.12  # metres: a layer is at most twice this deep
 BLUR_DIV = 64  # its colours: the photo blurred by res / BLUR_DIV px (8 at 512)
 
 
@@ -59,7 +63,7 @@ def beyond_pixels(person: np.ndarray, body: np.ndarray) -> np.ndarray:
     sizes = np.bincount(labels.ravel(), minlength=n + 1)
     touching = np.zeros(n + 1, bool)
     touching[labels[ndimage.binary_dilation(body, structure=np.ones((3, 3), bool)) & beyond]] = True
-    keep = touching & (sizes >= max(1, res // MIN_AREA_DIV) ** 2)
+    keep = touching & (sizes >= max(1, res // MIN_AREA_DIV) ** 2) & (sizes <= MAX_SHARE * body.sum())
     keep[0] = False
     return keep[labels]
 
@@ -74,7 +78,7 @@ def layer_depths(person, pixels, cover, fid, fdepth, bdepth, focal: float):
     no piece is stretched in depth between two parts (a sheet); its half thickness is the
     shell's round profile (`shell.shell_depths`), sqrt(d (2 r - d)) x INFLATE with d the distance
     to the mask's outline and r the largest d on the layer nearby (not on the body, whose
-    inside would make a thin curl as thick as the torso)."""
+    inside would make a thin curl as thick as the torso), at most MAX_HALF."""
     from dlacli.stages.shell import INFLATE
 
     body = fid >= 0
@@ -85,11 +89,11 @@ def layer_depths(person, pixels, cover, fid, fdepth, bdepth, focal: float):
     for k in range(1, n + 1):
         piece = labels == k
         touch = body_mid[piece & ring]
-        mid[piece] = np.median(touch) if touch.size else np.nanmedian(body_mid)
+        mid[piece] = np.median(touch if touch.size else body_mid[body])  # (a kept piece touches the body)
     d = ndimage.distance_transform_edt(np.pad(person, 1))[1:-1, 1:-1]  # px to the mask's outline
     height = np.ptp(np.nonzero(person)[0]) + 1
     r = ndimage.maximum_filter(np.where(pixels, d, 0.0), size=max(3, int(height * 0.12)) | 1)
-    half = np.sqrt(np.clip(d * (2.0 * r - d), 0.0, None)) * np.nan_to_num(mid) / focal * INFLATE
+    half = np.minimum(np.sqrt(np.clip(d * (2.0 * r - d), 0.0, None)) * mid / focal * INFLATE, MAX_HALF)
     front = np.where(cover, mid - half, np.inf)
     back = np.where(cover, mid + half, np.inf)
     return front, back
