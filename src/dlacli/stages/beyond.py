@@ -130,17 +130,14 @@ def layer_colours(photo: np.ndarray, layer: Layer) -> np.ndarray:
     return np.where(layer.cover[..., None], out / np.maximum(w, 1e-12)[..., None], 0.0)
 
 
-def render_with_layer(body: dict, layer: Layer | None, photo: np.ndarray, cameras: Cameras) -> np.ndarray:
-    """RGBA [C, H, W, 4] (premultiplied) of a `texture.textured_body` and its layer (or None:
-    `texture.render_body` alone) from the cameras, in one z-buffer. The layer's colours come from
-    the photo [R, R, 3], placed beside the body's UV map in one texture; the body's own lookups
-    land on the same texels as without it."""
+def render_with_layer(body: dict, layer: Layer, photo: np.ndarray, cameras: Cameras) -> np.ndarray:
+    """RGBA [C, H, W, 4] (premultiplied) of a `texture.textured_body` and its layer from the
+    cameras, in one z-buffer. The layer's colours come from the photo [R, R, 3], placed beside the
+    body's UV map in one texture; the body's own lookups land on the same texels as in
+    `texture.render_body`."""
     from dlacli.body.model import get_body_model
     from dlacli.render.raster import render_textured
-    from dlacli.stages.texture import render_body
 
-    if layer is None:
-        return render_body(body, cameras)
     m = get_body_model()
     tex = np.asarray(body["texture"], np.float32)
     r = tex.shape[0]

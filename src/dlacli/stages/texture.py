@@ -551,7 +551,7 @@ def body_views(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np
     layer = layer_mesh(alpha, camera, body["vertices"])
     cams = orbit_cameras(camera, body_pivot(vertices), azimuths)
     novel = Cameras(cams.viewmats[1:], cams.Ks[1:], cams.width, cams.height)
-    rgba = render_with_layer(body, layer, rgb, novel)
+    rgba = render_body(body, novel) if layer is None else render_with_layer(body, layer, rgb, novel)
     a = rgba[..., 3]
     straight = np.where(a[..., None] > 1e-6, rgba[..., :3] / np.maximum(a[..., None], 1e-6), 0.0)
     images = np.concatenate([rgb[None], np.clip(straight, 0, 1)]).astype(np.float32)
