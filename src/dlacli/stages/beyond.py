@@ -76,10 +76,10 @@ def layer_depths(person, pixels, cover, fid, fdepth, bdepth, focal: float):
     and farthest depths (`shell.body_depth_layers`); focal: fx in pixels. Each connected piece of
     the layer stands at one mid depth, the median mid depth of the body pixels it touches, so
     no piece is stretched in depth between two parts (a sheet); its half thickness is the
-    shell's round profile (`shell.shell_depths`), sqrt(d (2 r - d)) x INFLATE with d the distance
+    shell's round profile (`shell.round_profile`), sqrt(d (2 r - d)) x INFLATE with d the distance
     to the mask's outline and r the largest d on the layer nearby (not on the body, whose
     inside would make a thin curl as thick as the torso), at most MAX_HALF."""
-    from dlacli.stages.shell import INFLATE
+    from dlacli.stages.shell import round_profile
 
     body = fid >= 0
     body_mid = np.where(body, (fdepth + bdepth) / 2.0, np.nan)
@@ -90,10 +90,7 @@ def layer_depths(person, pixels, cover, fid, fdepth, bdepth, focal: float):
         piece = labels == k
         touch = body_mid[piece & ring]
         mid[piece] = np.median(touch if touch.size else body_mid[body])  # (a kept piece touches the body)
-    d = ndimage.distance_transform_edt(np.pad(person, 1))[1:-1, 1:-1]  # px to the mask's outline
-    height = np.ptp(np.nonzero(person)[0]) + 1
-    r = ndimage.maximum_filter(np.where(pixels, d, 0.0), size=max(3, int(height * 0.12)) | 1)
-    half = np.minimum(np.sqrt(np.clip(d * (2.0 * r - d), 0.0, None)) * mid / focal * INFLATE, MAX_HALF)
+    half = np.minimum(round_profile(person, pixels, mid, focal), MAX_HALF)
     front = np.where(cover, mid - half, np.inf)
     back = np.where(cover, mid + half, np.inf)
     return front, back

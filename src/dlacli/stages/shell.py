@@ -57,10 +57,7 @@ def shell_depths(person: np.ndarray, front_id, front_depth, back_depth, focal: f
     half[body] = (back_depth[body] - front_depth[body]) / 2.0
     _, (iy, ix) = ndimage.distance_transform_edt(~body, return_indices=True)
     mid = mid[iy, ix]  # nearest body pixel's mid-depth everywhere
-    d = ndimage.distance_transform_edt(np.pad(person, 1))[1:-1, 1:-1]  # px to the outline
-    height = np.ptp(np.nonzero(person)[0]) + 1
-    r = ndimage.maximum_filter(d, size=max(3, int(height * 0.12)) | 1)
-    inflate = np.sqrt(np.clip(d * (2.0 * r - d), 0.0, None)) * mid / focal * INFLATE  # metres
+    inflate = round_profile(person, person, mid, focal)  # metres
     half = np.maximum(half, inflate)
     w = ndimage.gaussian_filter(person.astype(np.float64), 1.0)
     mid = ndimage.gaussian_filter(mid * person, 1.0) / np.maximum(w, 1e-9)
@@ -68,6 +65,17 @@ def shell_depths(person: np.ndarray, front_id, front_depth, back_depth, focal: f
     front = np.where(person, mid - half, np.inf)
     back = np.where(person, mid + half, np.inf)
     return front, back
+
+
+def round_profile(person: np.ndarray, where: np.ndarray, mid: np.ndarray, focal: float) -> np.ndarray:
+    """[H, W] half thickness in metres of a shell beyond the body: sqrt(d (2 r - d)) x INFLATE
+    pixels at depth `mid` [H, W] (fx `focal`), d the distance to the person's outline (person
+    [H, W] bool) and r the largest d on `where` [H, W] bool within 0.12 of the person's height
+    (about the local half width there)."""
+    d = ndimage.distance_transform_edt(np.pad(person, 1))[1:-1, 1:-1]  # px to the outline
+    height = np.ptp(np.nonzero(person)[0]) + 1
+    r = ndimage.maximum_filter(np.where(where, d, 0.0), size=max(3, int(height * 0.12)) | 1)
+    return np.sqrt(np.clip(d * (2.0 * r - d), 0.0, None)) * mid / focal * INFLATE
 
 
 def _unproject(depth: np.ndarray, ys: np.ndarray, xs: np.ndarray, camera: Cameras) -> np.ndarray:
