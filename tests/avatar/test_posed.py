@@ -10,7 +10,7 @@ import torch
 
 from dlacli.avatar import codec
 from dlacli.avatar import gaussian_map as gm
-from dlacli.avatar.posed import PosedAvatar, render_posed
+from dlacli.avatar.posed import PosedAvatar
 from dlacli.types import Avatar, BodyParams
 
 R = 16
@@ -78,7 +78,7 @@ def test_an_unconditioned_avatar_is_its_map_skinned_onto_every_body(bodies):
     samples = gm.make_samples(N, 1)
     z = _z()
     av = Avatar(z=z.numpy(), encoder="unproject", decoder="identity", body=BodyParams(), uv_layout="anny")
-    posed = PosedAvatar(codec.Decoded(av), samples, verts, _eyes(2, 3))
+    posed = PosedAvatar(codec.Decoded(av), samples, verts, eyes=_eyes(2, 3))
     assert not posed.per_camera and posed.cameras == 3 and len(posed) == 2
     placed = posed.all()
     want = gm.skinned_params_on_body(z, samples, verts)  # one batch, shared colours
@@ -100,7 +100,7 @@ def test_conditioning_is_computed_once_per_body_and_per_camera(bodies, monkeypat
     dec = Counting()
     decoded = codec.Decoded.of(dec, _z(), rest)
     eyes = _eyes(2, 3)
-    posed = PosedAvatar(decoded, samples, verts, eyes)
+    posed = PosedAvatar(decoded, samples, verts, eyes=eyes)
     assert posed.per_camera
     sets = {(p, c): posed.placed(p, c) for p in range(2) for c in range(3)}
     assert dec.calls["prepare"] == 1 and dec.calls["canonical"] == 1  # F_c once, the shared part once
@@ -133,7 +133,7 @@ def test_a_colour_only_delta_reuses_the_geometry_and_changes_nothing(bodies):
     assert not dec.delta_geometry
     decoded = codec.Decoded.of(dec, z, rest)
     eyes = _eyes(2, 3)
-    posed = PosedAvatar(decoded, samples, verts, eyes)
+    posed = PosedAvatar(decoded, samples, verts, eyes=eyes)
     for p in range(2):
         pose = decoded.pose(verts[p])
         assert torch.equal(pose.positions, position_map(verts[p], R))
@@ -177,28 +177,47 @@ def test_canonical_only_places_f_c(bodies):
     assert torch.equal(placed.rgb, gm.skinned_params(_z(), samples, posed.frames)[4])
 
 
-def test_render_posed_splats_each_set_with_its_cameras(bodies):
+def test_render_splats_each_set_with_its_cameras(bodies):
     from dlacli.geometry import camera_centers, look_at_orbit_cameras
     from dlacli.render.splat import render_gaussians
+    from dlacli.types import rgb_to_sh0
 
     verts, rest = bodies
     samples = gm.make_samples(N, 1)
     cams = look_at_orbit_cameras(np.array([0.0, 0.0, -0.2]), 3.0, np.array([0.0, 90.0, 200.0]), 5.0, 40.0, 24)
-    eyes = camera_centers(cams.viewmats)[None].expand(2, -1, -1)
-    view = PosedAvatar(codec.Decoded.of(Counting(), _z(), rest), samples, verts, eyes)
-    groups = list(render_posed(view, cams, body=1))
-    assert [list(g) for g, _ in groups] == [[0], [1], [2]]  # a set of its own per camera
+    view = PosedAvatar(codec.Decoded.of(Counting(), _z(), rest), samples, verts, cams)
+    assert torch.equal(view.eyes, camera_centers(cams.viewmats)[None].expand(2, -1, -1))
+    groups = list(view.renders(body=1))
+    assert [list(g) for g, _ in groups] == [[0], [1], [2]]  # F_delta moves the geometry: a set per camera
     for c, (_, out) in enumerate(groups):
         assert torch.equal(out.rgb, render_gaussians(view.gaussians(1, c), cams.select(c)).rgb)
     av = Avatar(z=_z().numpy(), encoder="unproject", decoder="identity", body=BodyParams(), uv_layout="anny")
-    plain = PosedAvatar(codec.Decoded(av), samples, verts, eyes)
-    groups = list(render_posed(plain, cams, per_call=2))
+    plain = PosedAvatar(codec.Decoded(av), samples, verts, cams)
+    groups = list(plain.renders(per_call=2))
     assert [list(g) for g, _ in groups] == [[0, 1], [2]]  # one set, cameras in calls of 2
     assert torch.equal(groups[1][1].alpha, render_gaussians(plain.gaussians(0), cams.select(2)).alpha)
+    # a colour-only F_delta (view-cosine): one geometry, each camera's colours, in one call; the
+    # same bits as each camera's own set rendered alone
+    z = torch.cat([_z(), torch.full((1, R, R), 0.6)])
+    cosine = PosedAvatar(codec.Decoded.of(codec.ViewCosineDecoder(), z, rest), samples, verts, cams)
+    assert cosine.per_camera
+    with torch.no_grad():
+        groups = list(cosine.renders(body=0))
+        assert [list(g) for g, _ in groups] == [[0, 1, 2]]
+        joined = cosine.render(0)
+        for c in range(3):
+            alone = render_gaussians(cosine.gaussians(0, c), cams.select(c))
+            assert torch.equal(joined.rgb[c], alone.rgb[0]) and torch.equal(joined.alpha[c], alone.alpha[0])
+        assert not torch.equal(joined.rgb[0], render_gaussians(cosine.gaussians(0, 1), cams.select(0)).rgb[0])
+        placed = cosine.placed(0, 2)
+        assert torch.equal(rgb_to_sh0(placed.rgb[0])[:, None], cosine.gaussians(0, 2).sh)
+    # one Cameras per body: body p is drawn from its own
+    own = PosedAvatar(codec.Decoded(av), samples, verts, [cams.select(1), cams.select(2)])
+    assert torch.equal(own.render(1).rgb, render_gaussians(own.gaussians(1), cams.select(2)).rgb)
 
 
 def test_gradients_reach_the_code(bodies):
-    from dlacli.geometry import camera_centers, look_at_orbit_cameras
+    from dlacli.geometry import look_at_orbit_cameras
 
     verts, rest = bodies
     samples = gm.make_samples(N, 1)
@@ -206,8 +225,9 @@ def test_gradients_reach_the_code(bodies):
     k = torch.full((1, R, R), 0.5)
     z = torch.cat([_z(), k]).requires_grad_(True)  # a view-cosine code being refined
     decoded = codec.Decoded.of(codec.ViewCosineDecoder(), z, rest)
-    posed = PosedAvatar(decoded, samples, verts[:1], camera_centers(cams.viewmats)[None])
-    loss = sum(out.rgb.sum() + out.alpha.sum() for _, out in render_posed(posed, cams))
+    posed = PosedAvatar(decoded, samples, verts[:1], cams)
+    out = posed.render()
+    loss = out.rgb.sum() + out.alpha.sum()
     loss.backward()
     grad = z.grad
     assert torch.isfinite(grad).all()

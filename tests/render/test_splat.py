@@ -472,3 +472,49 @@ def test_tile_lists_match_a_direct_listing(nthreads):
                 sizes.append(len(want))
     assert offsets[-1] == lists.shape[0]
     assert min(sizes) <= 24 < max(sizes)  # both sorts were used
+
+
+@pytest.mark.parametrize("degree", [0, 2])
+def test_appearance_per_camera_equals_each_camera_alone(degree):
+    """Opacities [C, N] and SH [C, N, K, 3] per camera in one call: each camera's image is the
+    one it renders alone with its row as the Gaussians' own, bit for bit without autograd and
+    with it; the per-camera gradients are that camera's alone (bit for bit), those of the shared
+    geometry the sum over the cameras (to float32 summation order)."""
+    g = random_gaussians(80, degree, seed=11).to(torch.float32)
+    cams = look_at_cameras([(0.8, -2.4, 0.4), (-2.2, 1.0, -0.3), (0.1, 2.5, 0.6)], 37, 31, 34.0, dtype=torch.float32)
+    gen = torch.Generator().manual_seed(3)
+    opac = torch.rand(3, len(g), generator=gen) * 0.95 + 0.02
+    sh = (torch.randn(3, *g.sh.shape, generator=gen) * 0.4).float()
+    alone = [Gaussians(g.means, g.quats, g.scales, opac[c], sh[c]) for c in range(3)]
+    with torch.no_grad():
+        joint = render_gaussians(g, cams, opacities=opac, sh=sh)
+        for c in range(3):
+            one = render_gaussians(alone[c], cams.select(c))
+            for a, b in zip(joint, one):
+                assert torch.equal(a[c], b[0])
+        # a camera's row matters: another camera's appearance draws another image
+        assert not torch.equal(joint.rgb[0], render_gaussians(alone[1], cams.select(0)).rgb[0])
+    means = g.means.detach().clone().requires_grad_(True)
+    op_t, sh_t = opac.clone().requires_grad_(True), sh.clone().requires_grad_(True)
+    out = render_gaussians(Gaussians(means, g.quats, g.scales, g.opacities, g.sh), cams, opacities=op_t, sh=sh_t)
+    weights = torch.randn(out.rgb.shape, generator=gen)
+    gm, go, gs = torch.autograd.grad((weights * out.rgb).sum(), [means, op_t, sh_t])
+    total = torch.zeros_like(means)
+    for c in range(3):
+        m = g.means.detach().clone().requires_grad_(True)
+        o, s = opac[c].clone().requires_grad_(True), sh[c].clone().requires_grad_(True)
+        one = render_gaussians(Gaussians(m, g.quats, g.scales, o, s), cams.select(c))
+        assert torch.equal(one.rgb[0], out.rgb[c].detach())
+        dm, do, ds = torch.autograd.grad((weights[c : c + 1] * one.rgb).sum(), [m, o, s])
+        assert torch.equal(go[c], do) and torch.equal(gs[c], ds)
+        total += dm
+    assert gm.norm() > 0 and rel_err(gm, total) < 1e-5  # three float32 terms, summed in another order
+
+
+def test_appearance_per_camera_bad_shapes():
+    g = random_gaussians(10, 0, seed=1)
+    cams = look_at_cameras([(0.8, -2.4, 0.4), (-2.2, 1.0, -0.3)], 9, 7, 8.0)
+    with pytest.raises(DlaInputError, match="opacities"):
+        render_gaussians(g, cams, opacities=torch.ones(3, 10, dtype=F64))
+    with pytest.raises(DlaInputError, match="sh"):
+        render_gaussians(g, cams, sh=torch.zeros(2, 10, 4, 3, dtype=F64))

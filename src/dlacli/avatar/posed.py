@@ -4,21 +4,24 @@
         skinning on body p (gaussian_map)--> Gaussians of body p seen from camera c --> splatting
 
 `PosedAvatar` places a decoded avatar on P posed bodies, each seen from C cameras (their centres),
-and handles the decoder's conditioning once for every consumer (render, animate, export, rig,
-lift, the learned lift, training): the tangent frames of all bodies at once, F_c once, the pose
-conditioning once per body, F_delta once per body when the decoder is pose-conditioned and once
-per (body, camera) when it is view-conditioned. An unconditioned decoder's F_c is skinned onto
-all P bodies as one batch; a conditioned decoder's maps are decoded and skinned one at a time,
-each on its own body (the batch sizes the consumers used before: batching changes the float
-summation order, and render, animate and export are pinned bit for bit). Differentiable in the
+renders them (`PosedAvatar.render`) and handles the decoder's conditioning once for every consumer
+(render, animate, export, rig, lift, the learned lift, training): the tangent frames of all bodies
+at once, F_c once, the pose conditioning once per body, F_delta once per body when the decoder is
+pose-conditioned and once per (body, camera) when it is view-conditioned. An unconditioned
+decoder's F_c is skinned onto all P bodies as one batch; a conditioned decoder's maps are decoded
+and skinned one at a time, each on its own body (the batch sizes the consumers used before:
+batching changes the float summation order, and render, animate and export are pinned bit for
+bit). Differentiable in the
 code: a `Decoded.of(decoder, z)` with z requiring grad gives Gaussians with gradients to z.
 
 `sample_settings` is the sample-count/seed policy: which surface samples an avatar is drawn at.
+`render_set` splats one set of placed Gaussians, with appearance per camera where given: the one
+place that calls the renderer for an avatar's Gaussians.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +31,7 @@ from dlacli.avatar import gaussian_map as gm
 from dlacli.avatar.codec import Decoded
 from dlacli.errors import DlaInputError
 from dlacli.limits import DEFAULT_GAUSSIANS, MAX_GAUSSIANS, MAX_SEED, MIN_GAUSSIANS
-from dlacli.types import Avatar, Cameras, Gaussians
+from dlacli.types import Avatar, Cameras, Gaussians, rgb_to_sh0
 
 CAMERAS_PER_CALL = 8  # splat this many cameras at once: projections are [C, N, ...], memory grows with C
 
@@ -83,21 +86,37 @@ def _stack(parts: list[Placed]) -> Placed:
 
 
 class PosedAvatar:
-    """A decoded avatar on P posed bodies (vertices [P, V, 3]), body p seen from the C cameras
-    whose centres are eyes[p] (eyes [P, C, 3]; None: no camera, e.g. rigging). Module docstring:
-    what is computed once and what per body and camera. `canonical_only`: place F_c alone, as
-    if the decoder were unconditioned (what a rig can carry)."""
+    """A decoded avatar on P posed bodies (vertices [P, V, 3]), body p seen from its C cameras:
+    `cameras` one Cameras every body is seen from, or a sequence of P (one per body, C each), which
+    `render` draws; or, to place the Gaussians without rendering (a USD file's view), only the
+    cameras' centres, eyes [P, C, 3]. Neither: no camera (e.g. rigging). Module docstring: what
+    is computed once and what per body and camera. `canonical_only`: place F_c alone, as if the
+    decoder were unconditioned (what a rig can carry)."""
 
     def __init__(
         self,
         decoded: Decoded,
         samples: gm.Samples,
         vertices: torch.Tensor,
+        cameras: Cameras | Sequence[Cameras] | None = None,
+        *,
         eyes: torch.Tensor | None = None,
         canonical_only: bool = False,
     ):
+        from dlacli.geometry import camera_centers
+
         assert vertices.ndim == 3 and vertices.shape[-1] == 3, f"vertices [P, V, 3], got {tuple(vertices.shape)}"
         p = vertices.shape[0]
+        assert cameras is None or eyes is None, "cameras or eyes, not both"
+        self.views: list[Cameras] | None = None
+        if cameras is not None:
+            self.views = [cameras] * p if isinstance(cameras, Cameras) else list(cameras)
+            assert len(self.views) == p and len({len(c) for c in self.views}) == 1, "one Cameras per body, C each"
+            # the centres from the float32 matrices on the CPU, then moved (what every caller computed)
+            centres = [camera_centers(c.viewmats.float()) for c in self.views]
+            eyes = (centres[0][None].expand(p, -1, -1) if isinstance(cameras, Cameras) else torch.stack(centres)).to(
+                vertices.device
+            )
         assert eyes is None or (eyes.ndim == 3 and eyes.shape[0] == p and eyes.shape[-1] == 3), (
             f"eyes must be [{p}, C, 3], got {None if eyes is None else tuple(eyes.shape)}"
         )
@@ -190,20 +209,88 @@ class PosedAvatar:
         opacities, rgb = (x.opacities, x.rgb) if shared else (x.opacities[one], x.rgb[one])
         return Placed(x.means[one], x.quats[one], x.scales[one], opacities, rgb)
 
+    def renders(
+        self, body: int = 0, per_call: int = CAMERAS_PER_CALL, exact: bool = True, deltas: list | None = None
+    ) -> Iterator[tuple[np.ndarray, object]]:
+        """Splat body `body` from its cameras, in order -> (camera indices [k], RenderOutput
+        [k, H, W]) per call of the renderer: `per_call` cameras at once, their Gaussians one set or,
+        where each camera sees its own colours (`per_camera`), one geometry with appearance per
+        camera (`render_set`); each camera alone where F_delta moves the geometry too.
+        Differentiable like `render_gaussians`; `exact=False` as there (playback). `deltas`: a
+        list that gets each camera's F_delta [1, 14, R, R] (None without one)."""
+        assert self.views is not None, "no cameras to render from"
+        cams = self.views[body]
+        if not self.per_camera:
+            placed = self.placed(body)
+            if deltas is not None:
+                deltas.extend([placed.delta] * len(cams))
+            yield from render_set(placed.item(0), cams, exact=exact, per_call=per_call)
+            return
+        step = 1 if self.decoded.decoder.delta_geometry else max(1, per_call)
+        for k in range(0, len(cams), step):
+            group = np.arange(k, min(k + step, len(cams)))
+            placed = [self.placed(body, int(c)) for c in group]
+            if deltas is not None:
+                deltas.extend(x.delta for x in placed)
+            if len(group) == 1:
+                yield group, render_gaussians_of(placed[0].item(0), cams.select(group), exact)
+                continue
+            geometry = placed[0].item(0)
+            opacities = torch.cat([x.opacities for x in placed])  # [k, N]
+            sh = rgb_to_sh0(torch.cat([x.rgb for x in placed]))[..., None, :]  # [k, N, 1, 3], as from_rgb
+            for sub, out in render_set(geometry, cams.select(group), opacities, sh, exact=exact, per_call=step):
+                yield group[sub], out
 
-def render_posed(
-    posed: PosedAvatar, cameras: Cameras, body: int = 0, per_call: int = CAMERAS_PER_CALL
-) -> Iterator[tuple[np.ndarray, object]]:
-    """Splat body `body` of `posed` from its cameras (C of them, the ones whose centres `posed`
-    holds for that body, in order) -> (camera indices [k], RenderOutput [k, H, W]) per call:
-    each camera alone when it sees Gaussians of its own (`posed.per_camera`), else `per_call`
-    cameras at once. Differentiable like `render_gaussians`."""
+    def render(self, body: int = 0, per_call: int = CAMERAS_PER_CALL, exact: bool = True, deltas: list | None = None):
+        """`renders` of body `body`, joined: RenderOutput [C, H, W] for its C cameras."""
+        return join_renders(out for _, out in self.renders(body, per_call, exact, deltas))
+
+
+def render_gaussians_of(gaussians: Gaussians, cameras: Cameras, exact: bool = True, opacities=None, sh=None):
+    """The renderer (`render.splat.render_gaussians`) on one set of placed Gaussians."""
     from dlacli.render.splat import render_gaussians
 
-    assert posed.eyes is None or len(cameras) == posed.cameras, f"{len(cameras)} cameras, {posed.cameras} eyes"
-    step = 1 if posed.per_camera else max(1, per_call)
-    shared = None if posed.per_camera else posed.gaussians(body)
+    return render_gaussians(gaussians, cameras, exact=exact, opacities=opacities, sh=sh)
+
+
+def render_set(
+    gaussians: Gaussians,
+    cameras: Cameras,
+    opacities: torch.Tensor | None = None,
+    sh: torch.Tensor | None = None,
+    *,
+    exact: bool = True,
+    per_call: int = CAMERAS_PER_CALL,
+) -> Iterator[tuple[np.ndarray, object]]:
+    """Splat one set of placed Gaussians [N] from C cameras, with each camera's own opacities
+    [C, N] and SH sh [C, N, K, 3] where given -> (camera indices [k], RenderOutput [k, H, W]) per
+    call: `per_call` cameras at once. Where a gradient is asked for and the appearance is per
+    camera, each camera alone: autograd then adds up each camera's gradient of the shared geometry
+    as the refinement and the training always have, so their results stay the same bits."""
+    tracked = torch.is_grad_enabled() and any(
+        t is not None and t.requires_grad for t in (gaussians.means, gaussians.opacities, gaussians.sh, opacities, sh)
+    )
+    step = 1 if tracked and (opacities is not None or sh is not None) else max(1, per_call)
     for k in range(0, len(cameras), step):
         group = np.arange(k, min(k + step, len(cameras)))
-        g = shared if shared is not None else posed.gaussians(body, k)
-        yield group, render_gaussians(g, cameras.select(slice(k, k + len(group))))
+        part = slice(k, k + len(group))
+        yield (
+            group,
+            render_gaussians_of(
+                gaussians,
+                cameras.select(part),
+                exact,
+                None if opacities is None else opacities[part],
+                None if sh is None else sh[part],
+            ),
+        )
+
+
+def join_renders(outs) -> object:
+    """RenderOutputs [k_i, H, W] of consecutive cameras -> one RenderOutput [sum k_i, H, W]."""
+    from dlacli.render.splat import RenderOutput
+
+    outs = list(outs)
+    if len(outs) == 1:
+        return outs[0]
+    return RenderOutput(*(torch.cat(parts) for parts in zip(*outs)))

@@ -44,7 +44,7 @@ def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
 
 
 def eval_sh_colors(
-    sh: torch.Tensor,  # [N, K, 3]
+    sh: torch.Tensor,  # [N, K, 3], or [C, N, K, 3]: each camera's own coefficients
     means: torch.Tensor,  # [N, 3]
     viewmats: torch.Tensor,  # [C, 4, 4]
     degree: int,
@@ -52,12 +52,15 @@ def eval_sh_colors(
     """[C, N, 3] colour = sum_k basis_k(normalised mean - camera centre) sh_k + 0.5, >= 0."""
     ncam = viewmats.shape[0]
     if degree == 0:
-        col = (_C0 * sh[:, 0, :] + 0.5).clamp(min=0.0)
-        return col[None].expand(ncam, -1, -1)
+        col = (_C0 * sh[..., 0, :] + 0.5).clamp(min=0.0)
+        return col if sh.ndim == 4 else col[None].expand(ncam, -1, -1)
     R = viewmats[:, :3, :3]
     centres = -torch.einsum("cji,cj->ci", R, viewmats[:, :3, 3])  # [C, 3] = -R^T t
     dirs = torch.nn.functional.normalize(means[None] - centres[:, None], dim=-1)  # [C, N, 3]
     basis = sh_basis(degree, dirs)  # [C, N, B]
     kb = basis.shape[-1]
-    col = torch.einsum("cnk,nkd->cnd", basis, sh[:, :kb, :]) + 0.5
+    if sh.ndim == 4:
+        col = torch.einsum("cnk,cnkd->cnd", basis, sh[:, :, :kb, :]) + 0.5
+    else:
+        col = torch.einsum("cnk,nkd->cnd", basis, sh[:, :kb, :]) + 0.5
     return col.clamp(min=0.0)

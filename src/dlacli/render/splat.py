@@ -316,21 +316,26 @@ def composite_lists(params, offsets, lists, ncam, width, height, exact: bool = T
     return acc, tfin, (tfin, last, work)
 
 
-def binned_plain(g: Gaussians, viewmats, Ks, width, height, degree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def binned_plain(
+    g: Gaussians, viewmats, Ks, width, height, degree, opacities=None, sh=None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Projection and packing in one numba pass (`B.project_and_pack`), then the tiles' depth-sorted
     lists (`B.tile_lists`) -> (params [C * N, B.NPARAM], tile offsets, lists): what the compositing
-    kernels read (also `dlacli.render.splat_stats`)."""
+    kernels read (also `dlacli.render.splat_stats`). opacities [C, N] and sh [C, N, K, 3]: each
+    camera's own, in place of g's (`render_gaussians`)."""
     dtype = g.means.dtype
     npd = np.float64 if dtype == torch.float64 else np.float32
     ncam, n = viewmats.shape[0], len(g)
-    rgb = eval_sh_colors(g.sh, g.means, viewmats, degree).to(dtype)  # [C, N, 3]; a view for degree 0
+    rgb = eval_sh_colors(g.sh if sh is None else sh, g.means, viewmats, degree).to(dtype)  # [C, N, 3]
+    if opacities is None:
+        opacities = g.opacities[None].expand(ncam, -1)
     params = np.empty((ncam * n, B.NPARAM), dtype=npd)
     trect = np.empty((ncam * n, 4), dtype=np.int32)
     radii = np.empty((ncam, n), dtype=np.int32)
     keys = np.empty((ncam, n), dtype=np.float32)
     intr, rot, trans = _camera_arrays(viewmats, Ks)
     B.project_and_pack(
-        *(_np(t) for t in (g.means, g.quats, g.scales, g.opacities)),
+        *(_np(t) for t in (g.means, g.quats, g.scales, opacities)),
         rgb.numpy(),
         *(_np(t) for t in (rot, trans, intr)),
         float(width),
@@ -347,14 +352,16 @@ def binned_plain(g: Gaussians, viewmats, Ks, width, height, degree) -> tuple[np.
     return params, offsets, lists
 
 
-def _render_plain_cpu(g: Gaussians, viewmats, Ks, width, height, bg, degree, exact: bool = True) -> RenderOutput:
+def _render_plain_cpu(
+    g: Gaussians, viewmats, Ks, width, height, bg, degree, exact: bool = True, opacities=None, sh=None
+) -> RenderOutput:
     """`render_gaussians` without autograd on the CPU: `binned_plain`, then the same compositing
     and `K.compose` as the autograd route, whose images it equals bit for bit
     (tests/render/test_splat.py); `exact=False` composites with `K.raster_forward_fast` (float32;
     tests/render/test_splat_fast.py)."""
     dtype = g.means.dtype
     ncam = viewmats.shape[0]
-    params, offsets, lists = binned_plain(g, viewmats, Ks, width, height, degree)
+    params, offsets, lists = binned_plain(g, viewmats, Ks, width, height, degree, opacities, sh)
     acc, tfin, _ = composite_lists(params, offsets, lists, ncam, width, height, exact)
     out = RenderOutput(*(torch.empty(s, dtype=dtype) for s in ((ncam, height, width, 3), *[(ncam, height, width)] * 2)))
     K.compose(acc, tfin, bg.detach().contiguous().numpy(), *(t.numpy() for t in out))
@@ -441,20 +448,25 @@ def rasterize_projected(
     return _RasterizeCPU.apply(means2d, conics, colors, opacities, radii, depths, width, height)
 
 
-def check_render_inputs(g: Gaussians, cameras: Cameras, background, sh_degree):
-    n = len(g)
+def check_render_inputs(g: Gaussians, cameras: Cameras, background, sh_degree, opacities=None, sh=None):
+    n, ncam = len(g), len(cameras)
     for name, t, shape in (
         ("gaussians.means", g.means, (n, 3)),
         ("gaussians.quats", g.quats, (n, 4)),
         ("gaussians.scales", g.scales, (n, 3)),
         ("gaussians.opacities", g.opacities, (n,)),
+        ("opacities", opacities, (ncam, n)),
     ):
+        if t is None:
+            continue
         if tuple(t.shape) != shape:
             raise DlaInputError(name, f"expected shape {list(shape)}, got {list(t.shape)}")
         if not t.is_floating_point():
             raise DlaInputError(name, f"expected a floating-point tensor, got {t.dtype}")
     if g.sh.ndim != 3 or g.sh.shape[0] != n or g.sh.shape[2] != 3:
         raise DlaInputError("gaussians.sh", f"expected shape [N, K, 3], got {list(g.sh.shape)}")
+    if sh is not None and tuple(sh.shape) != (ncam, *g.sh.shape):
+        raise DlaInputError("sh", f"expected shape {[ncam, *g.sh.shape]}, got {list(sh.shape)}")
     if cameras.width < 1 or cameras.height < 1:
         raise DlaInputError("cameras", f"image size must be >= 1, got {cameras.width}x{cameras.height}")
     if len(cameras) < 1:
@@ -462,7 +474,6 @@ def check_render_inputs(g: Gaussians, cameras: Cameras, background, sh_degree):
     degree = g.sh_degree if sh_degree is None else int(sh_degree)
     if not 0 <= degree <= g.sh_degree:
         raise DlaInputError("sh_degree", f"must be in 0..{g.sh_degree} for {g.sh.shape[1]} coefficients, got {degree}")
-    ncam = len(cameras)
     if background is None:
         bg = torch.zeros((ncam, 3), dtype=g.means.dtype, device=g.means.device)
     else:
@@ -481,8 +492,14 @@ def render_gaussians(
     background=None,  # [3] or [C, 3], default black
     sh_degree: int | None = None,
     exact: bool = True,
+    opacities: torch.Tensor | None = None,
+    sh: torch.Tensor | None = None,
 ) -> RenderOutput:
     """Render C views of N Gaussians; differentiable w.r.t. every Gaussian parameter.
+
+    Appearance per camera (as gsplat's `rasterization` takes it): opacities [C, N] and SH
+    coefficients sh [C, N, K, 3] (K as the Gaussians'), where given, replace the Gaussians' own,
+    camera c seeing row c; each camera's image equals rendering it alone with those values.
 
     Leading batch dimensions B... of the Gaussians (`Gaussians.batch_shape`: several avatars,
     poses or training items) give outputs [B..., C, H, W(, 3)], every set seen by the same C
@@ -497,32 +514,35 @@ def render_gaussians(
     """
     lead = gaussians.batch_shape
     if lead:
+        assert opacities is None and sh is None, "appearance per camera is for one set of Gaussians"
         flat = Gaussians(*(t.reshape(-1, *t.shape[len(lead) :]) for t in gaussians._tensors()))
         outs = [
             render_gaussians(flat.item(b), cameras, background=background, sh_degree=sh_degree, exact=exact)
             for b in range(flat.means.shape[0])
         ]
         return RenderOutput(*(torch.stack(parts).reshape(*lead, *parts[0].shape) for parts in zip(*outs)))
-    degree, bg = check_render_inputs(gaussians, cameras, background, sh_degree)
+    degree, bg = check_render_inputs(gaussians, cameras, background, sh_degree, opacities, sh)
     device, dtype = gaussians.means.device, gaussians.means.dtype
     viewmats = cameras.viewmats.to(device=device, dtype=dtype)
     Ks = cameras.Ks.to(device=device, dtype=dtype)
     w, h = int(cameras.width), int(cameras.height)
     if device.type == "cuda" and dtype == torch.float32 and _gsplat_available():
-        return _render_gsplat(gaussians, viewmats, Ks, w, h, bg, degree)
+        return _render_gsplat(gaussians, viewmats, Ks, w, h, bg, degree, opacities, sh)
     g = gaussians
     if device.type != "cpu":
         cpu = torch.device("cpu")
         g = gaussians.to(cpu)
         viewmats, Ks, bg = viewmats.to(cpu), Ks.to(cpu), bg.to(cpu)
+        opacities, sh = (None if t is None else t.to(cpu) for t in (opacities, sh))
     grad = torch.is_grad_enabled() and any(
-        t.requires_grad for t in (g.means, g.quats, g.scales, g.opacities, g.sh, viewmats, Ks)
+        t is not None and t.requires_grad
+        for t in (g.means, g.quats, g.scales, g.opacities, g.sh, viewmats, Ks, opacities, sh)
     )
     if grad:
         proj = project_gaussians(g.means, g.quats, g.scales, viewmats, Ks, w, h)
-        rgb = eval_sh_colors(g.sh, g.means, viewmats, degree)  # [C, N, 3]
+        rgb = eval_sh_colors(g.sh if sh is None else sh, g.means, viewmats, degree)  # [C, N, 3]
         colors = torch.cat([rgb, proj.depths[..., None]], dim=-1)  # [C, N, 4]
-        opac = g.opacities[None].expand(viewmats.shape[0], -1)
+        opac = g.opacities[None].expand(viewmats.shape[0], -1) if opacities is None else opacities
         acc, alpha = rasterize_projected(
             proj.means2d, proj.conics, colors, opac, proj.radii, proj.depths.detach(), w, h
         )
@@ -531,7 +551,7 @@ def render_gaussians(
         out = RenderOutput(out_rgb, alpha, depth)
     else:  # no autograd: the same images without the torch intermediates
         with torch.no_grad():
-            out = _render_plain_cpu(g, viewmats, Ks, w, h, bg, degree, exact)
+            out = _render_plain_cpu(g, viewmats, Ks, w, h, bg, degree, exact, opacities, sh)
     if device.type != "cpu":
         out = RenderOutput(*(t.to(device) for t in out))
     return out
@@ -545,8 +565,9 @@ def _gsplat_available() -> bool:
     return True
 
 
-def _render_gsplat(g: Gaussians, viewmats, Ks, width, height, bg, degree) -> RenderOutput:
-    """gsplat.rasterization with this module's conventions (CUDA tensors only)."""
+def _render_gsplat(g: Gaussians, viewmats, Ks, width, height, bg, degree, opacities=None, sh=None) -> RenderOutput:
+    """gsplat.rasterization with this module's conventions (CUDA tensors only); opacities [C, N]
+    and sh [C, N, K, 3] per camera where given."""
     import gsplat
 
     assert g.means.device.type == "cuda", "gsplat must only be called with CUDA tensors"
@@ -554,8 +575,8 @@ def _render_gsplat(g: Gaussians, viewmats, Ks, width, height, bg, degree) -> Ren
         means=g.means,
         quats=g.quats,
         scales=g.scales,
-        opacities=g.opacities,
-        colors=g.sh,
+        opacities=g.opacities if opacities is None else opacities,
+        colors=g.sh if sh is None else sh,
         viewmats=viewmats,
         Ks=Ks,
         width=width,

@@ -121,7 +121,7 @@ def project_and_pack(
     """`camera_kernels.project_fused` and `_prepare` in one pass, for renders without autograd:
     the projected values are rounded to params' dtype (what the two-pass route stores between
     them) before they are packed, so params, trect and radii are bit for bit the two-pass
-    route's, without its [C, N] intermediates. opacities [N], rgb [C, N, 3] (colour per camera;
+    route's, without its [C, N] intermediates. opacities [C, N], rgb [C, N, 3] (per camera;
     depth is the fourth channel) -> params [C * N, 16], trect [C * N, 4], radii [C, N] int32,
     keys [C, N] float32 (the depth rounded to params' dtype, then float32; 1 where culled: the
     sort keys of `_tile_lists`, as bits)."""
@@ -132,7 +132,6 @@ def project_and_pack(
         mu0 = np.float64(means[g, 0])
         mu1 = np.float64(means[g, 1])
         mu2 = np.float64(means[g, 2])
-        op = np.float64(ft(opacities[g]))
         for c in range(ncam):
             i = c * n + g
             mx, my, ca, cb, cc, z, r = camera_kernels._project_one(
@@ -152,7 +151,7 @@ def project_and_pack(
                 np.float64(ft(ca)),
                 np.float64(ft(cb)),
                 np.float64(ft(cc)),
-                op,
+                np.float64(ft(opacities[c, g])),
                 np.float64(ft(rgb[c, g, 0])),
                 np.float64(ft(rgb[c, g, 1])),
                 np.float64(ft(rgb[c, g, 2])),

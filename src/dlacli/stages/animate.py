@@ -97,7 +97,7 @@ def pose_avatar(
     for start in range(0, t_total, batch):
         sel = np.arange(start, min(start + batch, t_total))
         body = model.forward_motion(avatar.body.phenotype, motion, frames=sel)
-        posed = PosedAvatar(decoded, samples, body.vertices, usd_view_eyes(body.bone_heads[:, 0]))
+        posed = PosedAvatar(decoded, samples, body.vertices, eyes=usd_view_eyes(body.bone_heads[:, 0]))
         # frame by frame into the arrays when each frame has its own map (no stacked copy)
         sets = (posed.placed(p) for p in range(len(sel))) if decoded.conditioned else [posed.all()]
         for k, placed in enumerate(sets):
@@ -145,13 +145,13 @@ def follow_cameras(pelvis: np.ndarray, fps: float, size: int) -> Cameras:
 
 def animation_preview_frames(anim: Animation, size: int = 512) -> Iterator[np.ndarray]:
     """RGBA float frames [H, W, 4] of the animation's Gaussians splatted from `follow_cameras`,
-    composited by the fast kernel (playback; `render_gaussians(exact=False)`)."""
-    from dlacli.render.splat import render_gaussians
+    composited by the fast kernel (playback: `exact=False`)."""
+    from dlacli.avatar.posed import render_gaussians_of
 
     cams = follow_cameras(anim.pelvis, anim.fps, size)
     for t in range(anim.num_frames):
         with torch.no_grad():
-            out = render_gaussians(anim.frame(t), cams.select(t), exact=False)
+            out = render_gaussians_of(anim.frame(t), cams.select(t), exact=False)
         yield out.rgba(0)
 
 

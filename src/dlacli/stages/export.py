@@ -130,7 +130,7 @@ def export_frames(
     samples = avatar_samples(avatar, n_gaussians, seed)
 
     def placed(body):  # the Gaussians on P posed bodies (a BodyOutput) -> avatar.posed.Placed [P]
-        return PosedAvatar(decoded, samples, body.vertices, usd_view_eyes(body.bone_heads[:, 0])).all()
+        return PosedAvatar(decoded, samples, body.vertices, eyes=usd_view_eyes(body.bone_heads[:, 0])).all()
 
     with torch.no_grad():
         if motion is None:

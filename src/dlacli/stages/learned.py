@@ -50,13 +50,10 @@ def render_targets(net: LearnedAvatarNet, z: torch.Tensor, vertices: torch.Tenso
     rest [V, 3] its zero pose) from C cameras, with the F of each camera when the GPD is
     view-conditioned (avatar/posed.py) -> rgb [C, H, W, 3], alpha [C, H, W]."""
     from dlacli.avatar.codec import Decoded
-    from dlacli.avatar.posed import PosedAvatar, render_posed
-    from dlacli.geometry import camera_centers
+    from dlacli.avatar.posed import PosedAvatar
 
-    eyes = camera_centers(cameras.viewmats.float())[None].to(z.device)  # [1, C, 3]
-    posed = PosedAvatar(Decoded.of(net, z, rest), net.samples, vertices[None].float().to(z.device), eyes)
-    outs = [out for _, out in render_posed(posed, cameras)]
-    return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
+    out = PosedAvatar(Decoded.of(net, z, rest), net.samples, vertices[None].float().to(z.device), cameras).render()
+    return out.rgb, out.alpha
 
 
 def lift_learned(

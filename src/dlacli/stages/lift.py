@@ -234,7 +234,6 @@ def lifted_posed(fmap: np.ndarray, falloff: float, vertices: np.ndarray, cameras
     cameras: avatar/posed.PosedAvatar, what `dla render` draws of it."""
     from dlacli.avatar.codec import Decoded, IdentityDecoder, ViewCosineDecoder
     from dlacli.avatar.posed import PosedAvatar
-    from dlacli.geometry import camera_centers
 
     z = torch.as_tensor(fmap, dtype=torch.float32)  # a tensor stays differentiable (training renders through it)
     decoder = IdentityDecoder()
@@ -243,7 +242,7 @@ def lifted_posed(fmap: np.ndarray, falloff: float, vertices: np.ndarray, cameras
     verts = torch.as_tensor(vertices, dtype=torch.float32, device=z.device)  # z's device (training may use CUDA)
     # the view-cosine decoder reads the posed normals alone: the posed body stands in for the rest pose
     decoded = Decoded.of(decoder, z, rest_vertices=verts.cpu().numpy())
-    return PosedAvatar(decoded, samples, verts[None], camera_centers(cameras.viewmats.to(z.device))[None])
+    return PosedAvatar(decoded, samples, verts[None], cameras)
 
 
 def view_colours(
@@ -261,16 +260,11 @@ def view_colours(
 def _render(g: Gaussians, cams: Cameras, colours: torch.Tensor | None):
     """Render g from cams -> (rgb [C, H, W, 3], alpha [C, H, W]); with per-camera colours
     [C, N, 3], each camera sees the Gaussians in its own colours."""
-    from dlacli.render.splat import render_gaussians
+    from dlacli.avatar.posed import join_renders, render_set
 
-    if colours is None:
-        out = render_gaussians(g, cams)
-        return out.rgb, out.alpha
-    parts = []
-    for c in range(len(cams)):
-        coloured = Gaussians(g.means, g.quats, g.scales, g.opacities, rgb_to_sh0(colours[c])[:, None, :])
-        parts.append(render_gaussians(coloured, cams.select(c)))
-    return torch.cat([p.rgb for p in parts]), torch.cat([p.alpha for p in parts])
+    sh = None if colours is None else rgb_to_sh0(colours)[..., None, :]
+    out = join_renders(o for _, o in render_set(g, cams, sh=sh, per_call=len(cams)))
+    return out.rgb, out.alpha
 
 
 def refine(
@@ -397,11 +391,9 @@ class LiftResult:
 def render_views(fmap: np.ndarray, vertices: np.ndarray, cameras: Cameras, samples: gm.Samples, falloff: float = 0.0):
     """Render the avatar F (view falloff k) placed on one posed body (vertices [V, 3]) from
     cameras, as `dla render` draws it (`lifted_posed`) -> (rgb [C, H, W, 3], alpha [C, H, W])."""
-    from dlacli.avatar.posed import render_posed
-
     with torch.no_grad():
-        outs = [out for _, out in render_posed(lifted_posed(fmap, falloff, vertices, cameras, samples), cameras)]
-    return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
+        out = lifted_posed(fmap, falloff, vertices, cameras, samples).render()
+    return out.rgb, out.alpha
 
 
 @dataclass

@@ -66,8 +66,7 @@ def render_avatar(
     view-conditioned. Gaussian count and seed default to the ones the avatar records
     (`sample_settings`)."""
     from dlacli.avatar.codec import Decoded
-    from dlacli.avatar.posed import PosedAvatar, avatar_samples, render_posed
-    from dlacli.geometry import camera_centers
+    from dlacli.avatar.posed import PosedAvatar, avatar_samples
 
     decoded = Decoded(avatar, where, checkpoint)
     samples = avatar_samples(avatar, n_gaussians, seed)
@@ -77,8 +76,8 @@ def render_avatar(
         cams = np.nonzero(frame_of == frame)[0]
         sub = cameras.select(cams)
         verts = _pose_vertices(avatar, motion, np.array([frame]))  # [1, V, 3]
-        posed = PosedAvatar(decoded, samples, verts, camera_centers(sub.viewmats)[None])
-        for group, out in render_posed(posed, sub):
+        posed = PosedAvatar(decoded, samples, verts, sub)
+        for group, out in posed.renders():
             for k, c in enumerate(cams[group]):
                 rgba = out.rgba(k)
                 yield Shot(int(frame), int(c), rgba)

@@ -141,14 +141,11 @@ def render_code(net, z: np.ndarray, vertices: np.ndarray, body, cameras, cfg) ->
     `dla render` draws it -> rgb [C, H, W, 3] numpy."""
     from dlacli.avatar import gaussian_map as gm
     from dlacli.avatar.codec import Decoded
-    from dlacli.avatar.posed import PosedAvatar, render_posed
+    from dlacli.avatar.posed import PosedAvatar
     from dlacli.body.model import get_body_model
-    from dlacli.geometry import camera_centers
 
     rest = get_body_model().rest_vertices(body.phenotype)
     verts = torch.from_numpy(np.asarray(vertices, np.float32))[None]
-    eyes = camera_centers(cameras.viewmats.float())[None]
     with torch.no_grad():
         decoded = Decoded.of(net, torch.from_numpy(z), rest)
-        posed = PosedAvatar(decoded, gm.make_samples(cfg.gaussians, cfg.seed), verts, eyes)
-        return torch.cat([out.rgb for _, out in render_posed(posed, cameras)]).numpy()
+        return PosedAvatar(decoded, gm.make_samples(cfg.gaussians, cfg.seed), verts, cameras).render().rgb.numpy()

@@ -141,12 +141,10 @@ class GeneratorLoss(nn.Module):
 
     def forward(self, items, stage: str, size: int, noise_seeds: list[int], disc=None):
         from dlacli.avatar.codec import Decoded
-        from dlacli.avatar.posed import PosedAvatar
-        from dlacli.geometry import camera_centers
+        from dlacli.avatar.posed import PosedAvatar, render_gaussians_of
         from dlacli.nn.encoder import kl_divergence
         from dlacli.nn.learned import subject_depth
         from dlacli.nn.losses import perceptual_loss
-        from dlacli.render.splat import render_gaussians
 
         net, cfg = self.net, self.cfg
         device = next(net.parameters()).device
@@ -174,7 +172,7 @@ class GeneratorLoss(nn.Module):
             in_cams = it.input_cameras.resized(size, size).to(device)
             in_rgb = _resize(it.input_rgb, size).to(device)
             in_mask = _resize(it.input_mask, size).to(device)
-            ug = render_gaussians(pg, in_cams)
+            ug = render_gaussians_of(pg, in_cams)
             ug_l = (ug.rgb - in_rgb.permute(0, 2, 3, 1)).abs().mean() + (ug.alpha - in_mask[:, 0]).abs().mean()
             t_rgb = _resize(it.target_rgb, size).to(device)  # [T, 3, H, H]
             t_mask = _resize(it.target_mask, size).to(device)
@@ -182,7 +180,7 @@ class GeneratorLoss(nn.Module):
             same = [t for t, kind in enumerate(it.target_kind) if kind == "view"]
             if same:
                 sel = torch.tensor(same)
-                ug2 = render_gaussians(pg, t_cams.select(sel))
+                ug2 = render_gaussians_of(pg, t_cams.select(sel))
                 ug_l = (
                     ug_l
                     + (ug2.rgb - t_rgb[sel].permute(0, 2, 3, 1)).abs().mean()
@@ -190,16 +188,14 @@ class GeneratorLoss(nn.Module):
                 )
             parts["ug"].append(ug_l)
             # the decoder's render of every target: F_c once, F_delta per target body and camera
-            eyes = camera_centers(t_cams.viewmats.float())[:, None]  # [T, 1, 3]: one camera per target body
             verts = it.target_vertices.to(device).float()  # [T, V, 3]
-            posed = PosedAvatar(Decoded.of(net, z, it.rest_vertices), net.samples, verts, eyes)
+            one_each = [t_cams.select(t) for t in range(len(it.target_kind))]  # one camera per target body
+            posed = PosedAvatar(Decoded.of(net, z, it.rest_vertices), net.samples, verts, one_each)
             preds, alphas, deltas = [], [], []
             for t in range(len(it.target_kind)):
-                placed = posed.placed(t)
-                out = render_gaussians(placed.item(0), t_cams.select(t))
+                out = posed.render(t, deltas=deltas)
                 preds.append(out.rgb[0])
                 alphas.append(out.alpha[0])
-                deltas.append(placed.delta)
             pred, alpha = torch.stack(preds), torch.stack(alphas)  # [T, H, W, 3], [T, H, W]
             delta = torch.cat(deltas) if net.conditioned else torch.zeros((), device=device)  # [T, 14, R, R]
             gt = t_rgb.permute(0, 2, 3, 1)

@@ -170,12 +170,11 @@ def render_map(z: torch.Tensor, falloff: float, vertices: torch.Tensor, cameras,
     """F z [14, R, R] (differentiable) on one posed body (vertices [V, 3]) seen from each of
     `cameras`, as the residual lift's avatar renders -> (rgb [C, H, W, 3], alpha [C, H, W]);
     `supersample`: rendered that many times larger and box-filtered (`_supersampled`)."""
-    from dlacli.avatar.posed import render_posed
     from dlacli.stages.lift import lifted_posed
 
     def render(cams):
-        outs = [out for _, out in render_posed(lifted_posed(z, falloff, vertices, cams, samples), cams)]
-        return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
+        out = lifted_posed(z, falloff, vertices, cams, samples).render()
+        return out.rgb, out.alpha
 
     return _supersampled(render, cameras, supersample)
 
@@ -196,15 +195,13 @@ def render_target(net, code: torch.Tensor, p: Precomputed, vertices, rest, camer
     if not net.config.gain:
         return render_map(code, p.falloff, vertices, cameras, samples, supersample)
     from dlacli.avatar.codec import Decoded
-    from dlacli.avatar.posed import PosedAvatar, render_posed
-    from dlacli.geometry import camera_centers
+    from dlacli.avatar.posed import PosedAvatar
 
-    eyes = camera_centers(cameras.viewmats.float().to(code.device))[None]
-    posed = PosedAvatar(Decoded.of(net, code, np.asarray(rest.cpu())), samples, vertices[None].float(), eyes)
+    decoded = Decoded.of(net, code, np.asarray(rest.cpu()))
 
     def render(cams):
-        outs = [out for _, out in render_posed(posed, cams)]
-        return torch.cat([o.rgb for o in outs]), torch.cat([o.alpha for o in outs])
+        out = PosedAvatar(decoded, samples, vertices[None].float(), cams).render()
+        return out.rgb, out.alpha
 
     return _supersampled(render, cameras, supersample)
 
