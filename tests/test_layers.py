@@ -4,7 +4,7 @@ depth: module level, inside functions, under `if TYPE_CHECKING:`), plus the star
 
 Direction (an import may only point to a lower rank, or stay inside its own unit):
 
-    errors, paths, the package  <-  types  <-  geometry, kinematics, raster_core
+    errors, paths, the package  <-  types, kernel_path  <-  geometry, kinematics, triangle_kernels
         <-  body, render, io  <-  avatar  <-  nn  <-  data, stages  <-  train, bench  <-  cli
 
 body, render and io are one level and do not import each other, nor do data and stages; `ALLOWED`
@@ -32,9 +32,10 @@ RANK = {
     "dlacli.paths": 0,
     "dlacli.limits": 0,
     "dlacli.types": 1,
+    "dlacli.kernel_path": 1,
     "dlacli.geometry": 2,
     "dlacli.kinematics": 2,
-    "dlacli.raster_core": 2,
+    "dlacli.triangle_kernels": 2,
     "dlacli.body": 3,
     "dlacli.render": 3,
     "dlacli.io": 3,
@@ -292,3 +293,20 @@ def test_no_import_circles():
     assert not circles, "modules that import each other (directly or around a circle):\n" + "\n".join(
         " <-> ".join(c) for c in circles
     )
+
+
+def test_numba_kernels_live_in_kernel_modules():
+    """docs/architecture.md, "numba kernels and their torch twins": a module that compiles a numba
+    kernel is named *_kernels.py, so that a kernel is found by its file's name."""
+    compiling = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                for dec in node.decorator_list:
+                    target = dec.func if isinstance(dec, ast.Call) else dec
+                    name = target.attr if isinstance(target, ast.Attribute) else getattr(target, "id", "")
+                    if name in ("njit", "jit", "vectorize", "guvectorize", "stencil"):
+                        compiling.append(path)
+    assert compiling, "the scan found no kernel at all"
+    assert {p.name for p in compiling if not p.name.endswith("_kernels.py")} == set()

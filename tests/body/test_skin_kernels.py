@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from dlacli.avatar import gaussian_map as gm
+from dlacli.kernel_path import takes_kernels
 from dlacli.types import BodyParams
 
 R = 32
@@ -67,7 +68,7 @@ def _close(fast, ref, frame_w):
 def test_the_kernels_give_the_torch_paths_gaussians(bodies):
     samples = gm.make_samples(N, 5)
     fmap = _map(1)
-    assert gm.fast_skinning(fmap, bodies)
+    assert takes_kernels(fmap, bodies)
     fast = gm.skinned_params_on_body(fmap, samples, bodies)
     assert fast[0].shape == (2, N, 3) and fast[1].shape == (2, N, 4)
     _close(fast, *_torch_path(fmap, samples, bodies))
@@ -92,13 +93,13 @@ def test_gradients_take_the_torch_path(bodies):
     samples = gm.make_samples(2000, 3)
     fmap = _map(4).requires_grad_(True)
     verts = bodies[:1].clone().requires_grad_(True)
-    assert not gm.fast_skinning(fmap, verts)
+    assert not takes_kernels(fmap, verts)
     means, quats, scales, opacity, rgb = gm.skinned_params_on_body(fmap, samples, verts)
     (means.sum() + quats[..., 1].sum() + scales.sum()).backward()
     assert fmap.grad is not None and fmap.grad[gm.OFFSET].abs().sum() > 0 and fmap.grad[gm.ROTATION].abs().sum() > 0
     assert verts.grad is not None and verts.grad.abs().sum() > 0
     with torch.no_grad():  # the same values as the kernels give
-        assert gm.fast_skinning(fmap, verts)
+        assert takes_kernels(fmap, verts)
         frame_w = gm.sample_frames(verts, samples)[3][..., 0]
         _close(gm.skinned_params_on_body(fmap, samples, verts), (means, quats, scales, opacity, rgb), frame_w)
 
@@ -107,9 +108,9 @@ def test_texel_maps_without_gradients_match_the_torch_path(bodies):
     """position_map and normal_map (what pose and view conditioning see) by the kernels."""
     from dlacli.body import uv as U
 
-    assert U.fast_surface(bodies)
+    assert takes_kernels(bodies)
     grad = bodies.clone().requires_grad_(True)
-    assert not U.fast_surface(grad)
+    assert not takes_kernels(grad)
     for fn in (U.position_map, U.normal_map):
         fast, ref = fn(bodies, R), fn(grad, R).detach()
         assert fast.shape == ref.shape == (2, R, R, 3)

@@ -438,7 +438,7 @@ def test_tile_lists_match_a_direct_listing(nthreads):
     plain listing: for every tile of every camera, the pairs whose tile rectangle covers it, by
     depth key, ties in pair order (numpy's stable argsort); lists short and long (insertion and
     radix sort), depths with many ties and depths that share their top bits or not."""
-    from dlacli.render.splat_binning import TILE, _tile_lists
+    from dlacli.render.binning_kernels import TILE, _tile_lists
 
     rng = np.random.default_rng(3)
     ncam, n, width, height = 3, 400, 70, 45  # 5 x 3 tiles per camera, the last ones partial

@@ -157,13 +157,13 @@ class ViewCosineDecoder(IdentityDecoder):
 
     def delta(self, z: torch.Tensor, pose: PoseConditioning | None, rays: torch.Tensor | None) -> torch.Tensor | None:
         from dlacli.avatar.gaussian_map import CHANNELS, RGB
-        from dlacli.body.uv import fast_surface
+        from dlacli.kernel_path import takes_kernels
 
         if pose is None or rays is None:
             return None
         normals, rays = pose.normals.to(z), rays.to(z)
         out = torch.zeros((CHANNELS, *z.shape[1:]), dtype=z.dtype, device=z.device)
-        if fast_surface(z, normals, rays):  # numba, the same float32 steps
+        if takes_kernels(z, normals, rays):  # numba, the same float32 steps
             from dlacli.avatar.ray_kernels import view_cosine_rgb
 
             arrays = (z[RGB], z[self.FALLOFF], normals, rays)
@@ -204,10 +204,10 @@ def view_cosine(normals: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:
     ([3, R, R], [6, R, R]) without a gradient on the CPU in float32: a numba kernel with the same
     float32 steps (`ray_kernels.view_cosine_map`; to float32 rounding, as torch's sqrt is not
     correctly rounded), the one every decoder's no-gradient F_delta reads."""
-    from dlacli.body.uv import fast_surface
     from dlacli.geometry import vector_norm
+    from dlacli.kernel_path import takes_kernels
 
-    if normals.ndim == 3 and rays.ndim == 3 and fast_surface(normals, rays):
+    if normals.ndim == 3 and rays.ndim == 3 and takes_kernels(normals, rays):
         from dlacli.avatar.ray_kernels import view_cosine_map
 
         out = torch.empty(normals.shape[1:], dtype=normals.dtype)
@@ -275,12 +275,13 @@ def uv_rays(vertices: torch.Tensor, eye: torch.Tensor, resolution: int, position
     """Plücker rays [6, R, R] from a camera centre eye [3] to each texel's point on the posed
     body vertices [V, 3] (what a view-conditioned decoder sees of a camera); `positions`: the
     body's `position_map` at R, when already made."""
-    from dlacli.body.uv import fast_surface, position_map
+    from dlacli.body.uv import position_map
     from dlacli.geometry import plucker_rays_uv
+    from dlacli.kernel_path import takes_kernels
 
     pos = position_map(vertices, resolution) if positions is None else positions  # [R, R, 3]
     eye = torch.as_tensor(eye, dtype=pos.dtype, device=pos.device)
-    if fast_surface(pos, eye):  # numba, the same float32 steps
+    if takes_kernels(pos, eye):  # numba, the same float32 steps
         from dlacli.avatar.ray_kernels import uv_plucker
 
         out = torch.empty((6, *pos.shape[:2]), dtype=pos.dtype)

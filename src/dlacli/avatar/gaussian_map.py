@@ -27,6 +27,7 @@ import torch.nn.functional as nnf
 
 from dlacli.errors import DlaInputError
 from dlacli.geometry import vector_norm
+from dlacli.kernel_path import takes_kernels
 from dlacli.limits import DEFAULT_GAUSSIANS, MIN_GAUSSIANS
 from dlacli.types import F_CHANNELS, F_LOG_SCALE, F_OFFSET, F_OPACITY, F_RGB, F_ROTATION, Gaussians
 
@@ -84,7 +85,7 @@ def lookup(fmap: torch.Tensor, uv: np.ndarray | torch.Tensor) -> torch.Tensor:
     assert fmap.ndim >= 3, f"fmap must be [..., C, R, R], got {tuple(fmap.shape)}"
     lead, (c, r1, r2) = fmap.shape[:-3], fmap.shape[-3:]
     maps = fmap.reshape(-1, c, r1, r2)  # [B, C, R, R]
-    if isinstance(uv, np.ndarray) and _sparse_ok(maps):  # numba, at taps kept per point set
+    if isinstance(uv, np.ndarray) and takes_kernels(maps, held=()):  # numba, at taps kept per point set
         from dlacli.avatar import lookup_kernels as lk
 
         at = _kept(uv, r1, r2, lk.corners)
@@ -96,10 +97,6 @@ def lookup(fmap: torch.Tensor, uv: np.ndarray | torch.Tensor) -> torch.Tensor:
     grid = grid[None, None].expand(maps.shape[0], 1, -1, 2)  # [B, 1, N, 2]
     out = nnf.grid_sample(maps, grid, mode="bilinear", padding_mode="border", align_corners=False)
     return out[:, :, 0].transpose(1, 2).reshape(*lead, -1, c)  # [B, C, 1, N] -> [..., N, C]
-
-
-def _sparse_ok(maps: torch.Tensor) -> bool:
-    return maps.device.type == "cpu" and maps.dtype == torch.float32
 
 
 _KEPT: dict[tuple, tuple] = {}  # (id(uv), what) -> (weakref to uv, H, W, what(uv, H, W))
@@ -222,16 +219,6 @@ def skinned_params(
     return means, quats, scales, opacity, rgb
 
 
-def fast_skinning(*tensors: torch.Tensor) -> bool:
-    """Whether `skinned_params_on_body` takes the numba path (body/skinning.py
-    `skin_gaussians_on_body_fast`) for these maps and vertices: float32 CPU tensors and no
-    gradient asked for (the torch path keeps the gradients of training and refinement):
-    `uv.fast_surface` of them all."""
-    from dlacli.body.uv import fast_surface
-
-    return fast_surface(*tensors)
-
-
 def skinned_params_on_body(
     fmap: torch.Tensor,  # [14, R, R] or [P, 14, R, R]
     samples: Samples,
@@ -239,12 +226,12 @@ def skinned_params_on_body(
     frames=None,  # callable -> `sample_frames(vertices, samples)`, for the torch path
     sampled: tuple[torch.Tensor, ...] | None = None,  # `sampled_params(fmap, samples)`, when kept
 ):
-    """`skinned_params` on posed vertices: the numba kernels when `fast_skinning` allows (the
+    """`skinned_params` on posed vertices: the numba kernels when `kernel_path.takes_kernels` allows (the
     tangent frames are then never formed), else the torch path with `frames()` (or
     `sample_frames`). Same outputs, to float32 rounding."""
     from dlacli.body.skinning import skin_gaussians_on_body_fast
 
-    if not fast_skinning(fmap, vertices):
+    if not takes_kernels(fmap, vertices):
         return skinned_params(fmap, samples, frames() if frames else sample_frames(vertices, samples), sampled)
     assert fmap.ndim == 3 or fmap.shape[0] == vertices.shape[0], (
         f"a batch of {fmap.shape[0]} maps needs as many bodies, got {vertices.shape[0]}"

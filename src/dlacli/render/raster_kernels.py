@@ -1,6 +1,6 @@
 """numba kernels for attribute interpolation and mesh shading (used by `dlacli.render.raster`;
 no validation here). The coverage kernel itself (which triangle covers each pixel centre: 2DH edge
-functions, the top-left rule, bands) is in `dlacli.raster_core`, shared with the body's UV raster.
+functions, the top-left rule, bands) is in `dlacli.triangle_kernels`, shared with the body's UV raster.
 """
 
 from __future__ import annotations

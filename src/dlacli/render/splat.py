@@ -10,7 +10,7 @@ docs/rendering.md. The pieces are plain functions:
   torch code (where, on CPU, the world-to-camera transform is a numba kernel); both bitwise the
   same for any thread count (docs/rendering.md "Projection", "Determinism");
 - `eval_sh_colors` (torch): view-dependent colour from SH, + 0.5, clamped at 0 (as 3DGS);
-- `rasterize_projected` (torch.autograd.Function over the numba kernels in splat_binning.py and
+- `rasterize_projected` (torch.autograd.Function over the numba kernels in binning_kernels.py and
   splat_kernels.py):
   tile binning, front-to-back compositing and its backward pass. Without autograd (no_grad, or
   no input needing a gradient) `render_gaussians` calls the kernels directly and composes the
@@ -28,8 +28,9 @@ import numpy as np
 import torch
 
 from dlacli.errors import DlaInputError
+from dlacli.kernel_path import takes_kernels
+from dlacli.render import binning_kernels as B
 from dlacli.render import camera_kernels
-from dlacli.render import splat_binning as B
 from dlacli.render import splat_kernels as K
 from dlacli.render.sh import eval_sh_colors
 from dlacli.types import Cameras, Gaussians
@@ -162,7 +163,7 @@ def project_gaussians(
     _check_shape("scales", scales, (n, 3))
     _check_shape("viewmats", viewmats, (None, 4, 4))
     _check_shape("Ks", Ks, (viewmats.shape[0], 3, 3))
-    if _fused_projection(means, quats, scales, viewmats, Ks):
+    if takes_kernels(means, quats, scales, viewmats, Ks, held=(viewmats, Ks), dtype=None):
         return _project_fused(means, quats, scales, viewmats, Ks, width, height, eps2d, near, far)
     M = quat_to_rotmat(quats) * scales[:, None, :]  # [N, 3, 3] columns R_i s_i
     R = viewmats[:, :3, :3]  # [C, 3, 3]
@@ -201,14 +202,6 @@ def project_gaussians(
         keep &= (mx + radius > 0) & (mx - radius < width) & (my + radius > 0) & (my - radius < height)
         radii = torch.where(keep, radius.clamp(max=2.0**30), torch.zeros_like(radius)).to(torch.int32)
     return Projected(means2d, conics, z, radii)
-
-
-def _fused_projection(means, quats, scales, viewmats, Ks) -> bool:
-    """Whether `project_gaussians` takes the numba path: CPU tensors and cameras held fixed (no
-    gradient asked for the view matrices or intrinsics; the torch code handles those)."""
-    if any(t.device.type != "cpu" for t in (means, quats, scales, viewmats, Ks)):
-        return False
-    return not (torch.is_grad_enabled() and (viewmats.requires_grad or Ks.requires_grad))
 
 
 class _ProjectCPU(torch.autograd.Function):

@@ -1,5 +1,5 @@
 """Numba kernels of the CPU Gaussian rasteriser: forward and backward compositing (the tile binning
-that feeds them is in splat_binning.py).
+that feeds them is in binning_kernels.py).
 
 Conventions (docs/rendering.md): 16 x 16 tiles; pixel centres at (x + 0.5, y + 0.5);
 sigma = 0.5 (a dx^2 + c dy^2) + b dx dy with dx = mean_x - px (conic = (a, b, c));
@@ -35,7 +35,7 @@ import numpy as np
 from numba import njit, prange
 from numba.cpython.unsafe.numbers import leading_zeros, trailing_zeros
 
-from dlacli.render.splat_binning import NPARAM, TILE
+from dlacli.render.binning_kernels import NPARAM, TILE
 
 # numba's OpenMP thread pool and torch's are separate runtimes sharing the same few cores; their
 # busy-waiting threads starve each other (2 cores: 2k Gaussians at 128^2 took ~50 ms instead of

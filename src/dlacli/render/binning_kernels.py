@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit, prange
 
 from dlacli.render import camera_kernels
-from dlacli.render.radix_sort import sort_segment
+from dlacli.render.sort_kernels import sort_segment
 
 TILE = 16
 # Extra room on the sigma cut-off used for the pixel bounding boxes, far above float32 rounding
@@ -171,7 +171,7 @@ def _tile_lists(depth_keys, trect, width, height, nthreads):
     parallel passes: per-thread tile counts over slices of the pairs (summed), then each thread
     fills the lists of its own band of tile rows (camera-major rows c * TH + ty, split so the
     bands hold about equal numbers of entries), walking all pairs in index order, and sorts those
-    lists by depth (`radix_sort.sort_segment`). Culled pairs have empty tile rectangles and are
+    lists by depth (`sort_kernels.sort_segment`). Culled pairs have empty tile rectangles and are
     in no list. Every list slot has one writer and its value does not depend on the split: the
     same lists for any thread count."""
     ncam, n = depth_keys.shape

@@ -1,4 +1,4 @@
-"""The rasteriser's depth sort (render/radix_sort.py: insertion for short lists, radix passes for long
+"""The rasteriser's depth sort (render/sort_kernels.py: insertion for short lists, radix passes for long
 ones) against numpy's stable argsort."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from dlacli.render.radix_sort import sort_segment
+from dlacli.render.sort_kernels import sort_segment
 
 
 @njit

@@ -1,5 +1,5 @@
 """A stable sort of uint32 keys in numba: each tile list of the CPU rasteriser front to back
-(`splat_binning._tile_lists` sorts every list by its pairs' float32 depth bits, ties kept in pair
+(`binning_kernels._tile_lists` sorts every list by its pairs' float32 depth bits, ties kept in pair
 order: the order gsplat's (tile, depth) radix sort gives)."""
 
 from __future__ import annotations

@@ -277,7 +277,7 @@ def check_faces(faces, n_vertices: int, name: str = "faces") -> np.ndarray:
     return np.ascontiguousarray(arr, dtype=np.int64)
 
 
-def raster_core(verts_cam, faces, intr, width, height, near, first_wins):
+def rasterize_triangles(verts_cam, faces, intr, width, height, near, first_wins):
     """verts_cam [C, V, 3] float64, faces [F, 3] int64, intr [C, 4] -> (face_id, bary, depth)."""
     n_cam = intr.shape[0]
     n_face = faces.shape[0]
@@ -320,5 +320,5 @@ def rasterize_uv(uv, faces, resolution: int) -> UVRaster:
     pts[0, :, 1] = (1.0 - uv[:, 1]) * r
     pts[0, :, 2] = 1.0
     intr = np.array([[1.0, 1.0, 0.0, 0.0]])
-    face_id, bary, _ = raster_core(pts, faces, intr, r, r, 0.5, True)
+    face_id, bary, _ = rasterize_triangles(pts, faces, intr, r, r, 0.5, True)
     return UVRaster(face_id[0], bary[0], face_id[0] >= 0)
