@@ -216,7 +216,8 @@ class PosedAvatar:
         """Splat body `body` from its cameras, in order -> (camera indices [k], RenderOutput
         [k, H, W]) per call of the renderer: `per_call` cameras at once, their Gaussians one set or,
         where each camera sees its own colours (`per_camera`), one geometry with appearance per
-        camera (`render_set`); each camera alone where F_delta moves the geometry too.
+        camera (`render_gaussians(opacities=, sh=)`); each camera alone where F_delta moves the
+        geometry too.
         Differentiable like `render_gaussians`; `exact=False` as there (playback). `deltas`: a
         list that gets each camera's F_delta [1, 14, R, R] (None without one)."""
         assert self.views is not None, "no cameras to render from"
@@ -225,7 +226,7 @@ class PosedAvatar:
             placed = self.placed(body)
             if deltas is not None:
                 deltas.extend([placed.delta] * len(cams))
-            yield from render_set(placed.item(0), cams, exact=exact, per_call=per_call)
+            yield from _render_calls(placed.item(0), cams, None, None, exact, per_call)
             return
         step = 1 if self.decoded.decoder.delta_geometry else max(1, per_call)
         for k in range(0, len(cams), step):
@@ -234,24 +235,18 @@ class PosedAvatar:
             if deltas is not None:
                 deltas.extend(x.delta for x in placed)
             if len(group) == 1:
-                yield group, render_gaussians_of(placed[0].item(0), cams.select(group), exact)
+                for _, out in _render_calls(placed[0].item(0), cams.select(group), None, None, exact, None):
+                    yield group, out
                 continue
             geometry = placed[0].item(0)
             opacities = torch.cat([x.opacities for x in placed])  # [k, N]
             sh = rgb_to_sh0(torch.cat([x.rgb for x in placed]))[..., None, :]  # [k, N, 1, 3], as from_rgb
-            for sub, out in render_set(geometry, cams.select(group), opacities, sh, exact=exact, per_call=step):
+            for sub, out in _render_calls(geometry, cams.select(group), opacities, sh, exact, None):
                 yield group[sub], out
 
     def render(self, body: int = 0, per_call: int = CAMERAS_PER_CALL, exact: bool = True, deltas: list | None = None):
         """`renders` of body `body`, joined: RenderOutput [C, H, W] for its C cameras."""
         return join_renders(out for _, out in self.renders(body, per_call, exact, deltas))
-
-
-def render_gaussians_of(gaussians: Gaussians, cameras: Cameras, exact: bool = True, opacities=None, sh=None):
-    """The renderer (`render.splat.render_gaussians`) on one set of placed Gaussians."""
-    from dlacli.render.splat import render_gaussians
-
-    return render_gaussians(gaussians, cameras, exact=exact, opacities=opacities, sh=sh)
 
 
 def render_set(
@@ -261,30 +256,32 @@ def render_set(
     sh: torch.Tensor | None = None,
     *,
     exact: bool = True,
-    per_call: int = CAMERAS_PER_CALL,
-) -> Iterator[tuple[np.ndarray, object]]:
+    per_call: int | None = None,
+):
     """Splat one set of placed Gaussians [N] from C cameras, with each camera's own opacities
-    [C, N] and SH sh [C, N, K, 3] where given -> (camera indices [k], RenderOutput [k, H, W]) per
-    call: `per_call` cameras at once. Where a gradient is asked for and the appearance is per
-    camera, each camera alone: autograd then adds up each camera's gradient of the shared geometry
-    as the refinement and the training always have, so their results stay the same bits."""
+    [C, N] and SH sh [C, N, K, 3] where given -> RenderOutput [C, H, W]: `per_call` cameras a call
+    of the renderer (None: all at once). Differentiable like `render_gaussians`; `exact=False` as
+    there (playback)."""
+    return join_renders(out for _, out in _render_calls(gaussians, cameras, opacities, sh, exact, per_call))
+
+
+def _render_calls(gaussians, cameras, opacities, sh, exact, per_call) -> Iterator[tuple[np.ndarray, object]]:
+    """`render_set` call by call -> (camera indices [k], RenderOutput [k, H, W]). Where a gradient
+    is asked for and the appearance is per camera, each camera alone: autograd then adds up each
+    camera's gradient of the shared geometry as the refinement and the trainings always have, so
+    their results stay the same bits."""
+    from dlacli.render.splat import render_gaussians
+
     tracked = torch.is_grad_enabled() and any(
         t is not None and t.requires_grad for t in (gaussians.means, gaussians.opacities, gaussians.sh, opacities, sh)
     )
-    step = 1 if tracked and (opacities is not None or sh is not None) else max(1, per_call)
+    step = len(cameras) if per_call is None else max(1, per_call)
+    step = 1 if tracked and (opacities is not None or sh is not None) else step
     for k in range(0, len(cameras), step):
-        group = np.arange(k, min(k + step, len(cameras)))
-        part = slice(k, k + len(group))
-        yield (
-            group,
-            render_gaussians_of(
-                gaussians,
-                cameras.select(part),
-                exact,
-                None if opacities is None else opacities[part],
-                None if sh is None else sh[part],
-            ),
-        )
+        part = slice(k, min(k + step, len(cameras)))
+        picked = [None if t is None else t[part] for t in (opacities, sh)]
+        out = render_gaussians(gaussians, cameras.select(part), exact=exact, opacities=picked[0], sh=picked[1])
+        yield np.arange(part.start, part.stop), out
 
 
 def join_renders(outs) -> object:

@@ -221,7 +221,7 @@ def _composite_counts(cfg: SpeedConfig, avatar, row, log) -> dict:
     (dlacli.render.splat_stats); with cfg.heatmap, their heat map as a PNG there."""
     import torch
 
-    from dlacli.avatar.posed import render_gaussians_of
+    from dlacli.avatar.posed import render_set
     from dlacli.render.splat_stats import composite_stats
     from dlacli.stages.animate import follow_cameras, pose_avatar
 
@@ -230,7 +230,7 @@ def _composite_counts(cfg: SpeedConfig, avatar, row, log) -> dict:
 
     def render():
         with torch.no_grad():
-            render_gaussians_of(g, cam)
+            render_set(g, cam)
 
     med, lo = median_min(render, cfg.repeats)
     stats = composite_stats(g, cam)

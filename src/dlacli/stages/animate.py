@@ -146,12 +146,12 @@ def follow_cameras(pelvis: np.ndarray, fps: float, size: int) -> Cameras:
 def animation_preview_frames(anim: Animation, size: int = 512) -> Iterator[np.ndarray]:
     """RGBA float frames [H, W, 4] of the animation's Gaussians splatted from `follow_cameras`,
     composited by the fast kernel (playback: `exact=False`)."""
-    from dlacli.avatar.posed import render_gaussians_of
+    from dlacli.avatar.posed import render_set
 
     cams = follow_cameras(anim.pelvis, anim.fps, size)
     for t in range(anim.num_frames):
         with torch.no_grad():
-            out = render_gaussians_of(anim.frame(t), cams.select(t), exact=False)
+            out = render_set(anim.frame(t), cams.select(t), exact=False)
         yield out.rgba(0)
 
 

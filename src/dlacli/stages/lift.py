@@ -260,10 +260,10 @@ def view_colours(
 def _render(g: Gaussians, cams: Cameras, colours: torch.Tensor | None):
     """Render g from cams -> (rgb [C, H, W, 3], alpha [C, H, W]); with per-camera colours
     [C, N, 3], each camera sees the Gaussians in its own colours."""
-    from dlacli.avatar.posed import join_renders, render_set
+    from dlacli.avatar.posed import render_set
 
     sh = None if colours is None else rgb_to_sh0(colours)[..., None, :]
-    out = join_renders(o for _, o in render_set(g, cams, sh=sh, per_call=len(cams)))
+    out = render_set(g, cams, sh=sh)
     return out.rgb, out.alpha
 
 

@@ -141,7 +141,7 @@ class GeneratorLoss(nn.Module):
 
     def forward(self, items, stage: str, size: int, noise_seeds: list[int], disc=None):
         from dlacli.avatar.codec import Decoded
-        from dlacli.avatar.posed import PosedAvatar, render_gaussians_of
+        from dlacli.avatar.posed import PosedAvatar, render_set
         from dlacli.nn.encoder import kl_divergence
         from dlacli.nn.learned import subject_depth
         from dlacli.nn.losses import perceptual_loss
@@ -172,7 +172,7 @@ class GeneratorLoss(nn.Module):
             in_cams = it.input_cameras.resized(size, size).to(device)
             in_rgb = _resize(it.input_rgb, size).to(device)
             in_mask = _resize(it.input_mask, size).to(device)
-            ug = render_gaussians_of(pg, in_cams)
+            ug = render_set(pg, in_cams)
             ug_l = (ug.rgb - in_rgb.permute(0, 2, 3, 1)).abs().mean() + (ug.alpha - in_mask[:, 0]).abs().mean()
             t_rgb = _resize(it.target_rgb, size).to(device)  # [T, 3, H, H]
             t_mask = _resize(it.target_mask, size).to(device)
@@ -180,7 +180,7 @@ class GeneratorLoss(nn.Module):
             same = [t for t, kind in enumerate(it.target_kind) if kind == "view"]
             if same:
                 sel = torch.tensor(same)
-                ug2 = render_gaussians_of(pg, t_cams.select(sel))
+                ug2 = render_set(pg, t_cams.select(sel))
                 ug_l = (
                     ug_l
                     + (ug2.rgb - t_rgb[sel].permute(0, 2, 3, 1)).abs().mean()
