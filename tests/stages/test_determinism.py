@@ -128,6 +128,6 @@ def test_lift_writes_the_same_avatar_twice_with_the_same_threads(subject, tmp_pa
     one, two = arrays[1], arrays[2]
     assert sorted(one) == sorted(two)
     assert one["z"].dtype == two["z"].dtype and np.array_equal(one["z"], two["z"])
-    for key in one:  # extra included: the loss history is reduced in a fixed order (lift._mean)
+    for key in one:  # extra included: the loss history is reduced in a fixed order (lift.fixed_order_mean)
         assert np.array_equal(one[key], two[key]), key
     assert isinstance(json.loads(str(one["extra"]))["lift"]["final_loss"], float)

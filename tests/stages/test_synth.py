@@ -213,11 +213,11 @@ def test_lit_colour_follows_the_pose_albedo_does_not():
     from dlacli.data.cameras import INPUT_ELEVATION, synth_orbit_cameras
     from dlacli.data.garments import DressedBody
     from dlacli.data.images import SUPERSAMPLE, render
-    from dlacli.data.subject import _Pose, sample_subject
+    from dlacli.data.subject import BonePose, sample_subject
 
     spec = sample_subject(7)
     body = DressedBody(spec)
-    pose = _Pose(body.full.bone_labels, spec.rotations)
+    pose = BonePose(body.full.bone_labels, spec.rotations)
     pose.rotate("upperarm01.L", y=-np.radians(75))
     pose.rotate("upperarm01.R", y=np.radians(75))
     verts = body.vertices(np.stack([spec.rotations, pose.rot.astype(np.float32)]), torch.zeros(2, 3), torch.zeros(2, 3))

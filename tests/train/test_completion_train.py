@@ -22,10 +22,10 @@ def _fake_samples(dataset, resolution: int = 32) -> None:
     from dlacli.io.atomic import atomic_path
     from dlacli.stages.texture import complete, texel_samples
     from dlacli.train.completion import sample_path
-    from dlacli.train.data import _discover
+    from dlacli.train.data import discover
 
     n = texel_samples(resolution)[0].size
-    for k, (_, _, folder) in enumerate(_discover(dataset)):
+    for k, (_, _, folder) in enumerate(discover(dataset)):
         rng = np.random.default_rng(k)
         colour = rng.uniform(0.2, 0.9, (n, 3)).astype(np.float32)
         weight = np.where(rng.random(n) < 0.4, rng.uniform(0.5, 1.0, n), 0.0).astype(np.float32)

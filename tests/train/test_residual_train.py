@@ -62,7 +62,7 @@ def test_overfitting_one_subject_beats_unprojection_on_its_held_out_views(one_su
     from dlacli.avatar import gaussian_map as gm
     from dlacli.nn.residual import ResidualNet
     from dlacli.train.data import TrainingData
-    from dlacli.train.loop import _psnr
+    from dlacli.train.loop import masked_psnr
     from dlacli.train.residual import ResidualLoss, net_config, precomputed, render_map
 
     cfg = _cfg(size=64, w_delta=0.001)
@@ -104,7 +104,7 @@ def test_overfitting_one_subject_beats_unprojection_on_its_held_out_views(one_su
             psnr = []
             for k in range(len(held_out)):
                 rgb, _ = render_map(z, pre.falloff, held.target_vertices[k], held.target_cameras.select(k), samples)
-                psnr.append(_psnr(rgb[0], held.target_rgb[k].permute(1, 2, 0), held.target_mask[k, 0]))
+                psnr.append(masked_psnr(rgb[0], held.target_rgb[k].permute(1, 2, 0), held.target_mask[k, 0]))
             scores[name] = float(np.mean(psnr))
     assert scores["residual"] > scores["unprojection"] + 0.3, scores
 

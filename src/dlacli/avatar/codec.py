@@ -10,8 +10,9 @@ a Decoded avatar to posed Gaussians is avatar/posed.py.
 
 The non-learned pair is one implementation of the same interface: encoder "unproject" (mesh
 unprojection, stages/lift.py) and decoder "identity" (F = Z: no delta, no checkpoint, linear).
-Learned decoders register themselves with `register_decoder` and load their weights through
-the checkpoint resolver.
+A decoder without weights is known by name (`_DECODERS`: identity and view-cosine; a new one joins
+with `register_decoder`, as the tests' toy decoders do); a learned decoder is not registered but
+found through the checkpoint hash its avatars record (the checkpoint resolver rebuilds it).
 """
 
 from __future__ import annotations

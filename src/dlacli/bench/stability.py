@@ -74,23 +74,23 @@ def make_subject(
     from dlacli.data.images import render
     from dlacli.data.poses import novel_motion
     from dlacli.data.subject import hand_clearance, sample_subject
-    from dlacli.data.synth import _body_params, _view_set
+    from dlacli.data.synth import body_params, view_set
 
     base = sample_subject(seed)
     spec = replace(base, rotations=np.asarray(pose(base), np.float32)) if pose is not None else base
     body = DressedBody(spec)
     zero = torch.zeros(1, 3)
     verts = body.vertices(spec.rotations[None], zero, zero)[0]
-    truth = _body_params(spec, spec.rotations)
+    truth = body_params(spec, spec.rotations)
     from dlacli.geometry import look_at_orbit_cameras
 
     dist = DISTANCE if distance is None else float(distance)
     cams = look_at_orbit_cameras(TARGET, dist, INPUT_AZIMUTHS, INPUT_ELEVATION, FOV_DEG, res)
     rgba = render(body, verts, cams, seed)
-    views = _view_set(rgba, cams, truth, [None] * 4, {})
+    views = view_set(rgba, cams, truth, [None] * 4, {})
     az, el = novel_view_angles(novel_views)
     ncams = synth_orbit_cameras(az, el, res)
-    nv = _view_set(render(body, verts, ncams, seed), ncams, truth, [None] * novel_views, {})
+    nv = view_set(render(body, verts, ncams, seed), ncams, truth, [None] * novel_views, {})
     motion = novel_motion(seed, base, novel_poses)
     posed_body = DressedBody(base) if pose is not None else body
     posed = posed_body.vertices(
@@ -100,7 +100,7 @@ def make_subject(
     cams1 = synth_orbit_cameras(POSE_AZIMUTHS, INPUT_ELEVATION, res)
     pcams = Cameras(cams1.viewmats.repeat(novel_poses, 1, 1), cams1.Ks.repeat(novel_poses, 1, 1), res, res)
     prgba = render(posed_body, np.repeat(posed, k, axis=0), pcams, seed)
-    npose = _view_set(prgba, pcams, _body_params(base, None), [t for t in range(novel_poses) for _ in range(k)], {})
+    npose = view_set(prgba, pcams, body_params(base, None), [t for t in range(novel_poses) for _ in range(k)], {})
     rows = np.nonzero(views.masks.max(axis=(0, 2)) > 0.5)[0]
     info = {
         "fill": float((rows.max() - rows.min() + 1) / res) if rows.size else 0.0,
@@ -204,9 +204,9 @@ def extreme_pose(spec, degrees: float) -> np.ndarray:
     """The relaxed pose plus both arms raised, one leg stepping and the spine bent, `degrees` each
     (legs 0.6x, knee 0.8x, spine 0.25x)."""
     from dlacli.body.model import get_body_model
-    from dlacli.data.subject import _Pose
+    from dlacli.data.subject import BonePose
 
-    p = _Pose(get_body_model().bone_labels, spec.rotations)
+    p = BonePose(get_body_model().bone_labels, spec.rotations)
     a = math.radians(degrees)
     for side, s in (("L", 1.0), ("R", -1.0)):
         p.rotate(f"upperarm01.{side}", y=-s * a)
@@ -219,9 +219,9 @@ def extreme_pose(spec, degrees: float) -> np.ndarray:
 def self_contact(spec, degrees: float) -> np.ndarray:
     """The relaxed pose with both upper arms brought `degrees` further down against the torso."""
     from dlacli.body.model import get_body_model
-    from dlacli.data.subject import _Pose
+    from dlacli.data.subject import BonePose
 
-    p = _Pose(get_body_model().bone_labels, spec.rotations)
+    p = BonePose(get_body_model().bone_labels, spec.rotations)
     for side, s in (("L", 1.0), ("R", -1.0)):
         p.rotate(f"upperarm01.{side}", y=s * math.radians(degrees))
     return p.rot

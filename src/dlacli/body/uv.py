@@ -39,7 +39,7 @@ def _layout() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 @functools.lru_cache(maxsize=1)
-def _layout_hash() -> str:
+def layout_hash() -> str:
     _, uv, face_uv = _layout()
     h = hashlib.sha256(np.ascontiguousarray(uv).tobytes())
     h.update(np.ascontiguousarray(face_uv).tobytes())
@@ -55,7 +55,7 @@ def uv_raster(resolution: int):
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 1:
         raise DlaInputError("resolution", f"expected an integer >= 1, got {resolution!r}")
     r = int(resolution)
-    path = cache_dir("uv") / f"{UV_LAYOUT}_{_layout_hash()}_{r}.npz"
+    path = cache_dir("uv") / f"{UV_LAYOUT}_{layout_hash()}_{r}.npz"
     if path.exists():
         try:
             with np.load(path) as z:

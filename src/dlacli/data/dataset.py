@@ -15,7 +15,7 @@ import torch
 
 from dlacli.data.appearance import APPEARANCES
 from dlacli.data.cameras import POSE_AZIMUTHS
-from dlacli.data.synth import SUBJECT_LAYOUT, _check_options, synth
+from dlacli.data.synth import SUBJECT_LAYOUT, check_options, synth
 from dlacli.errors import DlaInputError, excerpt, one_line
 
 Progress = Callable[[str], None]
@@ -230,7 +230,7 @@ def _differences(old: dict, new: dict) -> str:
     return "; ".join(f"{one_line(k, 40)} {show(k, old.get(k))} there, {show(k, new.get(k))} now" for k in keys[:3])
 
 
-def _single_threaded() -> tuple[int, int]:
+def single_threaded() -> tuple[int, int]:
     """Pin torch and numba to one thread (a dataset worker; results then do not depend on --jobs)."""
     import numba
 
@@ -275,7 +275,7 @@ def synth_dataset(
             "--appearance", f"must be one of {', '.join(DATASET_APPEARANCES)}, got {settings.appearance!r}"
         )
     concrete = subject_appearance(0, settings.appearance)
-    _check_options(settings.res, settings.novel_views, settings.novel_poses, concrete, settings.wardrobe)
+    check_options(settings.res, settings.novel_views, settings.novel_poses, concrete, settings.wardrobe)
     say = progress or (lambda msg: None)
     out = Path(out)
     layout = [MANIFEST, "subject_*", *(f"subject_*/{p}" for p in SUBJECT_LAYOUT)]
@@ -331,7 +331,7 @@ def synth_dataset(
         say(f"{subject_name(seed)}: {seconds:.1f} s, {entries[seed]['bytes'] / 1e6:.2f} MB ({n}/{len(todo)})")
 
     if jobs == 1 or len(tasks) <= 1:
-        before = _single_threaded()
+        before = single_threaded()
         try:
             for n, task in enumerate(tasks, start=1):
                 finished(n, *_make_subject(task))
@@ -347,7 +347,7 @@ def synth_dataset(
         # an executor, not multiprocessing.Pool: a worker that dies (killed, out of memory) breaks
         # the pool with an error instead of being replaced while its subject waits forever
         ctx = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=ctx, initializer=_single_threaded) as pool:
+        with cf.ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=ctx, initializer=single_threaded) as pool:
             futures = [pool.submit(_make_subject, task) for task in tasks]
             try:
                 for n, fut in enumerate(cf.as_completed(futures), start=1):

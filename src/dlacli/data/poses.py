@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dlacli.data.subject import SubjectSpec, _deg, _Pose
+from dlacli.data.subject import BonePose, SubjectSpec, radians_between
 from dlacli.types import Motion
 
 POSE_KINDS = ("arms_raised", "step", "turn", "reach")
@@ -32,23 +32,23 @@ def novel_motion(seed: int, spec: SubjectSpec, n: int) -> Motion:
     root = np.zeros((n, 3), np.float32)
     for t in range(n):
         kind = POSE_KINDS[t % len(POSE_KINDS)]
-        p = _Pose(labels, spec.rotations)
+        p = BonePose(labels, spec.rotations)
         side, s = (("L", 1.0), ("R", -1.0))[int(rng.integers(2))]
         if kind == "arms_raised":
             for sd, sg in (("L", 1.0), ("R", -1.0)):
-                p.rotate(f"upperarm01.{sd}", y=-sg * _deg(rng, 45, 85))
+                p.rotate(f"upperarm01.{sd}", y=-sg * radians_between(rng, 45, 85))
         elif kind == "step":
-            p.rotate(f"upperleg01.{side}", x=-_deg(rng, 15, 30))
-            p.rotate(f"lowerleg01.{side}", x=_deg(rng, 10, 35))
+            p.rotate(f"upperleg01.{side}", x=-radians_between(rng, 15, 30))
+            p.rotate(f"lowerleg01.{side}", x=radians_between(rng, 10, 35))
             other = "R" if side == "L" else "L"
-            p.rotate(f"upperleg01.{other}", x=_deg(rng, 5, 15))
+            p.rotate(f"upperleg01.{other}", x=radians_between(rng, 5, 15))
         elif kind == "turn":
-            root[t] = [0.0, 0.0, s * _deg(rng, 30, 75)]
-            p.rotate("spine03", z=s * _deg(rng, 5, 15))
-            p.rotate("neck01", z=s * _deg(rng, 5, 20))
+            root[t] = [0.0, 0.0, s * radians_between(rng, 30, 75)]
+            p.rotate("spine03", z=s * radians_between(rng, 5, 15))
+            p.rotate("neck01", z=s * radians_between(rng, 5, 20))
         else:  # reach: one arm forward
-            p.rotate(f"upperarm01.{side}", x=-_deg(rng, 40, 80), y=-s * _deg(rng, 10, 25))
-            p.rotate(f"lowerarm01.{side}", x=-_deg(rng, 0, 20))
+            p.rotate(f"upperarm01.{side}", x=-radians_between(rng, 40, 80), y=-s * radians_between(rng, 10, 25))
+            p.rotate(f"lowerarm01.{side}", x=-radians_between(rng, 0, 20))
         rots[t] = p.rot
     return Motion(list(labels), rots, root, np.zeros((n, 3), np.float32), 30.0)
 

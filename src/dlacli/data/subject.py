@@ -46,7 +46,7 @@ class SubjectSpec:
     palette: dict[str, dict] = field(default_factory=dict)  # material -> colours and pattern
 
 
-class _Pose:
+class BonePose:
     """Per-bone rotations composed as R = Rz Ry Rx about the zero pose's world axes (radians)."""
 
     def __init__(self, labels: list[str], base: np.ndarray | None = None):
@@ -59,23 +59,23 @@ class _Pose:
         self.rot[j] = r.as_rotvec()
 
 
-def _deg(rng: np.random.Generator, lo: float, hi: float) -> float:
+def radians_between(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(np.radians(rng.uniform(lo, hi)))
 
 
 def relaxed_pose(rng: np.random.Generator, labels: list[str], lower: float) -> np.ndarray:
     """[J, 3] a standing pose: arms `lower` degrees down from anny's A-pose, slight elbow and
     knee bend, small random variation of spine, neck and wrists."""
-    p = _Pose(labels)
+    p = BonePose(labels)
     for side, s in (("L", 1.0), ("R", -1.0)):
-        p.rotate(f"upperarm01.{side}", y=s * np.radians(lower), x=_deg(rng, -6, 6))
-        p.rotate(f"lowerarm01.{side}", x=_deg(rng, 15, 28))
-        p.rotate(f"wrist.{side}", x=_deg(rng, -8, 8), y=_deg(rng, -6, 6))
-        knee = _deg(rng, 0, 6)
-        p.rotate(f"upperleg01.{side}", x=-knee / 2, y=s * _deg(rng, -2, 2))
+        p.rotate(f"upperarm01.{side}", y=s * np.radians(lower), x=radians_between(rng, -6, 6))
+        p.rotate(f"lowerarm01.{side}", x=radians_between(rng, 15, 28))
+        p.rotate(f"wrist.{side}", x=radians_between(rng, -8, 8), y=radians_between(rng, -6, 6))
+        knee = radians_between(rng, 0, 6)
+        p.rotate(f"upperleg01.{side}", x=-knee / 2, y=s * radians_between(rng, -2, 2))
         p.rotate(f"lowerleg01.{side}", x=knee)
-    p.rotate("spine03", z=_deg(rng, -3, 3), x=_deg(rng, -2, 2))
-    p.rotate("neck01", z=_deg(rng, -8, 8), x=_deg(rng, -4, 4))
+    p.rotate("spine03", z=radians_between(rng, -3, 3), x=radians_between(rng, -2, 2))
+    p.rotate("neck01", z=radians_between(rng, -8, 8), x=radians_between(rng, -4, 4))
     return p.rot.astype(np.float32)
 
 

@@ -34,7 +34,7 @@ from dlacli.types import BodyParams, Cameras, ViewSet
 Progress = Callable[[str], None]
 
 
-def _body_params(spec: SubjectSpec, rotations: np.ndarray | None) -> BodyParams:
+def body_params(spec: SubjectSpec, rotations: np.ndarray | None) -> BodyParams:
     from dlacli.body.model import rotations_to_pose
 
     pose = {} if rotations is None else rotations_to_pose(rotations)
@@ -42,7 +42,7 @@ def _body_params(spec: SubjectSpec, rotations: np.ndarray | None) -> BodyParams:
     return BodyParams(phenotype=dict(spec.phenotype), pose=pose)
 
 
-def _view_set(rgba: np.ndarray, cams: Cameras, body: BodyParams, times, extra: dict) -> ViewSet:
+def view_set(rgba: np.ndarray, cams: Cameras, body: BodyParams, times, extra: dict) -> ViewSet:
     return ViewSet(
         images=rgba[..., :3], masks=rgba[..., 3], cameras=cams, body=body, file_paths=[], times=list(times), extra=extra
     )
@@ -63,7 +63,7 @@ SUBJECT_LAYOUT = (
 )
 
 
-def _check_options(res, novel_views, novel_poses, appearance: str, wardrobe: str) -> None:
+def check_options(res, novel_views, novel_poses, appearance: str, wardrobe: str) -> None:
     checks = (("--res", res, 16), ("--novel-views", novel_views, 0), ("--novel-poses", novel_poses, 0))
     for name, value, lo in checks:
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < lo:
@@ -94,7 +94,7 @@ def render_subject(
     body.json's pose, root at the origin) from any cameras -> RGBA [C, H, W, 4] float32 (straight
     alpha), rendered exactly as `synth` renders its views (the benchmarks' ground truth for
     cameras the subject folder does not hold). `light_view`: see `dlacli.data.images.render`."""
-    _check_options(16, 0, 0, appearance, wardrobe)
+    check_options(16, 0, 0, appearance, wardrobe)
     _, body, lighting, verts, ao = _dressed_subject(seed, appearance, wardrobe)
     return render(body, verts, cameras, seed, lighting=lighting, ao=ao, light_view=light_view)
 
@@ -122,7 +122,7 @@ def synth(
     from dlacli.io.motion import write_motion
     from dlacli.io.views import write_views
 
-    _check_options(res, novel_views, novel_poses, appearance, wardrobe)
+    check_options(res, novel_views, novel_poses, appearance, wardrobe)
     say = progress or (lambda msg: None)
     out = Path(out)
     say("sampling and dressing the subject")
@@ -137,7 +137,7 @@ def synth(
         info["wardrobe"] = wardrobe
     if lighting is not None:
         info.update(appearance=appearance, lighting=lighting.as_dict())
-    truth = _body_params(spec, spec.rotations)
+    truth = body_params(spec, spec.rotations)
     az0, el0, yaw = input_rig(seed, random_yaw)
     with atomic_dir(out) as tmp:
         say("rendering the 4 input views")
@@ -146,7 +146,7 @@ def synth(
         rig = {"azimuths": list(INPUT_AZIMUTHS), "elevation": INPUT_ELEVATION}
         if random_yaw:
             rig = {"azimuths": az0.tolist(), "elevations": el0.tolist(), "start_yaw": yaw}
-        write_views(_view_set(rgba, cams, truth, [None] * 4, {"synth": {**info, **rig}}), tmp)
+        write_views(view_set(rgba, cams, truth, [None] * 4, {"synth": {**info, **rig}}), tmp)
         if novel_views:
             say(f"rendering {novel_views} novel views")
             az, el = novel_view_angles(novel_views)
@@ -154,7 +154,7 @@ def synth(
             cams = synth_orbit_cameras(az, el, res)
             rgba = render(body, verts, cams, seed, lighting=lighting, ao=ao)
             extra = {"synth": {**info, "azimuths": az.tolist(), "elevations": el.tolist()}}
-            write_views(_view_set(rgba, cams, truth, [None] * novel_views, extra), tmp / "novel_views")
+            write_views(view_set(rgba, cams, truth, [None] * novel_views, extra), tmp / "novel_views")
         if novel_poses:
             motion, kinds = target_motion(seed, spec, novel_poses, motions)
             say(f"rendering {novel_poses} novel poses x {len(POSE_AZIMUTHS)} cameras")
@@ -173,6 +173,6 @@ def synth(
                 "motion": "motion.npz",
                 "pose_kinds": kinds,
             }
-            write_views(_view_set(rgba, cams, _body_params(spec, None), times, extra), tmp / "novel_poses")
+            write_views(view_set(rgba, cams, body_params(spec, None), times, extra), tmp / "novel_poses")
             write_motion(motion, tmp / "novel_poses" / "motion.npz")
     return out

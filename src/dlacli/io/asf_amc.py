@@ -34,11 +34,11 @@ from dlacli.errors import DlaInputError, excerpt, excerpts
 from dlacli.io.bvh import (
     MAX_DEPTH,
     MAX_JOINTS,
-    _next_line,
-    _read_text,
     check_angles,
     check_motion_size,
     check_skeleton_bounds,
+    next_line,
+    read_motion_text,
 )
 from dlacli.kinematics import euler_matrices, rest_height
 from dlacli.types import SkeletonMotion
@@ -113,7 +113,7 @@ def _axis_order(word: str, where: Path, what: str) -> str:
 def read_asf(path: str | os.PathLike) -> Asf:
     """Parse an ASF skeleton; bad content raises DlaInputError naming the file and the problem."""
     path = Path(path)
-    sec = _sections(_read_text(path, MAX_ASF_BYTES))
+    sec = _sections(read_motion_text(path, MAX_ASF_BYTES))
     for need in ("root", "bonedata", "hierarchy"):
         if need not in sec:
             raise DlaInputError(path, f"not an ASF skeleton: no :{need} section (truncated file?)")
@@ -247,7 +247,7 @@ def read_amc(amc_path: str | os.PathLike, asf: Asf | str | os.PathLike, fps: flo
     amc_path = Path(amc_path)
     if not isinstance(asf, Asf):
         asf = read_asf(asf)
-    text = _read_text(amc_path)
+    text = read_motion_text(amc_path)
 
     names = _order_bones(asf.children)
     moving = ["root"] + [b for b in names if asf.bones[b].dofs]
@@ -257,7 +257,7 @@ def read_amc(amc_path: str | os.PathLike, asf: Asf | str | os.PathLike, fps: flo
     frames, seen = 0, set()
     pos = last = 0
     n = 1  # line number
-    while (span := _next_line(text, pos)) is not None:
+    while (span := next_line(text, pos)) is not None:
         start, end, pos = span
         n += text.count("\n", last, start)
         last = start

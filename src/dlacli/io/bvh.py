@@ -16,7 +16,7 @@ skeleton's height.
 Hostile files: the readers of this module, `asf_amc` and `amass` share the limits below
 (`MAX_*` (MAX_FPS and MAX_FRAMES come from `dlacli.types`), `check_motion_size`, and
 `check_skeleton_bounds`: motion.npz's bounds on distances and angles) and read text
-through `_read_text` (regular files only, size capped); `Frames:` is checked against the data
+through `read_motion_text` (regular files only, size capped); `Frames:` is checked against the data
 present before anything is allocated for it, and hierarchies are parsed without recursion
 (docs/motion.md, "Limits").
 """
@@ -72,7 +72,7 @@ MAX_JOINTS = 1024
 MAX_JOINT_FRAMES = 20_000_000  # frames x joints (the local rotations alone: 72 bytes each)
 
 
-def _read_text(path: str | os.PathLike, max_bytes: int | None = None) -> str:
+def read_motion_text(path: str | os.PathLike, max_bytes: int | None = None) -> str:
     """The text of a BVH, ASF or AMC file (UTF-8, bad bytes replaced) through the shared input
     checks (`dlacli.io.files`: regular files only, at most `max_bytes` (default MAX_TEXT_BYTES),
     never blocking on a FIFO); old Mac line ends ("\r") become "\n"."""
@@ -268,7 +268,7 @@ def read_bvh(path: str | os.PathLike, metres_per_unit: float | None = None) -> S
     present before anything is allocated for it.
     """
     path = Path(path)
-    text = _read_text(path)
+    text = read_motion_text(path)
     tok = _Tokens(text, path)
     first = tok.next_or_none()
     if first is None or first.upper() != "HIERARCHY":
@@ -345,7 +345,7 @@ def read_bvh(path: str | os.PathLike, metres_per_unit: float | None = None) -> S
     return skel
 
 
-def _next_line(text: str, pos: int) -> tuple[int, int, int] | None:
+def next_line(text: str, pos: int) -> tuple[int, int, int] | None:
     """(start, end, next pos) of the next non-blank line at or after `pos`, or None."""
     m = _NON_SPACE.search(text, pos)
     if m is None:
@@ -364,7 +364,7 @@ def _parse_motion(text: str, pos: int, path: Path, num_channels: int, num_joints
 
     header: dict[str, str] = {}
     while len(header) < 2:
-        span = _next_line(text, pos)
+        span = next_line(text, pos)
         if span is None:
             break
         start, end, pos = span
@@ -410,13 +410,13 @@ def _parse_motion(text: str, pos: int, path: Path, num_channels: int, num_joints
 
     data = np.empty((frames, num_channels))
     for f in range(frames):
-        span = _next_line(text, pos)
+        span = next_line(text, pos)
         if span is None:
             raise DlaInputError(path, f"truncated: Frames: {frames}, but only {f} frame lines follow")
         start, end, pos = span
         words = text[start:end].split()
         if len(words) != num_channels:
-            last = f == frames - 1 and _next_line(text, pos) is None
+            last = f == frames - 1 and next_line(text, pos) is None
             if last and len(words) < num_channels:
                 raise DlaInputError(
                     path, f"truncated: the last frame (line {line_no(start)}) has {len(words)} of {num_channels} values"
@@ -431,7 +431,7 @@ def _parse_motion(text: str, pos: int, path: Path, num_channels: int, num_joints
             raise DlaInputError(
                 path, f"line {line_no(start)}: non-numeric value {excerpt(bad)} in the MOTION data"
             ) from None
-    span = _next_line(text, pos)
+    span = next_line(text, pos)
     if span is not None:
         more = _count_lines(text, span[0])
         raise DlaInputError(

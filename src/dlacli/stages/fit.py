@@ -60,12 +60,12 @@ FIT_BONES = (
 )
 FREE_PHENOTYPE = ("height", "weight", "gender", "age")
 # per-bone weight of the "stay near the zero pose" prior (spine, neck and head are stiffer)
-_BONE_PRIOR = (4.0, 4.0, 2.0, 1.0, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.2, 0.2)
+BONE_PRIOR = (4.0, 4.0, 2.0, 1.0, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.2, 0.2)
 # Joint limits, radians, per world-aligned axis (x, y, z) of the local-ref rotation (the body
 # faces -Y): spine/neck/head +x bends forward; hip -x lifts the leg forward, z twists it; knee +x
 # flexes. Shoulders and elbows are limited only by the prior above. Generous on purpose.
-_INF = 10.0
-_LIMITS = {
+NO_LIMIT = 10.0
+JOINT_LIMITS = {
     "spine03": ((-0.5, 0.8), (-0.5, 0.5), (-0.6, 0.6)),
     "spine01": ((-0.5, 0.8), (-0.5, 0.5), (-0.6, 0.6)),
     "neck01": ((-0.6, 0.8), (-0.6, 0.6), (-0.8, 0.8)),
@@ -134,7 +134,7 @@ def photo_camera(width: int, height: int, center=(0.0, 0.0, 0.0)) -> Cameras:
     return Cameras(torch.from_numpy(w2c[None]).float(), torch.from_numpy(k[None]).float(), int(width), int(height))
 
 
-def _project_fit(points: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+def project_fit(points: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
     """points [..., N, 3] in the fitting world (camera at the origin), K [3, 3] -> pixels [..., N, 2]."""
     return project_points(points, _FIT_VIEWMAT.to(points), K, _FIT_NEAR)[0]
 
@@ -291,7 +291,7 @@ def limb_loss(pts17: torch.Tensor, dirs: torch.Tensor, wts: torch.Tensor, sigma:
     return (wts * rho).sum(-1) / wts.sum().clamp(min=1e-6)
 
 
-def _facing_from_landmarks(lm: np.ndarray) -> np.ndarray | None:
+def facing_from_landmarks(lm: np.ndarray) -> np.ndarray | None:
     """Root rotation [3] (a turn about +Z) that points the body's left (+X at rest) along the
     landmarks' right->left shoulder and hip lines, or None when they are not confident."""
     v = np.zeros(3)
@@ -377,8 +377,8 @@ def _fit(image, mask, keypoints, landmarks_3d, steps, progress, surface_samples,
     face_id, bary = sample_surface(surface_samples, seed=0)
     rig = PointRig((model.faces[face_id], bary), free_keys=FREE_PHENOTYPE, model=model)
     bone_ids = torch.tensor([model.bone_index(b) for b in FIT_BONES])
-    prior_w = torch.tensor(_BONE_PRIOR)[:, None]  # [B, 1]
-    lim = torch.tensor([_LIMITS.get(b, ((-_INF, _INF),) * 3) for b in FIT_BONES])  # [B, 3, 2]
+    prior_w = torch.tensor(BONE_PRIOR)[:, None]  # [B, 1]
+    lim = torch.tensor([JOINT_LIMITS.get(b, ((-NO_LIMIT, NO_LIMIT),) * 3) for b in FIT_BONES])  # [B, 3, 2]
 
     with torch.no_grad():
         rest_pts, _ = rig(None, torch.zeros(model.num_bones, 3), torch.zeros(3), torch.zeros(3))
@@ -413,7 +413,7 @@ def _fit(image, mask, keypoints, landmarks_3d, steps, progress, surface_samples,
         use_sil = (step >= n_sil) if silhouette is None else silhouette
         phen = torch.sigmoid(st.phen_logit[0]) if stage == "C" else None  # one start by stage C
         pts = posed(st.pose, st.root_r, st.root_t, phen, keypoints_only=not use_sil)  # [S, P, 3]
-        uv = _project_fit(pts[:, :NUM_KEYPOINTS], Kt)  # [S, 17, 2]
+        uv = project_fit(pts[:, :NUM_KEYPOINTS], Kt)  # [S, 17, 2]
         r2 = ((uv - target) ** 2).sum(-1) / scale_px**2  # [S, 17]
         if stage == "A":
             wk = conf * (torso_w + 0.1)
@@ -424,7 +424,7 @@ def _fit(image, mask, keypoints, landmarks_3d, steps, progress, surface_samples,
         if dirs is not None:
             loss = loss + LIMB_WEIGHT * limb_loss(pts[:, :NUM_KEYPOINTS], dirs, dir_w)
         if use_sil:
-            loss = loss + sil_weight * torch.stack([sil(_project_fit(p[NUM_KEYPOINTS:], Kt)) for p in pts])
+            loss = loss + sil_weight * torch.stack([sil(project_fit(p[NUM_KEYPOINTS:], Kt)) for p in pts])
         if stage == "C":
             loss = loss + 0.01 * ((phen - 0.5) ** 2).sum()
         return loss
@@ -450,7 +450,7 @@ def _fit(image, mask, keypoints, landmarks_3d, steps, progress, surface_samples,
 
     names, rrs, poses, thighs = ["default"], [rr0], [torch.zeros(len(FIT_BONES), 3)], [True]
     if lm is not None:
-        facing = _facing_from_landmarks(lm)
+        facing = facing_from_landmarks(lm)
         rr_lm = rr0 if facing is None else facing
         limb = _most_ambiguous_limb(lm)
         flipped = dirs.clone()

@@ -217,7 +217,7 @@ def unproject_to_uv(gaussians: Gaussians, eyes: np.ndarray, vertices: np.ndarray
 _CHANNEL_STEP = torch.tensor([5.0, 0, 0, 0, 0, 0, 0.1, 1, 1, 1, 1, 1, 1, 1])
 
 
-def _mean(x: torch.Tensor, rows: int = 1024) -> torch.Tensor:
+def fixed_order_mean(x: torch.Tensor, rows: int = 1024) -> torch.Tensor:
     """Mean whose value does not depend on the thread count: torch splits a reduction to one
     number of more than 32,768 elements over its threads, but sums each row of a [rows, -1]
     view on one thread and the `rows` row sums serially. Same gradient as x.mean()."""
@@ -312,11 +312,11 @@ def refine(
         f = base + delta * step_scale
         (g,) = gm.gaussians_at_frames(f, samples, frames)
         rgb, alpha = _render(g, cams, colours)
-        value = _mean((rgb - target_rgb).abs()) * (rgb.numel() / (3 * n_pixels))
-        value = value + cfg.w_mask * _mean((alpha - target_mask).abs()) * (alpha.numel() / n_pixels)
+        value = fixed_order_mean((rgb - target_rgb).abs()) * (rgb.numel() / (3 * n_pixels))
+        value = value + cfg.w_mask * fixed_order_mean((alpha - target_mask).abs()) * (alpha.numel() / n_pixels)
         if cfg.w_ssim:
             s = ssim_map(rgb, target_rgb)  # 1 - SSIM is 0 on the black outside the windows
-            value = value + cfg.w_ssim * _mean(1.0 - s) * (s.numel() / n_ssim)
+            value = value + cfg.w_ssim * fixed_order_mean(1.0 - s) * (s.numel() / n_ssim)
         if w_smooth:
             value = value + w_smooth * _roughness(f[gm.OFFSET][2], pairs)
         return value
@@ -373,7 +373,7 @@ def _roughness(normal_offset: torch.Tensor, pairs: tuple[torch.Tensor, torch.Ten
     right, down = (m.to(normal_offset.dtype) for m in pairs)
     dr = (normal_offset[:, 1:] - normal_offset[:, :-1]) / ROUGHNESS_UNIT
     dd = (normal_offset[1:, :] - normal_offset[:-1, :]) / ROUGHNESS_UNIT
-    total = _mean(dr * dr * right) * dr.numel() + _mean(dd * dd * down) * dd.numel()
+    total = fixed_order_mean(dr * dr * right) * dr.numel() + fixed_order_mean(dd * dd * down) * dd.numel()
     return total / float(right.sum() + down.sum())
 
 

@@ -22,7 +22,7 @@ by window, overlapping, the shape from the first) are optimised together by Adam
 - foot contact: where an ankle is still in the image (`foot_contacts`), the squared frame-to-frame
   displacement of that ankle's 3D keypoint (no skating);
 - a prior of the phenotype to 0.5 (it is shared by the clip).
-Initialisation per frame: the root's facing from the landmarks (`fit._facing_from_landmarks`),
+Initialisation per frame: the root's facing from the landmarks (`fit.facing_from_landmarks`),
 its depth from the torso's pixel length, the limbs by inverse kinematics on the prior's
 directions. Coarse to fine: the root alone on the torso keypoints first (`ROOT_STAGE` of the
 steps), then everything; the phenotype from half-way.
@@ -43,17 +43,17 @@ from dlacli.body.model import get_body_model
 from dlacli.body.moving_rig import MovingRig
 from dlacli.limits import VIDEO_FIT_STEPS, VIDEO_FIT_WINDOW
 from dlacli.stages.fit import (
-    _BONE_PRIOR,
-    _INF,
-    _LIMITS,
+    BONE_PRIOR,
     FIT_BONES,
     FREE_PHENOTYPE,
+    JOINT_LIMITS,
     LIMB_SEGMENTS,
     LIMB_SIGMA,
-    _facing_from_landmarks,
-    _project_fit,
+    NO_LIMIT,
+    facing_from_landmarks,
     geman_mcclure,
     photo_intrinsics,
+    project_fit,
 )
 
 if TYPE_CHECKING:
@@ -74,9 +74,9 @@ CONTACT_CONF = 0.5
 # which carry the shoulders and the head (without them the shoulders of a retargeted CMU clip sit
 # 70 mm off on the default body); their "near the zero pose" prior weights and joint limits
 VIDEO_BONES = (*FIT_BONES, "clavicle.L", "clavicle.R", "spine05", "neck02")
-_VIDEO_PRIOR = (*_BONE_PRIOR, 0.5, 0.5, 4.0, 2.0)
+_VIDEO_PRIOR = (*BONE_PRIOR, 0.5, 0.5, 4.0, 2.0)
 _VIDEO_LIMITS = {
-    **_LIMITS,
+    **JOINT_LIMITS,
     "clavicle.L": ((-0.6, 0.6), (-1.0, 1.0), (-0.8, 0.8)),
     "clavicle.R": ((-0.6, 0.6), (-1.0, 1.0), (-0.8, 0.8)),
     "spine05": ((-0.5, 0.8), (-0.5, 0.5), (-0.6, 0.6)),
@@ -209,7 +209,7 @@ def _initial_roots(kp: np.ndarray, lm: np.ndarray, K: np.ndarray, rest_kp: np.nd
     t = ray * depth[:, None] - hip_rest
     yaw = np.zeros(n)
     for i in range(n):
-        facing = _facing_from_landmarks(lm[i])
+        facing = facing_from_landmarks(lm[i])
         if facing is not None:
             yaw[i] = facing[2]
         elif kp[i, 5, 2] >= MIN_CONF and kp[i, 6, 2] >= MIN_CONF and kp[i, 5, 0] < kp[i, 6, 0]:
@@ -242,7 +242,7 @@ class _Window:
             torch.from_numpy(np.nonzero(pair & contacts[:-1, s] & contacts[1:, s])[0]) for s in range(2)
         ]
         self.prior_w = torch.tensor(_VIDEO_PRIOR)[:, None]  # [B, 1]
-        self.lim = torch.tensor([_VIDEO_LIMITS.get(b, ((-_INF, _INF),) * 3) for b in VIDEO_BONES])  # [B, 3, 2]
+        self.lim = torch.tensor([_VIDEO_LIMITS.get(b, ((-NO_LIMIT, NO_LIMIT),) * 3) for b in VIDEO_BONES])  # [B, 3, 2]
         torso = torch.zeros(NUM_KEYPOINTS)
         torso[list(TORSO)] = 1.0
         self.torso_w = torso + 0.1
@@ -277,7 +277,7 @@ class _Window:
     def loss(self, stage_root: bool, sigma: float, use_shape: bool) -> torch.Tensor:
         phen = torch.sigmoid(self.phen_logit) if use_shape else None
         pts = self.points(phen)  # [N, 17, 3]
-        uv = _project_fit(pts, self.Kt)  # [N, 17, 2]
+        uv = project_fit(pts, self.Kt)  # [N, 17, 2]
         r2 = ((uv - self.target) ** 2).sum(-1) / self.height_px**2  # [N, 17]
         if stage_root:
             w = self.conf * self.torso_w
@@ -472,7 +472,7 @@ def _reprojection(rig: MovingRig, phen: torch.Tensor, kp, rot, rr, rt, K) -> np.
     """[N] median pixel error of each frame's confident keypoints (NaN where none)."""
     as_t = lambda x: torch.from_numpy(np.asarray(x, np.float32))  # noqa: E731
     pts = rig(phen, as_t(rot), as_t(rr), as_t(rt))
-    uv = _project_fit(pts, torch.from_numpy(K).float()).numpy()
+    uv = project_fit(pts, torch.from_numpy(K).float()).numpy()
     err = np.linalg.norm(uv - kp[..., :2], axis=-1)
     err = np.where(kp[..., 2] >= MIN_CONF, err, np.nan)
     out = np.full(len(err), np.nan)

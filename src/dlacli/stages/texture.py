@@ -113,11 +113,11 @@ def rest_texel_points(resolution: int) -> np.ndarray:
 
 def _cached(name: str, resolution: int, build) -> np.ndarray:
     """An int64 texel map, cached on disk beside the UV rasters (cache_dir("uv"))."""
-    from dlacli.body.uv import UV_LAYOUT, _layout_hash
+    from dlacli.body.uv import UV_LAYOUT, layout_hash
     from dlacli.io.atomic import atomic_path
     from dlacli.paths import cache_dir
 
-    path = cache_dir("uv") / f"{UV_LAYOUT}_{_layout_hash()}_{resolution}_{name}.npy"
+    path = cache_dir("uv") / f"{UV_LAYOUT}_{layout_hash()}_{resolution}_{name}.npy"
     n = texel_samples(resolution)[0].size
     if path.exists():
         try:

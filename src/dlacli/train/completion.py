@@ -188,9 +188,9 @@ def cached_sample(folder: Path, resolution: int, target_light: str = "world") ->
 
 
 def _sample_worker(task: tuple[str, int, str]) -> tuple[str, bool]:
-    from dlacli.data.dataset import _single_threaded
+    from dlacli.data.dataset import single_threaded
 
-    _single_threaded()
+    single_threaded()
     folder, resolution, target_light = task
     return folder, cached_sample(Path(folder), resolution, target_light) is not None
 
@@ -309,11 +309,11 @@ def _settings(cfg: CompletionTrainConfig, data: str) -> dict:
 def load_samples(data, cfg: CompletionTrainConfig, jobs: int = 1, log=None):
     """(train ids, validation ids, train Samples, validation Samples or None); a subject whose
     photo shows no detectable person is left out (and said so)."""
-    from dlacli.train.data import _discover, split_subjects
+    from dlacli.train.data import discover, split_subjects
 
     say = log or (lambda line: None)
     train_ids, val_ids = split_subjects(data, cfg.validation)
-    folders = {name: folder for _, name, folder in _discover(Path(data))}
+    folders = {name: folder for _, name, folder in discover(Path(data))}
     prepare_samples([folders[n] for n in val_ids + train_ids], cfg.resolution, jobs, say, cfg.target_light)
     out = []
     for ids in (train_ids, val_ids):
@@ -342,7 +342,7 @@ def train_completion(
     checkpoint) after that many steps in all, to be resumed later."""
     from dlacli.avatar.checkpoint import load_checkpoint
     from dlacli.nn.completion import CompletionNet
-    from dlacli.train.loop import _save_png, init_world, new_record, resumed_record, start_run
+    from dlacli.train.loop import init_world, new_record, resumed_record, save_png, start_run
 
     world = init_world()
     if world.size > 1:
@@ -395,7 +395,7 @@ def train_completion(
             scores, picture = validate(net, val, cfg)
             net.train()
             record["validation"].append({"step": step + 1, **{k: round(v, 4) for k, v in scores.items()}})
-            _save_png(out / "val" / f"step_{step + 1:06d}.png", picture)
+            save_png(out / "val" / f"step_{step + 1:06d}.png", picture)
             say(
                 f"validation at step {step + 1}: unseen texels {scores['psnr_masked']:.2f} dB "
                 f"(rule {scores['base_psnr_masked']:.2f}), all {scores['psnr']:.2f} dB (rule {scores['base_psnr']:.2f})"
@@ -407,7 +407,7 @@ def train_completion(
 
 def _checkpoint(out: Path, record: dict, net, ncfg, opt, step: int, data: str) -> None:
     from dlacli.avatar.checkpoint import save_checkpoint
-    from dlacli.train.loop import _write_record, draw_losses
+    from dlacli.train.loop import draw_losses, write_record
 
     name = f"ckpt-{step:06d}"
     extra = {"train": {"step": step, "method": "completion", "data": data}}
@@ -418,7 +418,7 @@ def _checkpoint(out: Path, record: dict, net, ncfg, opt, step: int, data: str) -
     tmp.rename(out / name)
     old = record["checkpoint"]
     record["checkpoint"] = name
-    _write_record(out / "train.json", record)
+    write_record(out / "train.json", record)
     if old and old != name:
         shutil.rmtree(out / old, ignore_errors=True)
     draw_losses(record, out / "loss.png")

@@ -69,7 +69,7 @@ class _Subject:
         return int(self.inputs.nbytes + self.pool.nbytes + self.vertices.numel() * 4 + self.rest.numel() * 4)
 
 
-def _discover(root: Path) -> list[tuple[int | None, str, Path]]:
+def discover(root: Path) -> list[tuple[int | None, str, Path]]:
     """(seed or None, folder name, folder) of every subject under `root`, in manifest order."""
     from dlacli.data.dataset import MANIFEST, read_manifest
 
@@ -92,7 +92,7 @@ def image_size(root: str | Path) -> int:
     subject folder): the size its targets hold their detail at."""
     from dlacli.io.views import read_transforms
 
-    _, _, folder = _discover(Path(root))[0]
+    _, _, folder = discover(Path(root))[0]
     t = read_transforms(folder)
     return int(max(t["width"], t["height"]))
 
@@ -100,7 +100,7 @@ def image_size(root: str | Path) -> int:
 def split_subjects(root: str | Path, validation: int) -> tuple[list[str], list[str]]:
     """(train, validation) subject names: the `validation` lowest seeds validate (so the split
     stays when a dataset grows by higher seeds), the rest train; both in seed order."""
-    found = _discover(Path(root))
+    found = discover(Path(root))
     if not isinstance(validation, int) or validation < 0 or validation >= len(found):
         raise DlaInputError(
             "validation", f"must be an integer in [0, {len(found) - 1}] for {len(found)} subjects, got {validation!r}"
@@ -155,7 +155,7 @@ class TrainingData:
         self.root = Path(root)
         self.input_size, self.target_size, self.targets = input_size, target_size, targets
         self.include_inputs, self.cache, self.max_cached = include_inputs, cache, max_cached
-        found = {name: folder for _, name, folder in _discover(self.root)}
+        found = {name: folder for _, name, folder in discover(self.root)}
         if subjects is None:
             subjects = list(found)
         unknown = [s for s in subjects if s not in found]

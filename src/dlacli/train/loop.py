@@ -116,7 +116,7 @@ def init_world() -> World:
     return World(0, 1, device)
 
 
-def _all_reduce_mean(values: dict[str, float], world: World) -> dict[str, float]:
+def all_reduce_mean(values: dict[str, float], world: World) -> dict[str, float]:
     if world.size == 1:
         return values
     import torch.distributed as dist
@@ -249,7 +249,7 @@ def _settings(cfg: TrainConfig, data: str) -> dict:
     return d
 
 
-def _global_batch(cfg: TrainConfig, step: int, n_train: int, world: World) -> tuple[list[int], list[int]]:
+def global_batch(cfg: TrainConfig, step: int, n_train: int, world: World) -> tuple[list[int], list[int]]:
     """(subject indices, noise seeds) of this rank's share of step `step`'s global batch."""
     rng = np.random.default_rng([cfg.seed, step])
     total = cfg.batch * world.size
@@ -337,7 +337,7 @@ def train(
     for step in range(start, stop):
         stage = cfg.stage_at(step)
         size = cfg.low_size if stage == "low" else cfg.full_size
-        picks, slots = _global_batch(cfg, step, len(full), world)
+        picks, slots = global_batch(cfg, step, len(full), world)
         items = [full.item(i, np.random.default_rng([cfg.seed, step, s, 1])) for i, s in zip(picks, slots)]
         noise = [int(np.random.default_rng([cfg.seed, step, s, 2]).integers(2**62)) for s in slots]
         use_d = stage == "full" and cfg.w_gan > 0
@@ -354,7 +354,7 @@ def train(
             opt_d.step()
             parts["disc"] = float(ld.detach())
         parts["total"] = float(total.detach())
-        parts = _all_reduce_mean(parts, world)
+        parts = all_reduce_mean(parts, world)
         entry = {"step": step + 1, "stage": stage, **{k: round(v, 6) for k, v in sorted(parts.items())}}
         record["history"].append(entry)
         record["step"] = step + 1
@@ -369,7 +369,7 @@ def train(
             scores, picture = validate(net, val, size=cfg.full_size, seed=cfg.seed)
             if world.main:
                 record["validation"].append({"step": step + 1, **scores})
-                _save_png(out / "val" / f"step_{step + 1:06d}.png", picture)
+                save_png(out / "val" / f"step_{step + 1:06d}.png", picture)
                 say(
                     f"validation at step {step + 1}: masked PSNR {scores['psnr_masked']:.2f} dB, "
                     f"whole {scores['psnr']:.2f} dB, IoU {scores['iou']:.3f}"
@@ -386,7 +386,7 @@ def train(
             tmp.rename(out / name)
             old = record["checkpoint"]
             record["checkpoint"] = name
-            _write_record(record_path, record)
+            write_record(record_path, record)
             if old and old != name:
                 shutil.rmtree(out / old, ignore_errors=True)
             draw_losses(record, out / "loss.png")
@@ -419,8 +419,8 @@ def validate(net, data, size: int, seed: int = 0, subjects: int = 2):
             pred, alpha = render_targets(net, mean[0], it.target_vertices[t], it.rest_vertices, t_cams.select(t))
             gt = _resize(it.target_rgb[t : t + 1], size)[0].permute(1, 2, 0)
             m = _resize(it.target_mask[t : t + 1], size)[0, 0]
-            psnr.append(_psnr(pred[0], gt, None))
-            psnr_m.append(_psnr(pred[0], gt, m))
+            psnr.append(masked_psnr(pred[0], gt, None))
+            psnr_m.append(masked_psnr(pred[0], gt, m))
             inter = torch.minimum(alpha[0], m).sum()
             union = torch.maximum(alpha[0], m).sum().clamp_min(1e-9)
             iou.append(float(inter / union))
@@ -430,7 +430,7 @@ def validate(net, data, size: int, seed: int = 0, subjects: int = 2):
     return {"psnr": float(np.mean(psnr)), "psnr_masked": float(np.mean(psnr_m)), "iou": float(np.mean(iou))}, picture
 
 
-def _psnr(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None) -> float:
+def masked_psnr(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None) -> float:
     err = (pred.clamp(0, 1) - gt) ** 2
     if mask is not None:
         w = (mask > 0.5).float()[..., None].expand_as(err)
@@ -514,14 +514,14 @@ def _is_number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
-def _write_record(path: Path, record: dict) -> None:
+def write_record(path: Path, record: dict) -> None:
     from dlacli.io.atomic import atomic_path
 
     with atomic_path(path) as tmp:
         Path(tmp).write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
 
 
-def _save_png(path: Path, image: np.ndarray) -> None:
+def save_png(path: Path, image: np.ndarray) -> None:
     from PIL import Image
 
     from dlacli.io.atomic import atomic_path

@@ -10,7 +10,7 @@ identity or view-cosine decoder) and splatted at the target camera; losses again
     masked L1 (inside the target's mask)  + w_mask |alpha - mask|  + w_ssim (1 - SSIM)
     + w_delta mean(t^2) (t: the corrections before scaling, nn/residual.py)
 
-Adam. Data parallel exactly as train/loop.py (its World, init_world and _global_batch: K
+Adam. Data parallel exactly as train/loop.py (its World, init_world and global_batch: K
 processes give the update of one process with the combined batch); `--resume` continues bit for
 bit; rank 0 writes train.json (dla.train/1), ckpt-<step>/generator (dla.checkpoint/1 of
 ResidualNet + Adam state), loss.png and val/step_<step>.png (per validation target: truth,
@@ -35,16 +35,16 @@ from torch import nn
 
 from dlacli.errors import DlaInputError
 from dlacli.train.loop import (
-    _all_reduce_mean,
-    _global_batch,
-    _psnr,
-    _save_png,
-    _write_record,
+    all_reduce_mean,
     draw_losses,
+    global_batch,
     init_world,
+    masked_psnr,
     new_record,
     resumed_record,
+    save_png,
     start_run,
+    write_record,
 )
 
 INPUTS_VERSION = "residual-inputs/1"  # bump when unprojection or the features change
@@ -209,14 +209,14 @@ def render_target(net, code: torch.Tensor, p: Precomputed, vertices, rest, camer
 def image_losses(pred: torch.Tensor, alpha: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor) -> dict:
     """pred, gt [T, H, W, 3]; alpha, mask [T, H, W] -> {"l1" (inside the mask), "mask", "ssim"}."""
     from dlacli.nn.losses import ssim_map
-    from dlacli.stages.lift import _mean
+    from dlacli.stages.lift import fixed_order_mean
 
     m = mask[..., None]
-    l1 = _mean((pred - gt).abs() * m) / _mean(m.expand_as(pred)).clamp_min(1e-6)
+    l1 = fixed_order_mean((pred - gt).abs() * m) / fixed_order_mean(m.expand_as(pred)).clamp_min(1e-6)
     return {
         "l1": l1,
-        "mask": _mean((alpha - mask).abs()),
-        "ssim": 1.0 - _mean(ssim_map(pred, gt)),
+        "mask": fixed_order_mean((alpha - mask).abs()),
+        "ssim": 1.0 - fixed_order_mean(ssim_map(pred, gt)),
     }
 
 
@@ -308,13 +308,13 @@ class Validator:
             for name, (rgb, alpha) in renders.items():
                 prefix = "" if name == "residual" else "base_"
                 for k, kind in enumerate(it.target_kind):
-                    psnr_m = _psnr(rgb[k], gt[k], mask[k])
+                    psnr_m = masked_psnr(rgb[k], gt[k], mask[k])
                     inter = torch.minimum(alpha[k], mask[k]).sum()
                     iou = float(inter / torch.maximum(alpha[k], mask[k]).sum().clamp_min(1e-9))
                     for key, v in (
                         ("psnr_masked", psnr_m),
                         (f"psnr_masked_{kind}", psnr_m),
-                        ("psnr", _psnr(rgb[k], gt[k], None)),
+                        ("psnr", masked_psnr(rgb[k], gt[k], None)),
                         ("iou", iou),
                     ):
                         scores.setdefault(prefix + key, []).append(v)
@@ -381,12 +381,12 @@ def _init_network(init: str, ncfg):
 
 
 def _setup(data, cfg: ResidualTrainConfig):
-    from dlacli.train.data import TrainingData, _discover, split_subjects
+    from dlacli.train.data import TrainingData, discover, split_subjects
 
     train_ids, val_ids = split_subjects(data, cfg.validation)
     if not train_ids:
         raise DlaInputError(data, f"has no training subjects after holding out {cfg.validation} for validation")
-    folders = {name: folder for _, name, folder in _discover(Path(data))}
+    folders = {name: folder for _, name, folder in discover(Path(data))}
     full = TrainingData(data, cfg.size, cfg.size, cfg.targets, subjects=train_ids, include_inputs=cfg.include_inputs)
     val = TrainingData(data, cfg.size, cfg.size, 1, subjects=val_ids, include_inputs=False) if val_ids else None
     full.item(0, np.random.default_rng(0))  # bad data fails here, before anything is written
@@ -452,7 +452,7 @@ def train_residual(
     net.train()
     stop = cfg.total_steps if until is None else min(int(until), cfg.total_steps)
     for step in range(start, stop):
-        picks, slots = _global_batch(cfg, step, len(full), world)
+        picks, slots = global_batch(cfg, step, len(full), world)
         items = [full.item(i, np.random.default_rng([cfg.seed, step, s, 1])) for i, s in zip(picks, slots)]
         pre = [precomputed(folders[full.subjects[i]], cfg) for i in picks]
         for group in opt.param_groups:
@@ -462,7 +462,7 @@ def train_residual(
         total.backward()
         opt.step()
         parts["total"] = float(total.detach())
-        parts = _all_reduce_mean(parts, world)
+        parts = all_reduce_mean(parts, world)
         record["history"].append(
             {"step": step + 1, "stage": "full", **{k: round(v, 6) for k, v in sorted(parts.items())}}
         )
@@ -479,7 +479,7 @@ def train_residual(
             scores, picture = validator(net)
             net.train()
             record["validation"].append({"step": step + 1, **{k: round(v, 4) for k, v in scores.items()}})
-            _save_png(out / "val" / f"step_{step + 1:06d}.png", picture)
+            save_png(out / "val" / f"step_{step + 1:06d}.png", picture)
             say(
                 f"validation at step {step + 1}: masked PSNR {scores['psnr_masked']:.2f} dB "
                 f"(unprojection {scores['base_psnr_masked']:.2f}), IoU {scores['iou']:.3f} "
@@ -506,7 +506,7 @@ def _checkpoint(out: Path, record: dict, net, ncfg, opt, step: int, cfg: Residua
     tmp.rename(out / name)
     old = record["checkpoint"]
     record["checkpoint"] = name
-    _write_record(out / "train.json", record)
+    write_record(out / "train.json", record)
     if old and old != name:
         shutil.rmtree(out / old, ignore_errors=True)
     draw_losses(record, out / "loss.png")
