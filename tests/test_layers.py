@@ -310,3 +310,17 @@ def test_numba_kernels_live_in_kernel_modules():
                         compiling.append(path)
     assert compiling, "the scan found no kernel at all"
     assert {p.name for p in compiling if not p.name.endswith("_kernels.py")} == set()
+
+
+def test_no_module_imports_another_ones_private_names():
+    """What two modules share is public in the lower one: no `from dlacli.x import _name` in src."""
+    private = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("dlacli"):
+                private += [
+                    f"{path.relative_to(SRC)}: {node.module}.{a.name}"
+                    for a in node.names
+                    if a.name.startswith("_") and not a.name.startswith("__")
+                ]
+    assert private == []
