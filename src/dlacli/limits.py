@@ -32,7 +32,7 @@ LIFT_LR = 0.03  # the refinement's Adam learning rate
 LIFT_RESOLUTION = 256  # side of the UV Gaussian map Z
 MAX_LIFT_STEPS = 100_000
 MAX_LIFT_RESOLUTION = 2048  # side of the largest Z (io/avatar.py's MAX_UNPACKED fits it); least: MIN_IMAGE_SIZE
-MIN_VIEW_FALLOFF = 0.05  # |k| below this: the avatar keeps the identity decoder (stages/bake.py, `view_falloff`)
+MIN_VIEW_FALLOFF = 0.05  # |k| below this: the avatar keeps the identity decoder (stages/lift/bake.py, `view_falloff`)
 MAX_VIEWS = 64  # every view is rendered at every refinement step: memory and time grow with them
 
 # --- the suffixes of the files dla writes, in the order messages list them (the writers check them,

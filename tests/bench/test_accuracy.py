@@ -9,10 +9,10 @@ from dlacli.errors import DlaInputError
 
 
 def test_method_specs():
-    """The suite reads the registry's specs (dlacli.stages.methods) and the older spellings as
+    """The suite reads the registry's specs (dlacli.stages.lift.methods) and the older spellings as
     what they meant; a method has one name whatever its setting."""
     from dlacli.limits import LIFT_STEPS
-    from dlacli.stages.methods import parse_methods
+    from dlacli.stages.lift.methods import parse_methods
 
     specs = parse_methods("unproject, refine:50, refine:150@256, learned:/runs/a/generator, learned:/r:b/g:20, refine")
     assert [(s.name, s.options()) for s in specs] == [
@@ -47,7 +47,7 @@ def test_pose_frames_split_by_camera():
 def test_a_small_run_scores_every_split(tmp_path):
     from dlacli.bench.accuracy import SPLITS, peak_rss_mb, run, score_avatar
     from dlacli.bench.rows import check_row
-    from dlacli.stages.methods import parse_methods
+    from dlacli.stages.lift.methods import parse_methods
 
     ballast = np.ones(2 * 2**30 // 8)  # 2 GiB touched here: the child's peak must not include it
     rows = run([8101], parse_methods("unproject"), res=64, novel_views=2, novel_poses=1, log=lambda s: None)
@@ -64,7 +64,7 @@ def test_a_small_run_scores_every_split(tmp_path):
     # the child process's lift agrees with this one's to float32 accumulation order, not bit for bit)
     from dlacli.data.synth import synth
     from dlacli.io.views import read_views
-    from dlacli.stages.lift import LiftConfig, lift
+    from dlacli.stages.lift.unproject import LiftConfig, lift
 
     folder = synth(8101, tmp_path / "s", res=64, novel_views=2, novel_poses=1, appearance="lit", wardrobe="heldout")
     direct = score_avatar(lift(read_views(folder), LiftConfig(steps=0)).avatar, folder)
@@ -80,9 +80,9 @@ def test_a_residual_row_names_its_network_by_hash(tmp_path):
     from dlacli.avatar.checkpoint import save_checkpoint
     from dlacli.bench.accuracy import run
     from dlacli.nn.residual import ResidualNet, ResidualNetConfig
-    from dlacli.stages.methods import parse_methods
-    from dlacli.stages.observations import feature_count
-    from dlacli.stages.residual import load_residual
+    from dlacli.stages.lift.methods import parse_methods
+    from dlacli.stages.lift.observations import feature_count
+    from dlacli.stages.lift.residual import load_residual
 
     cfg = ResidualNetConfig(features=feature_count(), width=8, resolution=32, gaussians=4096)
     digest = save_checkpoint(tmp_path / "ck", ResidualNet(cfg), cfg)
@@ -106,7 +106,7 @@ def test_kept_subjects_are_reused(tmp_path, monkeypatch):
     them (no synth call) and scores the same; other settings get a folder of their own."""
     import dlacli.data.synth as synth_module
     from dlacli.bench.accuracy import run
-    from dlacli.stages.methods import parse_methods
+    from dlacli.stages.lift.methods import parse_methods
 
     kw = dict(res=48, novel_views=1, novel_poses=1, log=lambda s: None, keep=tmp_path / "keep")
     first = run([8102], parse_methods("unproject"), **kw)

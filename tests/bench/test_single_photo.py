@@ -100,7 +100,7 @@ def subject(tmp_path_factory):
 
 def _scored(views, subject):
     from dlacli.bench.single_photo import score_dream
-    from dlacli.stages.methods import parse_methods
+    from dlacli.stages.lift.methods import parse_methods
 
     avatar = parse_methods(METHOD)[0].lift(views).avatar
     return score_dream(views, avatar, subject, SEED, "lit", "heldout")
@@ -149,7 +149,7 @@ def test_a_tiny_run_writes_photo_rows(monkeypatch, tmp_path):
     of each stage; a dream that fails (no person found) gives rows with status "error"."""
     from dlacli.bench.rows import check_row, label, points
     from dlacli.bench.single_photo import PHOTO_SPLITS, run_photo
-    from dlacli.stages.methods import parse_methods
+    from dlacli.stages.lift.methods import parse_methods
 
     kw = dict(res=128, novel_views=2, novel_poses=1, fit_steps=20, log=lambda s: None)
     rows = run_photo([SEED + 1], parse_methods(METHOD), ["template"], **kw)
@@ -200,7 +200,7 @@ def test_the_error_budgets_oracles(tmp_path):
     from dlacli.bench.single_photo import PHOTO_SPLITS, oracle_folder, run_photo, truth_fit
     from dlacli.io.views import read_views
     from dlacli.nn.completion import CompletionConfig, CompletionNet
-    from dlacli.stages.methods import parse_methods
+    from dlacli.stages.lift.methods import parse_methods
 
     ((seed, subject),) = subjects([SEED + 2], tmp_path, 128, 1, 1, "lit", "heldout")
     own = read_views(subject)

@@ -114,7 +114,7 @@ class _NoOptions:
 
 
 def test_runs_record_failures(subject):
-    from dlacli.stages import methods
+    from dlacli.stages.lift import methods
 
     good = methods.make_spec("unproject").lift(subject.views).avatar
 
@@ -227,7 +227,7 @@ def test_a_tiny_run_and_its_report(tmp_path, capsys):
     from dlacli.bench.charts import draw_stability_chart
     from dlacli.bench.report import stability_markdown
     from dlacli.bench.rows import append_rows
-    from dlacli.stages.methods import parse_methods
+    from dlacli.stages.lift.methods import parse_methods
 
     pytest.importorskip("matplotlib")
     rows = S.run(

@@ -45,7 +45,7 @@ def avatar_path(tmp_path_factory):
     from dlacli.data.synth import synth
     from dlacli.io.avatar import write_avatar
     from dlacli.io.views import read_views
-    from dlacli.stages.lift import LiftConfig, lift
+    from dlacli.stages.lift.unproject import LiftConfig, lift
 
     root = tmp_path_factory.mktemp("view")
     views = synth(5, root / "s5", res=96, novel_views=0, novel_poses=0)

@@ -1,4 +1,4 @@
-"""The residual lift (nn/residual.py, stages/residual.py, stages/observations.py): the untrained
+"""The residual lift (nn/residual.py, stages/lift/residual.py, stages/lift/observations.py): the untrained
 network is unprojection bit for bit, its corrections stay within their bounds, the observation
 features agree with the geometry they describe, and the CLI lifts and renders with it."""
 
@@ -28,7 +28,7 @@ def subject(tmp_path_factory):
 
 def _config(width: int = 8):
     from dlacli.nn.residual import ResidualNetConfig
-    from dlacli.stages.observations import feature_count
+    from dlacli.stages.lift.observations import feature_count
 
     return ResidualNetConfig(features=feature_count(), width=width, resolution=RES, gaussians=GAUSSIANS)
 
@@ -50,7 +50,7 @@ def test_untrained_residual_lift_is_unprojection_bit_for_bit(subject, untrained,
     """Also with refinement steps: the colours are re-baked after them, as unprojection's are, and
     the untrained network's colour correction leaves them as they are."""
     from dlacli.io.views import read_views
-    from dlacli.stages.methods import make_spec
+    from dlacli.stages.lift.methods import make_spec
 
     views = read_views(subject)
     a = make_spec("residual", checkpoint=str(untrained), steps=steps).lift(views).avatar
@@ -94,8 +94,8 @@ def test_colour_correction_of_a_rebake_is_the_networks_own_on_its_bake(subject):
     from dlacli.avatar import gaussian_map as gm
     from dlacli.io.views import read_views
     from dlacli.nn.residual import ResidualNet
-    from dlacli.stages.lift import LiftConfig
-    from dlacli.stages.residual import colour_correction, corrected_map, residual_inputs
+    from dlacli.stages.lift.residual import colour_correction, corrected_map, residual_inputs
+    from dlacli.stages.lift.unproject import LiftConfig
 
     torch.manual_seed(2)
     net = ResidualNet(_config()).eval()
@@ -139,9 +139,9 @@ def test_observation_features_agree_with_the_geometry(subject):
     the visual hull encloses the body (hull depth <= body depth + a texel's slack)."""
     from dlacli.body.uv import uv_raster
     from dlacli.io.views import read_views
-    from dlacli.stages.lift import LiftConfig
-    from dlacli.stages.observations import NAMES, feature_count
-    from dlacli.stages.residual import residual_inputs
+    from dlacli.stages.lift.observations import NAMES, feature_count
+    from dlacli.stages.lift.residual import residual_inputs
+    from dlacli.stages.lift.unproject import LiftConfig
 
     views = read_views(subject)
     feats = residual_inputs(views, LiftConfig(resolution=RES, gaussians=GAUSSIANS, steps=0)).features
@@ -182,13 +182,13 @@ def test_cli_lift_residual_then_render(subject, untrained, tmp_path):
     # a bare `residual` lifts with the shipped weights
     r = _dla("lift", subject, "--method", "residual", "-o", tmp_path / "b.npz", env=env)
     assert r.returncode == 0, r.stderr
-    from dlacli.stages.residual import load_residual
+    from dlacli.stages.lift.residual import load_residual
 
     assert read_avatar(tmp_path / "b.npz").extra["residual"]["checkpoint"] == load_residual(None)[1]
 
 
 def test_without_shipped_weights_a_bare_residual_is_one_line(monkeypatch, tmp_path):
-    import dlacli.stages.residual as residual
+    import dlacli.stages.lift.residual as residual
     from dlacli.errors import DlaInputError
 
     monkeypatch.setattr(residual, "SHIPPED", tmp_path / "none")
@@ -257,7 +257,7 @@ def test_cli_lift_residual_with_gain_then_render(subject, tmp_path):
     from dlacli.avatar.checkpoint import save_checkpoint
     from dlacli.io.avatar import read_avatar
     from dlacli.paths import cache_dir
-    from dlacli.stages.methods import make_spec
+    from dlacli.stages.lift.methods import make_spec
 
     net = _gain_net()
     digest = save_checkpoint(tmp_path / "ck", net, net.config)
@@ -287,8 +287,8 @@ def test_the_shipped_network_beats_unprojection_on_a_subject_no_training_saw(tmp
     from dlacli.bench.accuracy import score_avatar
     from dlacli.data.synth import synth
     from dlacli.io.views import read_views
-    from dlacli.stages.methods import make_spec
-    from dlacli.stages.residual import load_residual
+    from dlacli.stages.lift.methods import make_spec
+    from dlacli.stages.lift.residual import load_residual
 
     net, digest = load_residual(None)
     assert net.config.resolution == 128 and net.config.gaussians == 32768 and not net.config.gain

@@ -53,7 +53,7 @@ def walking_avatar(tmp_path_factory):
     from dlacli.data.synth import synth
     from dlacli.io.views import read_views
     from dlacli.stages.animate import follow_cameras, pose_avatar
-    from dlacli.stages.methods import make_spec
+    from dlacli.stages.lift.methods import make_spec
     from dlacli.types import Motion
 
     folder = synth(

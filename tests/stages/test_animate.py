@@ -17,7 +17,7 @@ from dlacli.io.avatar import write_avatar
 from dlacli.io.motion import write_motion
 from dlacli.io.usd_read import read_usd, validate_usd
 from dlacli.io.views import read_transforms, read_views
-from dlacli.stages.lift import LiftConfig, lift
+from dlacli.stages.lift.unproject import LiftConfig, lift
 from dlacli.types import Motion
 
 N = 4096

@@ -97,7 +97,7 @@ def test_scaled_count_follows_the_area_the_person_covers():
 @pytest.fixture(scope="module")
 def lifted(subject):
     from dlacli.io.views import read_views
-    from dlacli.stages.lift import LiftConfig, lift
+    from dlacli.stages.lift.unproject import LiftConfig, lift
 
     views = read_views(subject)
     return lift(views, LiftConfig(steps=0, gaussians=N)).avatar, views

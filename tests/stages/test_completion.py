@@ -73,7 +73,7 @@ def test_a_known_correction_moves_only_what_the_photo_does_not_see(photo):
 def test_load_prior_refuses_what_is_not_a_completion_prior(tmp_path):
     from dlacli.avatar.checkpoint import save_checkpoint
     from dlacli.stages.completion import load_prior
-    from dlacli.stages.residual import SHIPPED as RESIDUAL
+    from dlacli.stages.lift.residual import SHIPPED as RESIDUAL
 
     assert load_prior("none") is None and load_prior(None) is None
     net = _prior(0.1)
@@ -95,7 +95,7 @@ def test_load_prior_refuses_what_is_not_a_completion_prior(tmp_path):
 
 def test_dream_reports_a_bad_prior_in_one_line(tmp_path):
     from dlacli.stages.dream import sample_photo
-    from dlacli.stages.residual import SHIPPED as RESIDUAL
+    from dlacli.stages.lift.residual import SHIPPED as RESIDUAL
 
     env = {**os.environ, "PYTHONWARNINGS": "ignore"}
     for prior, backend, what in (

@@ -77,7 +77,7 @@ import sys
 import numpy as np
 from dlacli.io.avatar import write_avatar
 from dlacli.io.views import read_views
-from dlacli.stages.lift import LiftConfig, lift
+from dlacli.stages.lift.unproject import LiftConfig, lift
 
 views, out, n, steps = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
 # w_smooth: the roughness term (the default for dreamed views) takes part in the check too

@@ -208,10 +208,10 @@ def test_dream_views_stay_within_the_body_and_clothing(folder):
 
 def test_lift_keeps_shell_views_view_independent(folder):
     """The shell copies the photo's colours to the other views without shading them, so lift
-    must find no view falloff in them (stages/bake.py `view_falloff`) and keep the identity
+    must find no view falloff in them (stages/lift/bake.py `view_falloff`) and keep the identity
     decoder. (Dreams of the four photos in tests/data/third_party/images measured k = -0.04 ... 0.02.)"""
     from dlacli.io.views import read_views
-    from dlacli.stages.lift import LiftConfig, lift
+    from dlacli.stages.lift.unproject import LiftConfig, lift
 
     avatar = lift(read_views(folder), LiftConfig(steps=0, gaussians=4096)).avatar
     assert avatar.decoder == "identity" and avatar.extra["lift"]["view_falloff"] == 0.0

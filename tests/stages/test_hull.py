@@ -1,4 +1,4 @@
-"""The rounded visual hull (stages/hull.py) against analytic shapes: a round column seen from four
+"""The rounded visual hull (stages/lift/hull.py) against analytic shapes: a round column seen from four
 sides, whose true surface the silhouettes' intersection (a square) misses at its corners."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from dlacli.geometry import look_at_orbit_cameras
-from dlacli.stages.hull import HULL_STEPS, Silhouettes, hull_depth, row_runs
+from dlacli.stages.lift.hull import HULL_STEPS, Silhouettes, hull_depth, row_runs
 from dlacli.types import ViewSet
 
 RADIUS = 0.3  # metres: the column, a vertical cylinder about the z axis
@@ -100,8 +100,8 @@ def test_rays_that_miss_every_silhouette_are_inf_in_both_hulls():
 
 def test_a_lift_spec_names_its_hull_and_refuses_an_unknown_one():
     from dlacli.errors import DlaInputError
-    from dlacli.stages.lift import LiftConfig, hull_shape
-    from dlacli.stages.methods import HULLS, parse_method
+    from dlacli.stages.lift.methods import HULLS, parse_method
+    from dlacli.stages.lift.unproject import LiftConfig, hull_shape
 
     assert LiftConfig().hull is None and set(HULLS) == {"round", "box"}
     assert parse_method("unproject:hull=box").config.hull == "box"

@@ -1,4 +1,4 @@
-"""The learned method as one network (stages/learned.py): checkpoints, the codec's decoder "gpd",
+"""The learned method as one network (stages/lift/learned.py): checkpoints, the codec's decoder "gpd",
 `dla lift --method learned`, and the stages that decode a learned avatar (animate, edit swap)."""
 
 from __future__ import annotations
@@ -116,7 +116,7 @@ def test_codec_decodes_a_learned_avatar_as_the_batched_path_does(tiny_checkpoint
 
 def test_lift_learned_refines_z_against_the_input_views(tiny_checkpoint, subject):
     from dlacli.io.views import read_views
-    from dlacli.stages.learned import lift_learned
+    from dlacli.stages.lift.learned import lift_learned
 
     path, digest, _ = tiny_checkpoint
     views = read_views(subject)
@@ -130,7 +130,7 @@ def test_lift_learned_refines_z_against_the_input_views(tiny_checkpoint, subject
     hist = [refined.avatar.extra["lift"]["final_loss"]]
     assert hist[0] is not None
     # the renders of the refined Z are closer to the inputs than those of the encoder's Z
-    from dlacli.stages.learned import load_learned, render_targets
+    from dlacli.stages.lift.learned import load_learned, render_targets
 
     net, _ = load_learned(str(path))
     rgb, mask, cams = views.targets(64)

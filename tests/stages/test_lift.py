@@ -15,7 +15,7 @@ from dlacli.bench.metrics import alpha_iou, masked_psnr, psnr
 from dlacli.io.avatar import read_avatar
 from dlacli.io.ply import read_ply
 from dlacli.io.views import read_views
-from dlacli.stages.lift import LiftConfig, lift
+from dlacli.stages.lift.unproject import LiftConfig, lift
 from dlacli.stages.render import render_avatar
 
 N = 32_768  # Gaussians: enough for 128 px views
@@ -106,7 +106,7 @@ def test_contact_sheet_without_ground_truth(subject, tmp_path):
     assert Image.open(tmp_path / "a_contact.png").size == (4 * 256, 2 * 256)
     assert "novel view" not in r.stderr
     from dlacli.io.views import read_views
-    from dlacli.stages.lift import LiftConfig, lift
+    from dlacli.stages.lift.unproject import LiftConfig, lift
 
     novel = read_views(subject / "novel_views", require_body=False)
     res = lift(read_views(subject), LiftConfig(steps=0, gaussians=4096), novel=novel)
@@ -166,7 +166,7 @@ def test_refinement_improves_novel_views(subject):
     0.773 -> 0.848. Floors: +0.3 dB and +0.04 IoU (about half the measured gains)."""
     from dlacli.bench.pipeline import _score
     from dlacli.io.views import read_views
-    from dlacli.stages.lift import LiftConfig, lift
+    from dlacli.stages.lift.unproject import LiftConfig, lift
 
     views = read_views(subject)
     novel = read_views(subject / "novel_views", require_body=False)
@@ -177,7 +177,7 @@ def test_refinement_improves_novel_views(subject):
 
 
 def test_refinement_compares_a_window_that_loses_nothing(subject):
-    """refine compares the views only in a window around the subject (stages/lift.subject_crops);
+    """refine compares the views only in a window around the subject (stages/lift/unproject.subject_crops);
     its first loss equals the whole-image loss computed here from a whole-image render
     (L1 + mask L1 + 0.2 (1 - SSIM)), to float32 summation error, and every window holds its
     view's whole mask."""
@@ -186,8 +186,8 @@ def test_refinement_compares_a_window_that_loses_nothing(subject):
     from dlacli.avatar import gaussian_map as gm
     from dlacli.body.model import get_body_model
     from dlacli.nn.losses import ssim_map
-    from dlacli.stages import lift as stage
-    from dlacli.stages.refine import subject_crops
+    from dlacli.stages.lift import unproject as stage
+    from dlacli.stages.lift.refine import subject_crops
 
     views = read_views(subject)
     cfg = LiftConfig(steps=1, gaussians=N)
@@ -219,7 +219,7 @@ def test_roughness_is_the_mean_squared_step_between_covered_neighbours():
     import torch
 
     from dlacli.body.uv import uv_raster
-    from dlacli.stages.lift import ROUGHNESS_UNIT, _neighbour_pairs, _roughness
+    from dlacli.stages.lift.unproject import ROUGHNESS_UNIT, _neighbour_pairs, _roughness
 
     res = 64
     valid = uv_raster(res).mask
@@ -245,7 +245,7 @@ def test_the_roughness_weight_smooths_the_refined_normal_offsets(subject):
     import torch
 
     from dlacli.avatar import gaussian_map as gm
-    from dlacli.stages.lift import _neighbour_pairs, _roughness
+    from dlacli.stages.lift.unproject import _neighbour_pairs, _roughness
 
     views = read_views(subject)
     pairs = _neighbour_pairs(128)
@@ -261,7 +261,7 @@ def test_the_roughness_weight_smooths_the_refined_normal_offsets(subject):
 
 def test_a_negative_roughness_weight_is_refused():
     from dlacli.errors import DlaInputError
-    from dlacli.stages.methods import parse_method
+    from dlacli.stages.lift.methods import parse_method
 
     with pytest.raises(DlaInputError, match="w_smooth must be in"):
         parse_method("unproject:steps=5,w_smooth=-1")
@@ -272,7 +272,7 @@ def test_the_roughness_weight_defaults_to_the_dreams_for_dreamed_views_only(subj
     `dla.dream`) and 0 for true views; a weight the spec sets wins either way."""
     import dataclasses
 
-    from dlacli.stages.lift import DREAM_W_SMOOTH, smoothness
+    from dlacli.stages.lift.unproject import DREAM_W_SMOOTH, smoothness
 
     views = read_views(subject)
     dreamed = dataclasses.replace(views, extra={**views.extra, "dream": {"backend": "body"}})

@@ -1,4 +1,4 @@
-"""The lift-method registry (dlacli.stages.methods): one spec syntax, one name per method, and a
+"""The lift-method registry (dlacli.stages.lift.methods): one spec syntax, one name per method, and a
 new method known by that name to `dla lift`, `dla bench accuracy`, `dla bench stability`, the
 result rows and the report."""
 
@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from dlacli.errors import DlaInputError
-from dlacli.stages import methods
+from dlacli.stages.lift import methods
 
 
 def test_specs_name_the_registry_and_refuse_in_one_line():

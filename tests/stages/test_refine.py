@@ -1,10 +1,10 @@
-"""stages/refine.adam_refine: the refinement loop of both lifts is plain Adam."""
+"""stages/lift/refine.adam_refine: the refinement loop of both lifts is plain Adam."""
 
 from __future__ import annotations
 
 import torch
 
-from dlacli.stages.refine import adam_refine
+from dlacli.stages.lift.refine import adam_refine
 
 
 def test_adam_refine_is_adam_step_for_step():

@@ -351,7 +351,7 @@ def test_the_photos_colour_trust_keeps_the_limb_in_front_off_what_it_covers_in_t
     take the real hand's red from the photo (the test can fail); with it no texel sees red on
     the thigh, the trust only takes views away, and what it keeps bakes the same colours."""
     from dlacli.body.regions import PARTS, part_map
-    from dlacli.stages.bake import bake_colours, body_depth_maps, texel_views
+    from dlacli.stages.lift.bake import bake_colours, body_depth_maps, texel_views
     from dlacli.stages.texture import photo_trust
     from dlacli.types import ViewSet
 

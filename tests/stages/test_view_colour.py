@@ -12,7 +12,7 @@ import torch
 from dlacli.avatar.codec import PoseConditioning, ViewCosineDecoder, view_cosine
 from dlacli.errors import DlaInputError
 from dlacli.io.views import read_views
-from dlacli.stages.lift import MIN_FALLOFF, LiftConfig, lift
+from dlacli.stages.lift.unproject import MIN_FALLOFF, LiftConfig, lift
 
 N = 32_768
 
@@ -107,7 +107,7 @@ def test_lift_shows_what_render_draws(subject):
     through the view-cosine decoder, camera by camera."""
     from dlacli.avatar import gaussian_map as gm
     from dlacli.body.model import get_body_model
-    from dlacli.stages.lift import render_views
+    from dlacli.stages.lift.unproject import render_views
     from dlacli.stages.render import render_avatar
 
     views = read_views(subject)

@@ -22,7 +22,7 @@ class ToyConfig:
 
 def lift_toy(views, config: ToyConfig, progress=None, novel=None):
     """views -> LiftResult: an unprojection at a small UV resolution, named after the toy."""
-    from dlacli.stages.methods import make_spec
+    from dlacli.stages.lift.methods import make_spec
 
     result = make_spec("unproject", resolution=32, gaussians=config.gaussians).lift(views, progress, novel)
     extra = {**result.avatar.extra, NAME: dataclasses.asdict(config)}

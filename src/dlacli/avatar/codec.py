@@ -9,7 +9,7 @@ the decoder what it needs (`pose_conditioned`, `view_conditioned`, `linear`) and
 a Decoded avatar to posed Gaussians is avatar/posed.py.
 
 The non-learned pair is one implementation of the same interface: encoder "unproject" (mesh
-unprojection, stages/lift.py) and decoder "identity" (F = Z: no delta, no checkpoint, linear).
+unprojection, stages/lift/unproject.py) and decoder "identity" (F = Z: no delta, no checkpoint, linear).
 A decoder without weights is known by name (`_DECODERS`: identity and view-cosine; a new one joins
 with `register_decoder`, as the tests' toy decoders do); a learned decoder is not registered but
 found through the checkpoint hash its avatars record (the checkpoint resolver rebuilds it).
@@ -138,7 +138,7 @@ class ViewCosineDecoder(IdentityDecoder):
     F_delta holds rgb k (cos - 1) in the colour channels and zeros elsewhere. k = 0 is the
     identity decoder; k > 0 darkens surfaces seen obliquely (a light near the camera, a rough
     material's falloff), k < 0 brightens them. `dla lift` measures k from the views
-    (stages/bake.py `view_falloff`) and writes this decoder only when it is not ~0."""
+    (stages/lift/bake.py `view_falloff`) and writes this decoder only when it is not ~0."""
 
     name = "view-cosine"
     pose_conditioned = True  # the posed normals
@@ -195,7 +195,7 @@ def same_space(a: Avatar, b: Avatar) -> tuple[Avatar, Avatar]:
 
 def shading(falloff, cosine):
     """The view-cosine decoder's colour factor 1 - k + k cos, cos clamped to [0, 1] (numpy arrays
-    or torch tensors; stages/lift.py bakes and measures k with the same law)."""
+    or torch tensors; stages/lift/unproject.py bakes and measures k with the same law)."""
     return 1.0 - falloff + falloff * cosine.clip(0.0, 1.0)
 
 

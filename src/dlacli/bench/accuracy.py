@@ -15,7 +15,7 @@ aligned to the subject's through the bodies, plus the dreamed views themselves.
 
 Metrics: PSNR over the whole image, PSNR inside the person's mask, SSIM, alpha IoU
 (bench/score.py). LPIPS needs AlexNet weights the toolkit does not ship: it is absent, and the
-report says so. Methods (`--methods`) are specs of dlacli.stages.methods, e.g.
+report says so. Methods (`--methods`) are specs of dlacli.stages.lift.methods, e.g.
 
     unproject                              mesh unprojection (ablation A.i)
     unproject:steps=50,render_size=256     + 50 refinement steps rendering at 256 px
@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from dlacli.errors import DlaInputError
-from dlacli.stages.methods import MethodSpec
+from dlacli.stages.lift.methods import MethodSpec
 
 SPLITS = ("novel_views", "novel_poses", "novel_view_pose")
 FRONT_AZIMUTH = 0.0  # the novel-pose camera that coincides with an input camera's direction

@@ -3,7 +3,7 @@ Gaussians and the UV resolution at a target render size, with the render time an
 count costs, and what `--gaussians auto`'s rules choose (dlacli.stages.budget).
 
 Per seed: a synth subject with its views at the render size; per UV resolution, one avatar
-(a method spec of dlacli.stages.methods, lifted with that `resolution`); per count on the
+(a method spec of dlacli.stages.lift.methods, lifted with that `resolution`); per count on the
 ladder: masked PSNR, PSNR, SSIM and IoU of the renders on the input views ("inputs": what lift
 --gaussians auto measures), the novel views and the novel poses; the median time to render one
 image; the size and write time of a `usd_frames`-frame walk as USD (animate's default schema and
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from dlacli.limits import DEFAULT_GAUSSIANS
-from dlacli.stages.methods import MethodSpec
+from dlacli.stages.lift.methods import MethodSpec
 
 DEFAULT_COUNT = DEFAULT_GAUSSIANS  # the count lift refines at and an avatar without a budget draws (the baseline)
 
@@ -74,7 +74,7 @@ def run(
     from dlacli.bench.score import scores
     from dlacli.bench.stability import make_subject
     from dlacli.stages.budget import AUTO_VIEWS, sampling_noise
-    from dlacli.stages.methods import make_spec
+    from dlacli.stages.lift.methods import make_spec
     from dlacli.stages.render import turntable_cameras
 
     spec = method or make_spec("unproject")

@@ -36,7 +36,7 @@ def run(
     from dlacli.io.motion import read_motion
     from dlacli.io.views import read_views
     from dlacli.stages.animate import pose_avatar, write_animation
-    from dlacli.stages.methods import make_spec
+    from dlacli.stages.lift.methods import make_spec
 
     rows = []
     animate_s = []

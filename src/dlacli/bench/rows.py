@@ -11,7 +11,7 @@ One line per run of one method and setting on one subject and split (`dla.bench/
 `seconds` and `peak_mb` are the cost of making the avatar (lift); the metrics score its renders on
 the split's ground truth. A "point" is one (method, config) on one split, its metrics and cost
 aggregated over subjects (median seconds, mean metrics): what one marker on the chart shows.
-`method` is the name of a lift method in dlacli.stages.methods, `config` its options as the
+`method` is the name of a lift method in dlacli.stages.lift.methods, `config` its options as the
 spec set them (`MethodSpec.options`) plus the protocol's keys; rows written before the registry
 say "refine", "unproject+refine" or "learned+refine", and `read_rows` reads them under the
 registry's names (`upgrade`).
@@ -371,7 +371,7 @@ def upgrade(row: dict) -> dict:
     """A row as the method registry names it: a method name from before the registry
     (stages.methods.LEGACY_NAMES) becomes the registry's, and an "unproject" row that records no
     steps (the stability and budget suites' unprojection) gains steps 0, what it ran."""
-    from dlacli.stages.methods import LEGACY_NAMES
+    from dlacli.stages.lift.methods import LEGACY_NAMES
 
     if kind(row) == "speed" or (row["method"] not in LEGACY_NAMES and row["method"] != "unproject"):
         return row

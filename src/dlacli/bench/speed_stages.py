@@ -16,7 +16,7 @@ def _subject_and_avatar(cfg: SpeedConfig, log):
     if "avatar" not in cfg._cache:
         from dlacli.data.synth import synth
         from dlacli.io.views import read_views
-        from dlacli.stages.methods import make_spec
+        from dlacli.stages.lift.methods import make_spec
 
         tmp = tempfile.mkdtemp(prefix="dla-speed-")
         cfg._cache["tmp"] = tmp
@@ -41,7 +41,7 @@ def _walk(frames: int):
 
 
 def lift_suite(cfg: SpeedConfig, row, log) -> list[dict]:
-    from dlacli.stages.methods import make_spec
+    from dlacli.stages.lift.methods import make_spec
 
     views, _ = _subject_and_avatar(cfg, log)
     out = [row("lift", "synth", "cpu", {"res": cfg.res, "seed": cfg.seed}, cfg._cache["synth_s"], 1)]

@@ -1,6 +1,6 @@
 """How lift degrades when its inputs are wrong: degradation curves per method (`dla bench stability`).
 
-A method (a spec of dlacli.stages.methods: "unproject", "unproject:steps=50", ...) turns a
+A method (a spec of dlacli.stages.lift.methods: "unproject", "unproject:steps=50", ...) turns a
 ViewSet into an Avatar. A perturbation
 (`PERTURBATIONS`) has levels, the first its clean baseline, and changes either the input views
 handed to the method (body parameters, images, cameras, which views) or the synthetic subject
@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from dlacli.stages.methods import MethodSpec
+from dlacli.stages.lift.methods import MethodSpec
 from dlacli.types import Avatar, Cameras, Motion, ViewSet
 
 EMPTY_OPACITY = 0.01

@@ -28,7 +28,7 @@ from dlacli.limits import (
     MIN_GAUSSIANS,
     MIN_IMAGE_SIZE,
 )
-from dlacli.stages.methods import METHODS
+from dlacli.stages.lift.methods import METHODS
 
 bench_app = typer.Typer(
     help="Benchmarks: accuracy against cost, stability, the Gaussian budget and speed, on synthetic subjects.",
@@ -39,7 +39,7 @@ bench_app = typer.Typer(
 
 _KNOWN = "; ".join(f"{m.name} ({m.about})" for m in METHODS.values())
 _SPECS = (
-    f"NAME[:KEY=VALUE,...] (dlacli.stages.methods): {_KNOWN}; "
+    f"NAME[:KEY=VALUE,...] (dlacli.stages.lift.methods): {_KNOWN}; "
     f"e.g. unproject:steps={LIFT_STEPS},render_size=256 or learned:checkpoint=CKPT,steps=20"
 )
 _METHODS = f"unproject,unproject:steps={LIFT_STEPS}"  # --methods: mesh unprojection alone, and refined
@@ -229,7 +229,7 @@ def accuracy(
     from dlacli.bench.report import report_markdown
     from dlacli.data.appearance import APPEARANCES
     from dlacli.data.subject import WARDROBES
-    from dlacli.stages.methods import parse_methods
+    from dlacli.stages.lift.methods import parse_methods
 
     specs = parse_methods(methods)
     _names(appearance, "--appearance", APPEARANCES)
@@ -287,7 +287,7 @@ def regions(
     from dlacli.data.synth import synth
     from dlacli.io.atomic import atomic_path, check_outputs
     from dlacli.io.views import read_views
-    from dlacli.stages.methods import make_spec
+    from dlacli.stages.lift.methods import make_spec
 
     check_outputs(files=[output])
     rows, pictures = [], []
@@ -452,7 +452,7 @@ def stability(
     where it has dropped 2 dB, and every NaN, exception or empty avatar."""
     from dlacli.bench.report import stability_markdown
     from dlacli.bench.stability import PERTURBATIONS, run
-    from dlacli.stages.methods import parse_methods
+    from dlacli.stages.lift.methods import parse_methods
 
     fill = {"checkpoint": str(checkpoint)} if checkpoint is not None else None
     specs = parse_methods(methods, refine_steps=steps or LIFT_STEPS, fill=fill, flags={"checkpoint": "--checkpoint"})
@@ -487,7 +487,7 @@ def budget(
     render size, with render time and USD size per count, and what `--gaussians auto` picks."""
     from dlacli.bench.budget import run
     from dlacli.bench.report import budget_markdown
-    from dlacli.stages.methods import parse_method
+    from dlacli.stages.lift.methods import parse_method
 
     spec = parse_method(method, refine_steps=steps or LIFT_STEPS)
     uvs = _ints(uv, "--uv", MAX_LIFT_RESOLUTION)

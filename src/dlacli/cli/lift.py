@@ -20,9 +20,9 @@ from dlacli.limits import (
     MAX_LIFT_STEPS,
     MIN_VIEW_FALLOFF,
 )
-from dlacli.stages.methods import METHODS
+from dlacli.stages.lift.methods import METHODS
 
-# `dlacli.stages.lift.LiftConfig`'s defaults, from the torch-free limits module (loading the CLI for
+# `dlacli.stages.lift.unproject.LiftConfig`'s defaults, from the torch-free limits module (loading the CLI for
 # `dla --version` or `dla info` does not import the stage and torch).
 _DEFAULTS = SimpleNamespace(
     steps=LIFT_STEPS, resolution=LIFT_RESOLUTION, gaussians=LIFT_GAUSSIANS, seed=DEFAULT_SAMPLE_SEED
@@ -37,7 +37,9 @@ _FIELDS = {
     "view_colour": "--view-colour",
 }
 _KNOWN = "; ".join(f"'{m.name}' ({m.about})" for m in METHODS.values())
-_METHOD_HELP = f"The lift method, NAME[:KEY=VALUE,...] (dlacli.stages.methods): {_KNOWN}. Options below set its keys."
+_METHOD_HELP = (
+    f"The lift method, NAME[:KEY=VALUE,...] (dlacli.stages.lift.methods): {_KNOWN}. Options below set its keys."
+)
 _STEPS_HELP = (
     f"Refinement steps against the input views (unproject: default {_DEFAULTS.steps}, 0 = mesh unprojection "
     "only; learned: default 0, N refines Z through the frozen decoder); more is slower and closer."
@@ -181,7 +183,7 @@ def _spec(text: str, options: dict):
     one the method does not take, is a one-line error naming the flag), then `dla lift`'s own
     defaults (`Method.lift_defaults`) where neither says."""
     from dlacli.errors import DlaInputError
-    from dlacli.stages.methods import parse_method
+    from dlacli.stages.lift.methods import parse_method
 
     spec = parse_method(text, fill=options, flags=_FIELDS)
     for key, value in options.items():

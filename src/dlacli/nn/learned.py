@@ -8,7 +8,7 @@
 `LearnedAvatarNet` holds the three networks (nn/unet.py, nn/encoder.py, nn/gpd.py) and is the
 codec's decoder "gpd" (avatar/codec.py): one checkpoint (avatar/checkpoint.py) holds all three, its
 hash is what a learned avatar records, and `dla animate` / `render` / `edit` decode the avatar's
-Z through it. The training loop (dlacli.train) and the learned lift (stages/learned.py) call the
+Z through it. The training loop (dlacli.train) and the learned lift (stages/lift/learned.py) call the
 same batched pieces, `reconstruct` and `encode`, and decode Z as every avatar is decoded: the
 codec's `Decoded.of(net, z)` placed by avatar/posed.py (`prepare` shares the GPD trunk between
 F_c and every F_delta).

@@ -1,6 +1,6 @@
 """The residual lift's network: a small UV-space ConvNet that corrects mesh unprojection.
 
-    [F (the unprojected Gaussian map, 14 x R x R) ; observation features (stages/observations.py)]
+    [F (the unprojected Gaussian map, 14 x R x R) ; observation features (stages/lift/observations.py)]
         --resize to `internal` x `internal`--> U-shaped ConvNet (GroupNorm, SiLU; two downsamplings)
         --> t = tanh(head) [10, internal, internal] --bilinear to R--> bounded corrections of F:
 
@@ -54,7 +54,7 @@ _IN_F = (0, 1, 2, 3, 4, 5, 6, 11, 12, 13)  # F's channels the net reads (rotatio
 
 @dataclass
 class ResidualNetConfig:
-    features: int = 20  # observation feature channels (stages/observations.feature_count)
+    features: int = 20  # observation feature channels (stages/lift/observations.feature_count)
     width: int = 32  # channels at the internal resolution; x2 and x4 below it
     internal: int = 128  # the UV resolution the net works at (the data's measured need)
     groups: int = 8  # GroupNorm groups

@@ -405,7 +405,7 @@ def validate(net, data, size: int, seed: int = 0, subjects: int = 2):
     """Masked and whole-image PSNR and alpha IoU of the decoder's renders on validation items (the
     posterior mean, no noise), and a picture: ground truth above prediction per target."""
     from dlacli.nn.learned import subject_depth
-    from dlacli.stages.learned import render_targets
+    from dlacli.stages.lift.learned import render_targets
 
     net.eval()
     psnr, psnr_m, iou, tiles_gt, tiles_pred = [], [], [], [], []

@@ -2,9 +2,9 @@
 skinning and splatting on novel views and novel poses of synthetic subjects.
 
 Per subject, what the network does not change is computed once and cached (`precomputed`): the
-unprojected map F, its observation features and its view falloff (stages/residual.residual_inputs on the
+unprojected map F, its observation features and its view falloff (stages/lift/residual.residual_inputs on the
 subject's input views). One step, per item of the batch: F' = F + corrections(F, features);
-F' is placed on each target's posed body as the residual lift's avatar is (stages/lift.lifted_posed:
+F' is placed on each target's posed body as the residual lift's avatar is (stages/lift/unproject.lifted_posed:
 identity or view-cosine decoder) and splatted at the target camera; losses against the target:
 
     masked L1 (inside the target's mask)  + w_mask |alpha - mask|  + w_ssim (1 - SSIM)
@@ -93,7 +93,7 @@ class ResidualTrainConfig:
 
 def net_config(cfg: ResidualTrainConfig):
     from dlacli.nn.residual import ResidualNetConfig
-    from dlacli.stages.observations import feature_count
+    from dlacli.stages.lift.observations import feature_count
 
     if cfg.preset not in WIDTHS:
         raise DlaInputError("--preset", f"unknown preset {cfg.preset!r} (available: {', '.join(WIDTHS)})")
@@ -117,7 +117,7 @@ class Precomputed:
 
 
 def _lift_config(cfg: ResidualTrainConfig):
-    from dlacli.stages.lift import LiftConfig
+    from dlacli.stages.lift.unproject import LiftConfig
 
     return LiftConfig(resolution=cfg.resolution, gaussians=cfg.gaussians, steps=0)
 
@@ -129,7 +129,7 @@ def precomputed(folder: Path, cfg: ResidualTrainConfig) -> Precomputed:
     from dlacli.io.atomic import atomic_path
     from dlacli.io.views import read_views
     from dlacli.paths import cache_dir
-    from dlacli.stages.residual import residual_inputs
+    from dlacli.stages.lift.residual import residual_inputs
 
     lcfg = _lift_config(cfg)
     folder = Path(folder).resolve()
@@ -170,7 +170,7 @@ def render_map(z: torch.Tensor, falloff: float, vertices: torch.Tensor, cameras,
     """F z [14, R, R] (differentiable) on one posed body (vertices [V, 3]) seen from each of
     `cameras`, as the residual lift's avatar renders -> (rgb [C, H, W, 3], alpha [C, H, W]);
     `supersample`: rendered that many times larger and box-filtered (`_supersampled`)."""
-    from dlacli.stages.lift import lifted_posed
+    from dlacli.stages.lift.unproject import lifted_posed
 
     def render(cams):
         out = lifted_posed(z, falloff, vertices, cams, samples).render()
@@ -209,7 +209,7 @@ def render_target(net, code: torch.Tensor, p: Precomputed, vertices, rest, camer
 def image_losses(pred: torch.Tensor, alpha: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor) -> dict:
     """pred, gt [T, H, W, 3]; alpha, mask [T, H, W] -> {"l1" (inside the mask), "mask", "ssim"}."""
     from dlacli.nn.losses import ssim_map
-    from dlacli.stages.lift import fixed_order_mean
+    from dlacli.stages.lift.unproject import fixed_order_mean
 
     m = mask[..., None]
     l1 = fixed_order_mean((pred - gt).abs() * m) / fixed_order_mean(m.expand_as(pred)).clamp_min(1e-6)
@@ -364,7 +364,7 @@ def _init_network(init: str, ncfg):
     package), checked to fit a run of config ncfg."""
     from dlacli.avatar.checkpoint import load_checkpoint, resolve_checkpoint
     from dlacli.nn.residual import ResidualNet
-    from dlacli.stages.residual import SHIPPED
+    from dlacli.stages.lift.residual import SHIPPED
 
     loaded = load_checkpoint(SHIPPED if init == "shipped" else resolve_checkpoint(init))
     theirs = loaded.module

@@ -49,7 +49,7 @@ from dlacli.limits import (
 
 Progress = Callable[[int, float], None]  # (step index, loss) after each refinement step
 MAX_WEIGHT = 1e6  # the largest loss weight a spec may set
-HULLS = ("round", "box")  # where the lift's rays off the body stop (stages/hull.py)
+HULLS = ("round", "box")  # where the lift's rays off the body stop (stages/lift/hull.py)
 LiftFn = Callable[[Any, Any, "Progress | None", Any], Any]  # (views, config, progress, novel) -> LiftResult
 
 # result rows written before the registry: their method name -> the registry's
@@ -265,7 +265,7 @@ class Missing(ValueError):
 
 @dataclass(frozen=True)
 class UnprojectConfig:
-    """Mesh unprojection into Z, then `steps` of refinement (stages/lift.py; None: its default)."""
+    """Mesh unprojection into Z, then `steps` of refinement (stages/lift/unproject.py; None: its default)."""
 
     steps: int = 0
     resolution: int | None = None  # UV side of Z
@@ -301,7 +301,7 @@ class UnprojectConfig:
 
 
 def _lift_unproject(views, config: UnprojectConfig, progress: Progress | None = None, novel=None):
-    from dlacli.stages.lift import LiftConfig, lift
+    from dlacli.stages.lift.unproject import LiftConfig, lift
 
     fields = {k: v for k, v in dataclasses.asdict(config).items() if v is not None}
     return lift(views, LiftConfig(**fields), progress=progress, novel=novel)
@@ -310,7 +310,7 @@ def _lift_unproject(views, config: UnprojectConfig, progress: Progress | None = 
 @dataclass(frozen=True)
 class LearnedConfig:
     """The learned encoder + GPD of a `dla train` checkpoint (folder or hash), then `steps` of
-    refining Z through the frozen decoder (stages/learned.py; None: its default)."""
+    refining Z through the frozen decoder (stages/lift/learned.py; None: its default)."""
 
     checkpoint: str = ""
     steps: int = 0
@@ -327,7 +327,7 @@ class LearnedConfig:
 
 
 def _lift_learned(views, config: LearnedConfig, progress: Progress | None = None, novel=None):
-    from dlacli.stages.learned import lift_learned
+    from dlacli.stages.lift.learned import lift_learned
 
     extra = {} if config.render_size is None else {"render_size": config.render_size}
     return lift_learned(views, config.checkpoint, steps=config.steps, progress=progress, novel=novel, **extra)
@@ -344,7 +344,7 @@ def _install_learned(config: LearnedConfig) -> None:
 class ResidualConfig:
     """Mesh unprojection corrected by the residual network of a `dla train --method residual`
     checkpoint (folder or hash; None: the weights shipped in the package), then `steps` of
-    refinement (stages/residual.py; None: the network's training resolution and Gaussian count,
+    refinement (stages/lift/residual.py; None: the network's training resolution and Gaussian count,
     the lift's defaults otherwise)."""
 
     checkpoint: str | None = None
@@ -362,7 +362,7 @@ class ResidualConfig:
 
 
 def _lift_residual(views, config: ResidualConfig, progress: Progress | None = None, novel=None):
-    from dlacli.stages.residual import lift_residual
+    from dlacli.stages.lift.residual import lift_residual
 
     options = {
         k: v for k, v in dataclasses.asdict(config).items() if v is not None and k not in ("checkpoint", "steps")
@@ -393,7 +393,7 @@ register(
 def _install_residual(config: ResidualConfig) -> None:
     """A residual network with the colour gain is its avatars' decoder, found by hash elsewhere."""
     from dlacli.avatar.checkpoint import install_checkpoint, resolve_checkpoint
-    from dlacli.stages.residual import SHIPPED
+    from dlacli.stages.lift.residual import SHIPPED
 
     install_checkpoint(SHIPPED if config.checkpoint is None else resolve_checkpoint(config.checkpoint))
 

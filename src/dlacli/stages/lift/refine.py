@@ -1,8 +1,8 @@
 """The refinement loop both lifts share: Adam on some tensors against a rendering loss; and the
 window around the subject that refinement renders and compares (`subject_crops`, `crop`).
 
-`dla lift` refines the geometry of the Gaussian map F (stages/lift.py `refine`), the learned lift
-refines the code Z through the frozen decoder (stages/learned.py `lift_learned`); what they
+`dla lift` refines the geometry of the Gaussian map F (stages/lift/unproject.py `refine`), the learned lift
+refines the code Z through the frozen decoder (stages/lift/learned.py `lift_learned`); what they
 optimise and how they score a render is theirs, the steps are this one loop.
 """
 

@@ -5,11 +5,11 @@ allows:
 a. `unstructured_gaussians`: one Gaussian per (block of) masked pixel, placed along its ray at the
    depth of the fitted body (slightly in front of it, for clothing) or, where the body is not
    seen (hair, loose clothing), at the front of the silhouettes' visual hull, rounded for true
-   views (stages/hull.py); colour from the pixel.
+   views (stages/lift/hull.py); colour from the pixel.
 b. `unproject_to_uv`: each Gaussian goes to the nearest body texel that faces its camera; texels
    average what they receive (opacity, offset along the tangent frame), and texels no view saw
    take the values of the nearest seen texel in 3D. The result is the Gaussian map F = Z
-   (identity decoder; avatar/gaussian_map.py). `stages/bake.bake_colours` then gives every texel the colour
+   (identity decoder; avatar/gaussian_map.py). `stages/lift/bake.bake_colours` then gives every texel the colour
    the views show at its own 3D point (projective texturing, the most frontal view dominating).
 c. `refine`: optimise F's geometry (opacity, normal offset, rotation, scale) through sampling +
    skinning + splatting against the input views (L1 + mask + D-SSIM) at the views' own size, up
@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 from dlacli.avatar import gaussian_map as gm
 from dlacli.errors import DlaInputError
 from dlacli.limits import LIFT_GAUSSIANS, LIFT_LR, LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS, MIN_VIEW_FALLOFF
-from dlacli.stages.bake import (
+from dlacli.stages.lift.bake import (
     VIEW_SHARPNESS,
     TexelViews,
     bake_colours,
@@ -38,9 +38,9 @@ from dlacli.stages.bake import (
     texel_views,
     view_falloff,
 )
-from dlacli.stages.hull import HullDepth, Silhouettes, hull_depth
-from dlacli.stages.sheet import contact_sheet as contact_sheet  # re-exported: the sheet lift writes
-from dlacli.stages.sheet import sheet_and_novel_view
+from dlacli.stages.lift.hull import HullDepth, Silhouettes, hull_depth
+from dlacli.stages.lift.sheet import contact_sheet as contact_sheet  # re-exported: the sheet lift writes
+from dlacli.stages.lift.sheet import sheet_and_novel_view
 from dlacli.types import Avatar, Cameras, Gaussians, ViewSet, rgb_to_sh0
 
 ENCODER = "unproject"
@@ -67,7 +67,7 @@ class LiftConfig:
     seed: int = 0
     view_colour: bool = True  # measure the views' view-dependent falloff (`view_falloff`) and model it
     # where rays off the body stop: "round", the silhouettes' rounded hull, or "box", their
-    # intersection (stages/hull.py); None: round for true views, box for a folder `dla dream`
+    # intersection (stages/lift/hull.py); None: round for true views, box for a folder `dla dream`
     # wrote (`hull_shape`)
     hull: str | None = None
 
@@ -127,7 +127,7 @@ def _unstructured(views: ViewSet, vertices: np.ndarray, grid: int, shape: str):
         hulls[v][rows, cols] = hull
         bdepth = body.depth[v][rows, cols].astype(np.float64)
         # on the body: the body, unless the silhouettes' intersection says it lies farther; off
-        # it (hair, loose clothing): the rounded hull (stages/hull.py) or, for "box", the intersection
+        # it (hair, loose clothing): the rounded hull (stages/lift/hull.py) or, for "box", the intersection
         depth = np.where(np.isfinite(bdepth), np.maximum(hull, bdepth - CLOTH_MARGIN), off_body)
         if not np.isfinite(hull).all():  # rays that miss the hull (inconsistent masks): use the body
             depth = np.where(np.isfinite(depth), depth, bdepth)
@@ -282,7 +282,7 @@ def refine(
     L1 + w_mask * mask L1 + w_ssim * (1 - SSIM), Adam for cfg.steps steps.
     `progress(step, loss)` is called per step. Returns the refined map and the loss of every step."""
     from dlacli.nn.losses import SSIM_WINDOW, ssim_map
-    from dlacli.stages.refine import adam_refine, crop, subject_crops
+    from dlacli.stages.lift.refine import adam_refine, crop, subject_crops
 
     samples = samples or gm.make_samples(cfg.gaussians, cfg.seed)
     # F itself is optimised (the identity decoder's F = Z): its Gaussians are placed straight by

@@ -1,6 +1,6 @@
 """Observation features: what the input views say about each texel of an unprojected map F.
 
-The residual lift (stages/residual.py) hands these to its network beside F itself, so the net can
+The residual lift (stages/lift/residual.py) hands these to its network beside F itself, so the net can
 tell where unprojection had good evidence and where it guessed. Numpy, no network; computed once
 per lift at the map's resolution R (docs/lift.md "Observation features" says what each means):
 
@@ -30,7 +30,7 @@ from dlacli.geometry import project_points
 from dlacli.types import ViewSet
 
 if TYPE_CHECKING:
-    from dlacli.stages.bake import TexelViews
+    from dlacli.stages.lift.bake import TexelViews
 
 SDF_UNIT = 0.1  # the mask SDF is measured in tenths of the image height
 HULL_GAP_MAX = 0.3  # metres
@@ -63,7 +63,7 @@ def observation_features(texels: TexelViews, views: ViewSet, depth: np.ndarray, 
     pose), the views, the body's depth in them (depth [V, H, W], `bake.body_depth_maps`) and
     step a's hull depths (`hull.HullDepth`)."""
     from dlacli.body.regions import segmentation_onehot
-    from dlacli.stages.bake import VISIBLE_DEPTH
+    from dlacli.stages.lift.bake import VISIBLE_DEPTH
 
     valid, points, normals = texels.valid, texels.points, texels.normals
     res = valid.shape[-1]

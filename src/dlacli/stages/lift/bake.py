@@ -1,4 +1,4 @@
-"""The colour bake of the lift (stages/lift.py): projective texturing of the Gaussian map F from
+"""The colour bake of the lift (stages/lift/unproject.py): projective texturing of the Gaussian map F from
 the views, and the views' view-dependent falloff k.
 
 Each texel's 3D point on the body in the input pose is projected into every view; a view sees it

@@ -12,7 +12,7 @@ import torch
 from dlacli.errors import DlaInputError
 from dlacli.nn.learned import DECODER, ENCODER, LearnedAvatarNet, subject_depth
 
-# checkpoints written before the network moved to nn/ name dlacli.stages.learned.LearnedAvatarNet
+# checkpoints written before the network moved to nn/ name dlacli.stages.lift.learned.LearnedAvatarNet
 # and .LearnedConfig: both stay importable from here (avatar/checkpoint.py rebuilds by dotted name)
 from dlacli.nn.learned import LearnedConfig as LearnedConfig
 from dlacli.types import Cameras, Gaussians, ViewSet
@@ -70,8 +70,8 @@ def lift_learned(
     render_size) -> stages.lift.LiftResult (avatar, the U-Net's pixel Gaussians, contact sheet)."""
     from dlacli.body.model import get_body_model
     from dlacli.body.uv import UV_LAYOUT
-    from dlacli.stages.lift import MAX_VIEWS, LiftResult, sheet_and_novel_view
-    from dlacli.stages.refine import adam_refine
+    from dlacli.stages.lift.refine import adam_refine
+    from dlacli.stages.lift.unproject import MAX_VIEWS, LiftResult, sheet_and_novel_view
     from dlacli.types import Avatar
 
     if views.body is None:

@@ -1,8 +1,8 @@
 """The residual lift (`dla lift --method residual`): mesh unprojection, then a small trained
 UV-space network (nn/residual.py) that corrects its Gaussian map from observation features
-(stages/observations.py), then optionally `steps` of the lift's own refinement.
+(stages/lift/observations.py), then optionally `steps` of the lift's own refinement.
 
-    views --stages/lift.unprojection--> F, body, depths --observation_features--> features
+    views --stages/lift/unproject.unprojection--> F, body, depths --observation_features--> features
         --ResidualNet--> F' = F + bounded corrections --(steps > 0: refine the geometry, re-bake
         the colours, the network's colour correction again)--> avatar (identity or view-cosine
         decoder: F' is a Gaussian map like any unprojected one)
@@ -23,7 +23,7 @@ from dlacli.errors import DlaInputError
 from dlacli.types import ViewSet
 
 ENCODER = "residual"
-SHIPPED = Path(__file__).resolve().parent.parent / "assets" / "weights" / "residual"
+SHIPPED = Path(__file__).resolve().parents[2] / "assets" / "weights" / "residual"
 
 
 @dataclass
@@ -37,8 +37,8 @@ class ResidualInputs:
 def residual_inputs(views: ViewSet, cfg) -> ResidualInputs:
     """Unprojection of `views` with the lift config cfg (stages/lift.LiftConfig) and its
     observation features: everything the network does not change, computed once."""
-    from dlacli.stages.lift import unprojection
-    from dlacli.stages.observations import observation_features
+    from dlacli.stages.lift.observations import observation_features
+    from dlacli.stages.lift.unproject import unprojection
 
     base = unprojection(views, cfg)
     return ResidualInputs(base, observation_features(base.texels, views, base.depth, base.hull))
@@ -104,7 +104,7 @@ def lift_residual(
     count (unless `lift_options` set resolution / gaussians / render_size / seed), the network's
     corrections, `steps` of refinement of the geometry, then the colours re-baked where the refined
     geometry puts the Gaussians and corrected by the network again (`colour_correction`)."""
-    from dlacli.stages.lift import LiftConfig, finish_lift
+    from dlacli.stages.lift.unproject import LiftConfig, finish_lift
 
     net, digest = load_residual(checkpoint)
     options = {"resolution": net.config.resolution, "gaussians": net.config.gaussians, **lift_options}
