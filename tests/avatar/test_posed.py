@@ -211,6 +211,15 @@ def test_render_splats_each_set_with_its_cameras(bodies):
         assert not torch.equal(joined.rgb[0], render_gaussians(cosine.gaussians(0, 1), cams.select(0)).rgb[0])
         placed = cosine.placed(0, 2)
         assert torch.equal(rgb_to_sh0(placed.rgb[0])[:, None], cosine.gaussians(0, 2).sh)
+    # with a gradient asked for, each camera alone with its own set (the gradients as before)
+    tracked = PosedAvatar(
+        codec.Decoded.of(codec.ViewCosineDecoder(), z.clone().requires_grad_(True), rest), samples, verts, cams
+    )
+    groups = list(tracked.renders(body=0))
+    assert [list(g) for g, _ in groups] == [[0], [1], [2]] and groups[0][1].rgb.requires_grad
+    # the torch path (skinning and view-cosine with gradients) against the kernels': float32
+    # rounding of colours <= 1 composited over a few Gaussians
+    assert (groups[2][1].rgb.detach() - joined.rgb[2:3]).abs().max() < 1e-4
     # one Cameras per body: body p is drawn from its own
     own = PosedAvatar(codec.Decoded(av), samples, verts, [cams.select(1), cams.select(2)])
     assert torch.equal(own.render(1).rgb, render_gaussians(own.gaussians(1), cams.select(2)).rgb)

@@ -11,12 +11,12 @@ pose-conditioned and once per (body, camera) when it is view-conditioned. An unc
 decoder's F_c is skinned onto all P bodies as one batch; a conditioned decoder's maps are decoded
 and skinned one at a time, each on its own body (the batch sizes the consumers used before:
 batching changes the float summation order, and render, animate and export are pinned bit for
-bit). Differentiable in the
-code: a `Decoded.of(decoder, z)` with z requiring grad gives Gaussians with gradients to z.
+bit). Differentiable in the code: a `Decoded.of(decoder, z)` with z requiring grad gives
+Gaussians with gradients to z.
 
 `sample_settings` is the sample-count/seed policy: which surface samples an avatar is drawn at.
-`render_set` splats one set of placed Gaussians, with appearance per camera where given: the one
-place that calls the renderer for an avatar's Gaussians.
+`render_set` splats one set of placed Gaussians, with appearance per camera where given (what the
+pipeline's render calls, and what renders Gaussians placed elsewhere: an animation's frames).
 """
 
 from __future__ import annotations
@@ -234,9 +234,11 @@ class PosedAvatar:
             placed = [self.placed(body, int(c)) for c in group]
             if deltas is not None:
                 deltas.extend(x.delta for x in placed)
-            if len(group) == 1:
-                for _, out in _render_calls(placed[0].item(0), cams.select(group), None, None, exact, None):
-                    yield group, out
+            if len(group) == 1 or _asks_grad(placed[0].means, placed[0].rgb):
+                # with a gradient, each camera its own set, as before: the same gradients, bit for bit
+                for c, x in zip(group, placed):
+                    for _, out in _render_calls(x.item(0), cams.select([int(c)]), None, None, exact, None):
+                        yield group[group == c], out
                 continue
             geometry = placed[0].item(0)
             opacities = torch.cat([x.opacities for x in placed])  # [k, N]
@@ -272,9 +274,7 @@ def _render_calls(gaussians, cameras, opacities, sh, exact, per_call) -> Iterato
     their results stay the same bits."""
     from dlacli.render.splat import render_gaussians
 
-    tracked = torch.is_grad_enabled() and any(
-        t is not None and t.requires_grad for t in (gaussians.means, gaussians.opacities, gaussians.sh, opacities, sh)
-    )
+    tracked = _asks_grad(gaussians.means, gaussians.opacities, gaussians.sh, opacities, sh)
     step = len(cameras) if per_call is None else max(1, per_call)
     step = 1 if tracked and (opacities is not None or sh is not None) else step
     for k in range(0, len(cameras), step):
@@ -282,6 +282,10 @@ def _render_calls(gaussians, cameras, opacities, sh, exact, per_call) -> Iterato
         picked = [None if t is None else t[part] for t in (opacities, sh)]
         out = render_gaussians(gaussians, cameras.select(part), exact=exact, opacities=picked[0], sh=picked[1])
         yield np.arange(part.start, part.stop), out
+
+
+def _asks_grad(*tensors) -> bool:
+    return torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in tensors)
 
 
 def join_renders(outs) -> object:
