@@ -64,10 +64,11 @@ def test_a_small_run_scores_every_split(tmp_path):
     # the child process's lift agrees with this one's to float32 accumulation order, not bit for bit)
     from dlacli.data.synth import synth
     from dlacli.io.views import read_views
-    from dlacli.stages.lift.unproject import LiftConfig, lift
+    from dlacli.stages.lift.methods.unproject import UnprojectConfig
+    from dlacli.stages.lift.unproject import lift
 
     folder = synth(8101, tmp_path / "s", res=64, novel_views=2, novel_poses=1, appearance="lit", wardrobe="heldout")
-    direct = score_avatar(lift(read_views(folder), LiftConfig(steps=0)).avatar, folder)
+    direct = score_avatar(lift(read_views(folder), UnprojectConfig(steps=0)).avatar, folder)
     for r in rows:
         for k, v in direct[r["split"]].items():
             assert abs(r["metrics"][k] - v) <= (1e-3 if k.startswith("psnr") else 1e-4), (r["split"], k)

@@ -45,11 +45,12 @@ def avatar_path(tmp_path_factory):
     from dlacli.data.synth import synth
     from dlacli.io.avatar import write_avatar
     from dlacli.io.views import read_views
-    from dlacli.stages.lift.unproject import LiftConfig, lift
+    from dlacli.stages.lift.methods.unproject import UnprojectConfig
+    from dlacli.stages.lift.unproject import lift
 
     root = tmp_path_factory.mktemp("view")
     views = synth(5, root / "s5", res=96, novel_views=0, novel_poses=0)
-    write_avatar(lift(read_views(views), LiftConfig(steps=0, gaussians=N)).avatar, root / "avatar.npz")
+    write_avatar(lift(read_views(views), UnprojectConfig(steps=0, gaussians=N)).avatar, root / "avatar.npz")
     return root / "avatar.npz"
 
 

@@ -94,13 +94,13 @@ def test_colour_correction_of_a_rebake_is_the_networks_own_on_its_bake(subject):
     from dlacli.avatar import gaussian_map as gm
     from dlacli.io.views import read_views
     from dlacli.nn.residual import ResidualNet
+    from dlacli.stages.lift.methods.unproject import UnprojectConfig
     from dlacli.stages.lift.residual import colour_correction, corrected_map, residual_inputs
-    from dlacli.stages.lift.unproject import LiftConfig
 
     torch.manual_seed(2)
     net = ResidualNet(_config()).eval()
     torch.nn.init.normal_(net.head.weight, std=3.0)
-    inputs = residual_inputs(read_views(subject), LiftConfig(steps=0, resolution=RES, gaussians=GAUSSIANS))
+    inputs = residual_inputs(read_views(subject), UnprojectConfig(steps=0, resolution=RES, gaussians=GAUSSIANS))
     corrected, t = corrected_map(net, inputs)
     recolour = colour_correction(t)
     np.testing.assert_array_equal(recolour(inputs.base.fmap)[gm.RGB], corrected[gm.RGB])
@@ -139,12 +139,12 @@ def test_observation_features_agree_with_the_geometry(subject):
     the visual hull encloses the body (hull depth <= body depth + a texel's slack)."""
     from dlacli.body.uv import uv_raster
     from dlacli.io.views import read_views
+    from dlacli.stages.lift.methods.unproject import UnprojectConfig
     from dlacli.stages.lift.observations import NAMES, feature_count
     from dlacli.stages.lift.residual import residual_inputs
-    from dlacli.stages.lift.unproject import LiftConfig
 
     views = read_views(subject)
-    feats = residual_inputs(views, LiftConfig(resolution=RES, gaussians=GAUSSIANS, steps=0)).features
+    feats = residual_inputs(views, UnprojectConfig(resolution=RES, gaussians=GAUSSIANS, steps=0)).features
     assert feats.shape == (feature_count(), RES, RES) and feats.dtype == np.float32
     valid = uv_raster(RES).mask
     np.testing.assert_array_equal(feats[0] > 0, valid)

@@ -17,7 +17,8 @@ from dlacli.io.avatar import write_avatar
 from dlacli.io.motion import write_motion
 from dlacli.io.usd_read import read_usd, validate_usd
 from dlacli.io.views import read_transforms, read_views
-from dlacli.stages.lift.unproject import LiftConfig, lift
+from dlacli.stages.lift.methods.unproject import UnprojectConfig
+from dlacli.stages.lift.unproject import lift
 from dlacli.types import Motion
 
 N = 4096
@@ -30,7 +31,7 @@ def _dla(*args):
 @pytest.fixture(scope="module")
 def avatar_path(subject, tmp_path_factory):
     path = tmp_path_factory.mktemp("avatar") / "avatar.npz"
-    write_avatar(lift(read_views(subject), LiftConfig(steps=0, gaussians=N)).avatar, path)
+    write_avatar(lift(read_views(subject), UnprojectConfig(steps=0, gaussians=N)).avatar, path)
     return path
 
 

@@ -97,10 +97,11 @@ def test_scaled_count_follows_the_area_the_person_covers():
 @pytest.fixture(scope="module")
 def lifted(subject):
     from dlacli.io.views import read_views
-    from dlacli.stages.lift.unproject import LiftConfig, lift
+    from dlacli.stages.lift.methods.unproject import UnprojectConfig
+    from dlacli.stages.lift.unproject import lift
 
     views = read_views(subject)
-    return lift(views, LiftConfig(steps=0, gaussians=N)).avatar, views
+    return lift(views, UnprojectConfig(steps=0, gaussians=N)).avatar, views
 
 
 def test_measure_budget_is_masked_psnr_of_the_renders(lifted):

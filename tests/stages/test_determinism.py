@@ -77,11 +77,12 @@ import sys
 import numpy as np
 from dlacli.io.avatar import write_avatar
 from dlacli.io.views import read_views
-from dlacli.stages.lift.unproject import LiftConfig, lift
+from dlacli.stages.lift.methods.unproject import UnprojectConfig
+from dlacli.stages.lift.unproject import lift
 
 views, out, n, steps = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
 # w_smooth: the roughness term (the default for dreamed views) takes part in the check too
-result = lift(read_views(views), LiftConfig(steps=steps, gaussians=n, resolution=64, w_smooth=0.1))
+result = lift(read_views(views), UnprojectConfig(steps=steps, gaussians=n, resolution=64, w_smooth=0.1))
 np.save(out + ".z32.npy", result.avatar.z)
 write_avatar(result.avatar, out)
 """

@@ -211,9 +211,10 @@ def test_lift_keeps_shell_views_view_independent(folder):
     must find no view falloff in them (stages/lift/bake.py `view_falloff`) and keep the identity
     decoder. (Dreams of the four photos in tests/data/third_party/images measured k = -0.04 ... 0.02.)"""
     from dlacli.io.views import read_views
-    from dlacli.stages.lift.unproject import LiftConfig, lift
+    from dlacli.stages.lift.methods.unproject import UnprojectConfig
+    from dlacli.stages.lift.unproject import lift
 
-    avatar = lift(read_views(folder), LiftConfig(steps=0, gaussians=4096)).avatar
+    avatar = lift(read_views(folder), UnprojectConfig(steps=0, gaussians=4096)).avatar
     assert avatar.decoder == "identity" and avatar.extra["lift"]["view_falloff"] == 0.0
 
 

@@ -134,9 +134,10 @@ def test_cli_interp_video(subject, tmp_path):
     import imageio.v2 as imageio
 
     from dlacli.io.views import read_views
-    from dlacli.stages.lift.unproject import LiftConfig, lift
+    from dlacli.stages.lift.methods.unproject import UnprojectConfig
+    from dlacli.stages.lift.unproject import lift
 
-    a = lift(read_views(subject), LiftConfig(steps=0, gaussians=2048)).avatar
+    a = lift(read_views(subject), UnprojectConfig(steps=0, gaussians=2048)).avatar
     b = Avatar(z=a.z.copy(), encoder=a.encoder, decoder=a.decoder, body=a.body, uv_layout=a.uv_layout)
     b.z[1:4] = 1.0 - b.z[1:4]  # inverted colours
     write_avatar(a, tmp_path / "a.npz")

@@ -100,19 +100,20 @@ def test_rays_that_miss_every_silhouette_are_inf_in_both_hulls():
 
 def test_a_lift_spec_names_its_hull_and_refuses_an_unknown_one():
     from dlacli.errors import DlaInputError
-    from dlacli.stages.lift.methods import HULLS, parse_method
-    from dlacli.stages.lift.unproject import LiftConfig, hull_shape
+    from dlacli.stages.lift.methods import parse_method
+    from dlacli.stages.lift.methods.unproject import HULLS, UnprojectConfig
+    from dlacli.stages.lift.unproject import hull_shape
 
-    assert LiftConfig().hull is None and set(HULLS) == {"round", "box"}
+    assert UnprojectConfig().hull is None and set(HULLS) == {"round", "box"}
     assert parse_method("unproject:hull=box").config.hull == "box"
     with pytest.raises(DlaInputError, match="hull must be one of round, box, got cube"):
         parse_method("unproject:hull=cube")
 
     # unset, the views decide: round for true views, box for a folder dla dream wrote
     views = _column_views()
-    assert hull_shape(LiftConfig().hull, views) == "round"
+    assert hull_shape(UnprojectConfig().hull, views) == "round"
     dreamed = ViewSet(views.images, views.masks, views.cameras, None, [""] * 4, [None] * 4, {"dream": {}})
-    assert hull_shape(LiftConfig().hull, dreamed) == "box"
+    assert hull_shape(UnprojectConfig().hull, dreamed) == "box"
     assert hull_shape("round", dreamed) == "round"
 
 

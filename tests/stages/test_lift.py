@@ -15,7 +15,8 @@ from dlacli.bench.metrics import alpha_iou, masked_psnr, psnr
 from dlacli.io.avatar import read_avatar
 from dlacli.io.ply import read_ply
 from dlacli.io.views import read_views
-from dlacli.stages.lift.unproject import LiftConfig, lift
+from dlacli.stages.lift.methods.unproject import UnprojectConfig
+from dlacli.stages.lift.unproject import lift
 from dlacli.stages.render import render_avatar
 
 N = 32_768  # Gaussians: enough for 128 px views
@@ -31,7 +32,7 @@ def _scores(avatar, views):
 @pytest.fixture(scope="module")
 def lifted(subject):
     views = read_views(subject)
-    return views, lift(views, LiftConfig(steps=0, gaussians=N)), lift(views, LiftConfig(steps=8, gaussians=N))
+    return views, lift(views, UnprojectConfig(steps=0, gaussians=N)), lift(views, UnprojectConfig(steps=8, gaussians=N))
 
 
 def test_unprojection_reproduces_inputs(lifted):
@@ -106,10 +107,11 @@ def test_contact_sheet_without_ground_truth(subject, tmp_path):
     assert Image.open(tmp_path / "a_contact.png").size == (4 * 256, 2 * 256)
     assert "novel view" not in r.stderr
     from dlacli.io.views import read_views
-    from dlacli.stages.lift.unproject import LiftConfig, lift
+    from dlacli.stages.lift.methods.unproject import UnprojectConfig
+    from dlacli.stages.lift.unproject import lift
 
     novel = read_views(subject / "novel_views", require_body=False)
-    res = lift(read_views(subject), LiftConfig(steps=0, gaussians=4096), novel=novel)
+    res = lift(read_views(subject), UnprojectConfig(steps=0, gaussians=4096), novel=novel)
     pred, truth, mask = res.novel_view
     assert np.array_equal(truth, novel.images[0] * novel.masks[0][..., None]) or np.allclose(
         truth, novel.images[0] * novel.masks[0][..., None], atol=1e-6
@@ -166,12 +168,13 @@ def test_refinement_improves_novel_views(subject):
     0.773 -> 0.848. Floors: +0.3 dB and +0.04 IoU (about half the measured gains)."""
     from dlacli.bench.pipeline import _score
     from dlacli.io.views import read_views
-    from dlacli.stages.lift.unproject import LiftConfig, lift
+    from dlacli.stages.lift.methods.unproject import UnprojectConfig
+    from dlacli.stages.lift.unproject import lift
 
     views = read_views(subject)
     novel = read_views(subject / "novel_views", require_body=False)
-    before = _score(lift(views, LiftConfig(steps=0, gaussians=32768)).avatar, novel)
-    after = _score(lift(views, LiftConfig(steps=20, gaussians=32768)).avatar, novel)
+    before = _score(lift(views, UnprojectConfig(steps=0, gaussians=32768)).avatar, novel)
+    after = _score(lift(views, UnprojectConfig(steps=20, gaussians=32768)).avatar, novel)
     assert after["psnr_masked"] >= before["psnr_masked"] + 0.3, (before, after)
     assert after["iou"] >= before["iou"] + 0.04, (before, after)
 
@@ -190,7 +193,7 @@ def test_refinement_compares_a_window_that_loses_nothing(subject):
     from dlacli.stages.lift.refine import subject_crops
 
     views = read_views(subject)
-    cfg = LiftConfig(steps=1, gaussians=N)
+    cfg = UnprojectConfig(steps=1, gaussians=N).resolved()
     vertices = get_body_model().forward_body(views.body).vertices[0].numpy()
     unstructured, _, eyes = stage.unstructured_gaussians(views, vertices, cfg.grid)
     fmap = stage.unproject_to_uv(unstructured, eyes, vertices, cfg.resolution)
@@ -251,7 +254,7 @@ def test_the_roughness_weight_smooths_the_refined_normal_offsets(subject):
     pairs = _neighbour_pairs(128)
     rough = []
     for w in (0.0, 0.1):
-        avatar = lift(views, LiftConfig(steps=8, gaussians=8192, resolution=128, w_smooth=w)).avatar
+        avatar = lift(views, UnprojectConfig(steps=8, gaussians=8192, resolution=128, w_smooth=w)).avatar
         assert avatar.extra["lift"]["w_smooth"] == w
         z = avatar.z
         rough.append(float(_roughness(torch.from_numpy(np.asarray(z[gm.OFFSET][2], np.float64)), pairs)))
@@ -277,8 +280,9 @@ def test_the_roughness_weight_defaults_to_the_dreams_for_dreamed_views_only(subj
     views = read_views(subject)
     dreamed = dataclasses.replace(views, extra={**views.extra, "dream": {"backend": "body"}})
     assert "dream" not in views.extra and DREAM_W_SMOOTH > 0
-    assert smoothness(LiftConfig(), views) == 0.0 and smoothness(LiftConfig(), dreamed) == DREAM_W_SMOOTH
-    assert smoothness(LiftConfig(w_smooth=0.0), dreamed) == 0.0
-    assert smoothness(LiftConfig(w_smooth=0.5), views) == 0.5
+    assert smoothness(UnprojectConfig(), views) == 0.0 and smoothness(UnprojectConfig(), dreamed) == DREAM_W_SMOOTH
+    assert smoothness(UnprojectConfig(w_smooth=0.0), dreamed) == 0.0
+    assert smoothness(UnprojectConfig(w_smooth=0.5), views) == 0.5
     # without refinement no weight was used, and the avatar says so
-    assert lift(dreamed, LiftConfig(steps=0, gaussians=8192, resolution=64)).avatar.extra["lift"]["w_smooth"] == 0.0
+    unrefined = lift(dreamed, UnprojectConfig(steps=0, gaussians=8192, resolution=64)).avatar
+    assert unrefined.extra["lift"]["w_smooth"] == 0.0

@@ -12,7 +12,8 @@ import torch
 from dlacli.avatar.codec import PoseConditioning, ViewCosineDecoder, view_cosine
 from dlacli.errors import DlaInputError
 from dlacli.io.views import read_views
-from dlacli.stages.lift.unproject import MIN_FALLOFF, LiftConfig, lift
+from dlacli.stages.lift.methods.unproject import UnprojectConfig
+from dlacli.stages.lift.unproject import MIN_FALLOFF, lift
 
 N = 32_768
 
@@ -62,7 +63,7 @@ def test_falloff_measured_from_a_headlit_subject(subject256):
     """Seed 5 at 256 px in the albedo appearance: a headlight with AMBIENT 0.35, so k = 0.65."""
     from dlacli.data.images import AMBIENT
 
-    avatar = lift(read_views(subject256), LiftConfig(steps=0, gaussians=N)).avatar
+    avatar = lift(read_views(subject256), UnprojectConfig(steps=0, gaussians=N)).avatar
     k = avatar.extra["lift"]["view_falloff"]
     assert abs(k - (1.0 - AMBIENT)) <= 0.12, k  # measured 0.59 (0.59-0.61 at 512 px)
     assert avatar.decoder == "view-cosine" and avatar.z.shape[0] == 15
@@ -84,7 +85,7 @@ def flat_subject(tmp_path_factory):
 
 
 def test_no_falloff_keeps_the_identity_decoder(flat_subject):
-    avatar = lift(read_views(flat_subject), LiftConfig(steps=0, gaussians=N)).avatar
+    avatar = lift(read_views(flat_subject), UnprojectConfig(steps=0, gaussians=N)).avatar
     assert abs(avatar.extra["lift"]["view_falloff"]) < MIN_FALLOFF
     assert avatar.decoder == "identity" and avatar.z.shape[0] == 14
 
@@ -97,8 +98,8 @@ def test_view_colour_improves_novel_views(subject256):
 
     views = read_views(subject256)
     novel = read_views(subject256 / "novel_views", require_body=False)
-    off = _score(lift(views, LiftConfig(steps=0, gaussians=N, view_colour=False)).avatar, novel)
-    on = _score(lift(views, LiftConfig(steps=0, gaussians=N)).avatar, novel)
+    off = _score(lift(views, UnprojectConfig(steps=0, gaussians=N, view_colour=False)).avatar, novel)
+    on = _score(lift(views, UnprojectConfig(steps=0, gaussians=N)).avatar, novel)
     assert on["psnr_masked"] >= off["psnr_masked"] + 1.4, (off, on)
 
 
@@ -111,7 +112,7 @@ def test_lift_shows_what_render_draws(subject):
     from dlacli.stages.render import render_avatar
 
     views = read_views(subject)
-    avatar = lift(views, LiftConfig(steps=0, gaussians=N)).avatar
+    avatar = lift(views, UnprojectConfig(steps=0, gaussians=N)).avatar
     _, _, cams = views.targets(512)
     verts = get_body_model().forward_body(views.body).vertices[0].numpy()
     k = avatar.extra["lift"]["view_falloff"]
@@ -125,8 +126,8 @@ def test_swap_between_identity_and_view_cosine(subject, flat_subject):
     from dlacli.body.regions import region_mask
     from dlacli.stages.edit import interpolate, swap_region
 
-    lit = lift(read_views(subject), LiftConfig(steps=0, gaussians=2048)).avatar
-    flat = lift(read_views(flat_subject), LiftConfig(steps=0, gaussians=2048)).avatar
+    lit = lift(read_views(subject), UnprojectConfig(steps=0, gaussians=2048)).avatar
+    flat = lift(read_views(flat_subject), UnprojectConfig(steps=0, gaussians=2048)).avatar
     assert (lit.decoder, flat.decoder) == ("view-cosine", "identity")
     out = swap_region(flat, lit, "face")
     face = region_mask("face", flat.z.shape[-1])

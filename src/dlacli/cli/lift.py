@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Optional
 
 import typer
@@ -12,21 +11,14 @@ from dlacli.cli import options
 from dlacli.limits import (
     BUDGET_LADDER,
     BUDGET_TOLERANCE_DB,
-    DEFAULT_SAMPLE_SEED,
-    LIFT_GAUSSIANS,
-    LIFT_RESOLUTION,
     LIFT_STEPS,
     MAX_LIFT_RESOLUTION,
     MAX_LIFT_STEPS,
     MIN_VIEW_FALLOFF,
 )
 from dlacli.stages.lift.methods import METHODS
+from dlacli.stages.lift.methods.unproject import DEFAULTS
 
-# `dlacli.stages.lift.unproject.LiftConfig`'s defaults, from the torch-free limits module (loading the CLI for
-# `dla --version` or `dla info` does not import the stage and torch).
-_DEFAULTS = SimpleNamespace(
-    steps=LIFT_STEPS, resolution=LIFT_RESOLUTION, gaussians=LIFT_GAUSSIANS, seed=DEFAULT_SAMPLE_SEED
-)
 # the options that set a field of the method's config, by field name
 _FIELDS = {
     "steps": "--steps",
@@ -41,7 +33,7 @@ _METHOD_HELP = (
     f"The lift method, NAME[:KEY=VALUE,...] (dlacli.stages.lift.methods): {_KNOWN}. Options below set its keys."
 )
 _STEPS_HELP = (
-    f"Refinement steps against the input views (unproject: default {_DEFAULTS.steps}, 0 = mesh unprojection "
+    f"Refinement steps against the input views (unproject: default {LIFT_STEPS}, 0 = mesh unprojection "
     "only; learned: default 0, N refines Z through the frozen decoder); more is slower and closer."
 )
 _CHECKPOINT_HELP = (
@@ -49,7 +41,7 @@ _CHECKPOINT_HELP = (
     "in the checkpoints cache."
 )
 _GAUSSIANS_HELP = (
-    f"'auto' (default): refine with {_DEFAULTS.gaussians:,} Gaussians sampled from Z and record them as the "
+    f"'auto' (default): refine with {DEFAULTS['gaussians']:,} Gaussians sampled from Z and record them as the "
     "budget render, animate, view and export draw by default; with --steps 0, record the fewest "
     f"({BUDGET_LADDER[0]:,} ... {BUDGET_LADDER[-1]:,}) whose re-renders of the input views score within "
     f"{BUDGET_TOLERANCE_DB:g} dB masked PSNR of the best (docs/lift.md); N: refine with and record N, no budget."
@@ -73,10 +65,10 @@ def lift(
     method: str = typer.Option("unproject", "--method", help=_METHOD_HELP),
     checkpoint: Optional[Path] = options.checkpoint(_CHECKPOINT_HELP),
     resolution: int = options.image_size(
-        _DEFAULTS.resolution, "UV resolution of the Gaussian map Z.", "--resolution", maximum=MAX_LIFT_RESOLUTION
+        DEFAULTS["resolution"], "UV resolution of the Gaussian map Z.", "--resolution", maximum=MAX_LIFT_RESOLUTION
     ),
     gaussians: Optional[str] = options.gaussians("the input views", help=_GAUSSIANS_HELP),
-    seed: int = options.seed("Seed of the Gaussian sample points.", default=_DEFAULTS.seed),
+    seed: int = options.seed("Seed of the Gaussian sample points.", default=DEFAULTS["seed"]),
     view_colour: bool = typer.Option(True, "--view-colour/--no-view-colour", help=_VIEW_COLOUR_HELP),
     allow_outside: bool = typer.Option(
         False,

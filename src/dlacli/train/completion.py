@@ -422,3 +422,24 @@ def _checkpoint(out: Path, record: dict, net, ncfg, opt, step: int, data: str) -
     if old and old != name:
         shutil.rmtree(out / old, ignore_errors=True)
     draw_losses(record, out / "loss.png")
+
+
+def train_from_options(data: Path, output: Path, o) -> Path:
+    """`dla train --method completion` (train/methods.py): -> the last checkpoint's prior folder.
+    Options not given take CompletionTrainConfig's defaults."""
+    target_light = o.get("target_light") or "world"
+    if target_light not in TARGET_LIGHTS:
+        raise DlaInputError("--target-light", f"must be {' or '.join(TARGET_LIGHTS)}, got {target_light!r}")
+    given = dict(steps=o.get("steps_full"), batch=o.get("batch"), lr=o.get("lr_g"))
+    cfg = CompletionTrainConfig(
+        validation=o["validation"],
+        eval_every=o["eval_every"],
+        checkpoint_every=o["checkpoint_every"],
+        seed=o["seed"],
+        target_light=target_light,
+        **{k: v for k, v in given.items() if v is not None},
+    )
+    if cfg.total_steps == 0:
+        raise DlaInputError("--steps-full", "no steps to train")
+    record = train_completion(data, output, cfg, resume=bool(o.get("resume")), jobs=o.get("jobs") or 1)
+    return output / record["checkpoint"] / "prior"

@@ -260,3 +260,12 @@ def run_lifter_training(
     }
     (output / "train.json").write_text(json.dumps(record, indent=1))
     return path
+
+
+def train_from_options(data: Path, output: Path, o) -> Path:
+    """`dla train --method lifter` (train/methods.py): 20,000 steps, batch 512, lr 1e-3 unless given."""
+    steps, batch, lr = o.get("steps_full"), o.get("batch"), o.get("lr_g")
+    return run_lifter_training(
+        data, output, steps=20_000 if steps is None else steps, batch=batch or 512, lr=lr or 1e-3, seed=o["seed"],
+        validation=o["validation"],
+    )  # fmt: skip

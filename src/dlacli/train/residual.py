@@ -117,9 +117,9 @@ class Precomputed:
 
 
 def _lift_config(cfg: ResidualTrainConfig):
-    from dlacli.stages.lift.unproject import LiftConfig
+    from dlacli.stages.lift.methods.unproject import UnprojectConfig
 
-    return LiftConfig(resolution=cfg.resolution, gaussians=cfg.gaussians, steps=0)
+    return UnprojectConfig(resolution=cfg.resolution, gaussians=cfg.gaussians, steps=0).resolved()
 
 
 def precomputed(folder: Path, cfg: ResidualTrainConfig) -> Precomputed:
@@ -510,3 +510,31 @@ def _checkpoint(out: Path, record: dict, net, ncfg, opt, step: int, cfg: Residua
     if old and old != name:
         shutil.rmtree(out / old, ignore_errors=True)
     draw_losses(record, out / "loss.png")
+
+
+def train_from_options(data: Path, output: Path, o) -> Path:
+    """`dla train --method residual` (train/methods.py): -> the last generator checkpoint's folder.
+    Options not given take ResidualTrainConfig's defaults; the render size, the data's image size
+    (the scale the loss sees is the scale whose corrections hold)."""
+    from dlacli.train.data import image_size
+
+    size = image_size(data) if o.get("full_size") is None else o["full_size"]
+    given = dict(steps=o.get("steps_full"), size=size, batch=o.get("batch"), targets=o.get("targets"), lr=o.get("lr_g"))
+    cfg = ResidualTrainConfig(
+        preset=o.get("preset") or "small",
+        validation=o["validation"],
+        eval_every=o["eval_every"],
+        checkpoint_every=o["checkpoint_every"],
+        seed=o["seed"],
+        gain=bool(o.get("gain")),
+        supersample=o.get("supersample") or 1,
+        init=o.get("init") or "",
+        gain_only=bool(o.get("gain_only")),
+        **{k: v for k, v in given.items() if v is not None},
+    )
+    net_config(cfg)  # an unknown preset is refused before any work
+    if cfg.total_steps == 0:
+        raise DlaInputError("--steps-full", "no steps to train")
+    record = train_residual(data, output, cfg, resume=bool(o.get("resume")))
+    # under torchrun, ranks other than 0 write nothing and their record names no checkpoint
+    return output / record["checkpoint"] / "generator" if record.get("checkpoint") else output

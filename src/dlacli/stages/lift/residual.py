@@ -35,7 +35,7 @@ class ResidualInputs:
 
 
 def residual_inputs(views: ViewSet, cfg) -> ResidualInputs:
-    """Unprojection of `views` with the lift config cfg (stages/lift.LiftConfig) and its
+    """Unprojection of `views` with the unproject method's config cfg (UnprojectConfig) and its
     observation features: everything the network does not change, computed once."""
     from dlacli.stages.lift.observations import observation_features
     from dlacli.stages.lift.unproject import unprojection
@@ -92,23 +92,21 @@ def colour_correction(t: torch.Tensor):
     return recolour
 
 
-def lift_residual(
-    views: ViewSet,
-    checkpoint: str | None = None,
-    steps: int = 0,
-    progress=None,
-    novel: ViewSet | None = None,
-    **lift_options,
-):
-    """views -> stages.lift.LiftResult: unprojection at the network's resolution and Gaussian
-    count (unless `lift_options` set resolution / gaussians / render_size / seed), the network's
-    corrections, `steps` of refinement of the geometry, then the colours re-baked where the refined
-    geometry puts the Gaussians and corrected by the network again (`colour_correction`)."""
-    from dlacli.stages.lift.unproject import LiftConfig, finish_lift
+def lift_residual(views: ViewSet, config, progress=None, novel: ViewSet | None = None):
+    """views -> LiftResult with the residual method's config (ResidualConfig,
+    stages/lift/methods/residual.py): unprojection at the network's resolution and
+    Gaussian count (unless the config sets resolution / gaussians), the network's corrections,
+    `steps` of refinement of the geometry, then the colours re-baked where the refined geometry
+    puts the Gaussians and corrected by the network again (`colour_correction`)."""
+    import dataclasses
 
-    net, digest = load_residual(checkpoint)
-    options = {"resolution": net.config.resolution, "gaussians": net.config.gaussians, **lift_options}
-    cfg = LiftConfig(steps=steps, **options)
+    from dlacli.stages.lift.unproject import finish_lift
+
+    net, digest = load_residual(config.checkpoint)
+    cfg = config.unprojection()
+    cfg = dataclasses.replace(
+        cfg, resolution=cfg.resolution or net.config.resolution, gaussians=cfg.gaussians or net.config.gaussians
+    ).resolved()
     inputs = residual_inputs(views, cfg)
     extra = {"residual": {"checkpoint": digest, "gain": bool(net.config.gain)}}
     if not net.config.gain:

@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 
 from dlacli.avatar import gaussian_map as gm
 from dlacli.errors import DlaInputError
-from dlacli.limits import LIFT_GAUSSIANS, LIFT_LR, LIFT_RESOLUTION, LIFT_STEPS, MAX_VIEWS, MIN_VIEW_FALLOFF
+from dlacli.limits import MAX_VIEWS, MIN_VIEW_FALLOFF
 from dlacli.stages.lift.bake import (
     VIEW_SHARPNESS,
     TexelViews,
@@ -49,27 +49,6 @@ VIEW_DECODER = "view-cosine"  # when the views' colours depend on the view (`vie
 CLOTH_MARGIN = 0.003  # metres in front of the body surface where the body is seen (tight clothing)
 MAX_OFFSET = 0.08  # metres: farther Gaussians are not attached to a texel (loose clothing stays)
 MIN_FALLOFF = MIN_VIEW_FALLOFF  # |k| below this: the identity decoder (colour does not depend on the view)
-
-
-@dataclass
-class LiftConfig:
-    resolution: int = LIFT_RESOLUTION  # the Gaussian map F is resolution x resolution
-    grid: int = 128  # unstructured Gaussians: one per pixel of a grid x grid downsampled view
-    steps: int = LIFT_STEPS  # refinement steps (0: unprojection only); see `dla bench pipeline`
-    gaussians: int = LIFT_GAUSSIANS  # sampled during refinement, and recorded
-    render_size: int = 512  # refinement renders views at most this many pixels on the long side
-    lr: float = LIFT_LR  # Adam
-    w_mask: float = 1.0
-    w_ssim: float = 0.2
-    # the weight of the normal offsets' roughness (`_roughness`) in the refinement's loss; None:
-    # DREAM_W_SMOOTH for a folder `dla dream` wrote, 0 otherwise (`smoothness`)
-    w_smooth: float | None = None
-    seed: int = 0
-    view_colour: bool = True  # measure the views' view-dependent falloff (`view_falloff`) and model it
-    # where rays off the body stop: "round", the silhouettes' rounded hull, or "box", their
-    # intersection (stages/lift/hull.py); None: round for true views, box for a folder `dla dream`
-    # wrote (`hull_shape`)
-    hull: str | None = None
 
 
 # ------------------------------------------------------------------------------ a. unstructured
@@ -271,7 +250,7 @@ def refine(
     fmap: np.ndarray,
     views: ViewSet,
     vertices: np.ndarray,
-    cfg: LiftConfig,
+    cfg,
     progress=None,
     samples: gm.Samples | None = None,
     falloff: float = 0.0,
@@ -284,6 +263,7 @@ def refine(
     from dlacli.nn.losses import SSIM_WINDOW, ssim_map
     from dlacli.stages.lift.refine import adam_refine, crop, subject_crops
 
+    cfg = cfg.resolved()
     samples = samples or gm.make_samples(cfg.gaussians, cfg.seed)
     # F itself is optimised (the identity decoder's F = Z): its Gaussians are placed straight by
     # gaussian_map (as avatar/posed.py places any F), the body's frames computed once
@@ -333,7 +313,7 @@ ROUGHNESS_UNIT = 0.01  # metres: the normal offsets' neighbour differences are m
 DREAM_W_SMOOTH = 0.1
 
 
-def smoothness(cfg: LiftConfig, views: ViewSet) -> float:
+def smoothness(cfg, views: ViewSet) -> float:
     """The roughness weight the refinement uses: cfg.w_smooth when set, else DREAM_W_SMOOTH for a
     view folder `dla dream` wrote (its transforms.json holds `dla.dream`) and 0 for others."""
     if cfg.w_smooth is not None:
@@ -409,9 +389,11 @@ class Unprojected:
     falloff: float  # the views' view falloff k (0: the identity decoder)
 
 
-def unprojection(views: ViewSet, cfg: LiftConfig) -> Unprojected:
+def unprojection(views: ViewSet, cfg) -> Unprojected:
     """Steps a and b and the colour bake: everything `lift` does before refining."""
     from dlacli.body.model import get_body_model
+
+    cfg = cfg.resolved()
 
     if views.body is None:
         raise DlaInputError("views", "lift needs body.json beside transforms.json")
@@ -428,19 +410,20 @@ def unprojection(views: ViewSet, cfg: LiftConfig) -> Unprojected:
     return Unprojected(vertices, unstructured, depth, hull, texels, fmap, falloff)
 
 
-def lift(views: ViewSet, cfg: LiftConfig | None = None, progress=None, novel: ViewSet | None = None) -> LiftResult:
+def lift(views: ViewSet, cfg, progress=None, novel: ViewSet | None = None) -> LiftResult:
     """A view folder (with body.json) -> avatar (Z = the Gaussian map F), the unstructured
-    Gaussians and a contact sheet. `novel`: ground-truth views of the same pose that lift does not
-    see (synth's novel_views/); the first one joins the contact sheet as a fifth column and is
-    returned rendered (`LiftResult.novel_view`) for scoring."""
-    cfg = cfg or LiftConfig()
+    Gaussians and a contact sheet. `cfg`: the unproject method's config (UnprojectConfig, as
+    every `cfg` here; stages/lift/methods/unproject.py). `novel`: ground-truth views of the same
+    pose that lift does not see (synth's novel_views/); the first one joins the contact sheet as a
+    fifth column and is returned rendered (`LiftResult.novel_view`) for scoring."""
+    cfg = cfg.resolved()
     base = unprojection(views, cfg)
     return finish_lift(views, cfg, base, base.fmap, progress, novel)
 
 
 def finish_lift(
     views: ViewSet,
-    cfg: LiftConfig,
+    cfg,
     base: Unprojected,
     fmap: np.ndarray,
     progress=None,
@@ -458,6 +441,7 @@ def finish_lift(
     hash, render(cameras) -> rgb [C, H, W, 3] numpy) says otherwise."""
     from dlacli.body.uv import UV_LAYOUT
 
+    cfg = cfg.resolved()
     vertices, depth, falloff = base.vertices, base.depth, base.falloff
     samples = gm.make_samples(cfg.gaussians, cfg.seed)  # the Gaussians refined and shown
     history: list[float] = []

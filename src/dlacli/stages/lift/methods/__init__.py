@@ -4,7 +4,8 @@ and the one spec syntax that `dla lift --method` and every `dla bench` suite rea
 A method turns a view folder (a ViewSet with its body) into a LiftResult (avatar, unstructured
 Gaussians, contact sheet). Its name is the encoder its avatars record (`Avatar.encoder`), the
 `method` of every result row, and what tables and charts call it. A new method is one file (its
-config dataclass and lift function) plus one `register(Method(...))` entry below.
+config dataclass, lift function and its `register(Method(...))` line, beside unproject.py, learned.py and
+residual.py in this package) plus its name in `BUILT_IN` (a test's toy registers itself instead).
 
 Spec syntax (`NAME[:KEY=VALUE[,KEY=VALUE...]]`; a list separates specs by commas, a piece that
 starts with `KEY=` belonging to the spec before it):
@@ -28,6 +29,7 @@ Torch-free at import (the CLI builds its help from here); each lift imports its 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import re
 import typing
 from collections.abc import Callable, Mapping
@@ -35,21 +37,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from dlacli.errors import DlaInputError
-from dlacli.limits import (
-    LIFT_STEPS,
-    MAX_GAUSSIANS,
-    MAX_IMAGE_SIZE,
-    MAX_LIFT_RESOLUTION,
-    MAX_LIFT_STEPS,
-    MAX_LIST_CHARS,
-    MAX_SEED,
-    MIN_GAUSSIANS,
-    MIN_IMAGE_SIZE,
-)
+from dlacli.limits import LIFT_STEPS, MAX_LIST_CHARS
 
 Progress = Callable[[int, float], None]  # (step index, loss) after each refinement step
-MAX_WEIGHT = 1e6  # the largest loss weight a spec may set
-HULLS = ("round", "box")  # where the lift's rays off the body stop (stages/lift/hull.py)
 LiftFn = Callable[[Any, Any, "Progress | None", Any], Any]  # (views, config, progress, novel) -> LiftResult
 
 # result rows written before the registry: their method name -> the registry's
@@ -247,12 +237,18 @@ def make_spec(name: str, where: str = "method", **options) -> MethodSpec:
     return _build(get(name, where), options, label, where)
 
 
-# ------------------------------------------------------------------------------ the methods
+# ------------------------------------------------------------------------------ what configs share
 
 
-def _check(ok: bool, message: str) -> None:
+def check(ok: bool, message: str) -> None:
+    """A config's bound: a ValueError that `_build` turns into a one-line error naming the spec."""
     if not ok:
         raise ValueError(message)
+
+
+def check_range(name: str, value, low, high) -> None:
+    """`value` (None: the stage's default, always allowed) must lie in [low, high]."""
+    check(value is None or low <= value <= high, f"{name} must be in [{low}, {high}], got {value}")
 
 
 class Missing(ValueError):
@@ -263,147 +259,10 @@ class Missing(ValueError):
         self.key, self.what = key, what
 
 
-@dataclass(frozen=True)
-class UnprojectConfig:
-    """Mesh unprojection into Z, then `steps` of refinement (stages/lift/unproject.py; None: its default)."""
+# ------------------------------------------------------------------------------ the built-in methods
 
-    steps: int = 0
-    resolution: int | None = None  # UV side of Z
-    gaussians: int | None = None  # Gaussians sampled while refining
-    render_size: int | None = None  # refinement renders at most this many pixels on the long side
-    seed: int | None = None  # seed of the Gaussian sample points
-    view_colour: bool | None = None  # measure and model the views' view-dependent falloff
-    lr: float | None = None  # the refinement's Adam learning rate
-    w_smooth: float | None = None  # weight of the normal offsets' roughness in the refinement's loss
-    hull: str | None = None  # where rays off the body stop: round (the rounded hull) or box
-
-    def __post_init__(self):
-        _check(0 <= self.steps <= MAX_LIFT_STEPS, f"steps must be in [0, {MAX_LIFT_STEPS}], got {self.steps}")
-        _check(self.hull in (None, *HULLS), f"hull must be one of {', '.join(HULLS)}, got {self.hull}")
-        _check(self.lr is None or 0 < self.lr <= 1, f"lr must be in (0, 1], got {self.lr}")
-        _check(
-            self.w_smooth is None or 0 <= self.w_smooth <= MAX_WEIGHT,
-            f"w_smooth must be in [0, {MAX_WEIGHT}], got {self.w_smooth}",
-        )
-        _check(
-            self.resolution is None or MIN_IMAGE_SIZE <= self.resolution <= MAX_LIFT_RESOLUTION,
-            f"resolution must be in [{MIN_IMAGE_SIZE}, {MAX_LIFT_RESOLUTION}], got {self.resolution}",
-        )
-        _check(
-            self.gaussians is None or MIN_GAUSSIANS <= self.gaussians <= MAX_GAUSSIANS,
-            f"gaussians must be in [{MIN_GAUSSIANS}, {MAX_GAUSSIANS}], got {self.gaussians}",
-        )
-        _check(
-            self.render_size is None or MIN_IMAGE_SIZE <= self.render_size <= MAX_IMAGE_SIZE,
-            f"render_size must be in [{MIN_IMAGE_SIZE}, {MAX_IMAGE_SIZE}], got {self.render_size}",
-        )
-        _check(self.seed is None or 0 <= self.seed <= MAX_SEED, f"seed must be in [0, {MAX_SEED}], got {self.seed}")
-
-
-def _lift_unproject(views, config: UnprojectConfig, progress: Progress | None = None, novel=None):
-    from dlacli.stages.lift.unproject import LiftConfig, lift
-
-    fields = {k: v for k, v in dataclasses.asdict(config).items() if v is not None}
-    return lift(views, LiftConfig(**fields), progress=progress, novel=novel)
-
-
-@dataclass(frozen=True)
-class LearnedConfig:
-    """The learned encoder + GPD of a `dla train` checkpoint (folder or hash), then `steps` of
-    refining Z through the frozen decoder (stages/lift/learned.py; None: its default)."""
-
-    checkpoint: str = ""
-    steps: int = 0
-    render_size: int | None = None  # refinement renders the views at this size
-
-    def __post_init__(self):
-        if not self.checkpoint:
-            raise Missing("checkpoint", "a dla train checkpoint folder or its hash")
-        _check(0 <= self.steps <= MAX_LIFT_STEPS, f"steps must be in [0, {MAX_LIFT_STEPS}], got {self.steps}")
-        _check(
-            self.render_size is None or MIN_IMAGE_SIZE <= self.render_size <= MAX_IMAGE_SIZE,
-            f"render_size must be in [{MIN_IMAGE_SIZE}, {MAX_IMAGE_SIZE}], got {self.render_size}",
-        )
-
-
-def _lift_learned(views, config: LearnedConfig, progress: Progress | None = None, novel=None):
-    from dlacli.stages.lift.learned import lift_learned
-
-    extra = {} if config.render_size is None else {"render_size": config.render_size}
-    return lift_learned(views, config.checkpoint, steps=config.steps, progress=progress, novel=novel, **extra)
-
-
-def _install_learned(config: LearnedConfig) -> None:
-    """Animate, render and edit find a learned avatar's decoder by the checkpoint hash it records."""
-    from dlacli.avatar.checkpoint import install_checkpoint, resolve_checkpoint
-
-    install_checkpoint(resolve_checkpoint(config.checkpoint))
-
-
-@dataclass(frozen=True)
-class ResidualConfig:
-    """Mesh unprojection corrected by the residual network of a `dla train --method residual`
-    checkpoint (folder or hash; None: the weights shipped in the package), then `steps` of
-    refinement (stages/lift/residual.py; None: the network's training resolution and Gaussian count,
-    the lift's defaults otherwise)."""
-
-    checkpoint: str | None = None
-    steps: int = 0
-    resolution: int | None = None  # UV side of Z
-    gaussians: int | None = None  # Gaussians sampled while refining and rendering
-    render_size: int | None = None  # refinement renders at most this many pixels on the long side
-    seed: int | None = None  # seed of the Gaussian sample points
-    hull: str | None = None  # where the unprojection's rays off the body stop: round or box
-
-    def __post_init__(self):
-        UnprojectConfig(  # the same bounds
-            self.steps, self.resolution, self.gaussians, self.render_size, self.seed, hull=self.hull
-        )
-
-
-def _lift_residual(views, config: ResidualConfig, progress: Progress | None = None, novel=None):
-    from dlacli.stages.lift.residual import lift_residual
-
-    options = {
-        k: v for k, v in dataclasses.asdict(config).items() if v is not None and k not in ("checkpoint", "steps")
-    }
-    return lift_residual(views, config.checkpoint, config.steps, progress, novel, **options)
-
-
-register(
-    Method(
-        "unproject",
-        UnprojectConfig,
-        _lift_unproject,
-        "mesh unprojection, no weights; steps=N refines",
-        lift_defaults={"steps": LIFT_STEPS},
-    )
-)
-register(
-    Method(
-        "learned",
-        LearnedConfig,
-        _lift_learned,
-        "U-Net + cross-attention encoder + GPD from checkpoint=PATH",
-        install=_install_learned,
-    )
-)
-
-
-def _install_residual(config: ResidualConfig) -> None:
-    """A residual network with the colour gain is its avatars' decoder, found by hash elsewhere."""
-    from dlacli.avatar.checkpoint import install_checkpoint, resolve_checkpoint
-    from dlacli.stages.lift.residual import SHIPPED
-
-    install_checkpoint(SHIPPED if config.checkpoint is None else resolve_checkpoint(config.checkpoint))
-
-
-register(
-    Method(
-        "residual",
-        ResidualConfig,
-        _lift_residual,
-        "mesh unprojection corrected by a small trained UV network (checkpoint=PATH or the shipped weights)",
-        install=_install_residual,
-    )
-)
+# each is a module of this package that registers itself (config, lift, install: one file per
+# method); loaded by name, so that the registry imports none of them and they import the registry
+BUILT_IN = ("unproject", "learned", "residual")
+for _name in BUILT_IN:
+    importlib.import_module(f"{__name__}.{_name}")
