@@ -6,7 +6,7 @@ PY="${PY:-.venv/bin/python}"
 DLA="${DLA:-.venv/bin/dla}"
 OUT="${1:-out/demo}"
 mkdir -p "$OUT"
-PHOTO="$("$PY" -c "from dlacli.stages.dream import sample_photo; print(sample_photo())")"
+PHOTO="$("$PY" -c "from dlacli.paths import sample_photo; print(sample_photo())")"
 step() { local s=$SECONDS; echo "$1" >&2; shift; "$@"; echo "  ($((SECONDS - s)) s)" >&2; }
 
 # No --keypoints: the person's keypoints are detected (MediaPipe Pose), as for a user's own photo.

@@ -155,7 +155,7 @@ def main() -> None:
     from dlacli.body.keypoints import coco_keypoints
     from dlacli.body.model import get_body_model
     from dlacli.io.video import open_video
-    from dlacli.stages.motion_video import detect_clip, video_to_motion
+    from dlacli.stages.motion.video import detect_clip, video_to_motion
 
     cams = read_qca(next((args.demo / "calibration").glob("*.qca.txt")))
     videos = [args.demo / "videos" / f"{c['name']}.mp4" for c in cams]

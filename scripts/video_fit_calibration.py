@@ -68,7 +68,7 @@ def rand_motion(k):
     """idle plus smooth random flexions of the limbs, spine and clavicles (a pose-diverse calibration clip)."""
     from scipy.spatial.transform import Rotation as R
 
-    from dlacli.stages.motion_source import load_motion
+    from dlacli.stages.motion.source import load_motion
     from dlacli.types import Motion
 
     m = load_motion("idle", fps=30)
@@ -110,7 +110,7 @@ def rand_motion(k):
 
 
 def truth_motion(name):
-    from dlacli.stages.motion_source import load_motion
+    from dlacli.stages.motion.source import load_motion
 
     if name.startswith("rand"):
         return rand_motion(int(name[4:]))
@@ -159,7 +159,7 @@ def prep(name, seed):
         return
     from dlacli.data.video import render_motion_video
     from dlacli.io.video import open_video
-    from dlacli.stages import motion_video as mv
+    from dlacli.stages.motion import video as mv
 
     truth = truth_motion(name)
     video = CACHE / f"{name}_s{seed}.mp4"
@@ -208,7 +208,7 @@ def prep(name, seed):
 
 
 def load_det(name, seed):
-    from dlacli.stages.motion_video import ClipDetections, unswap_left_right
+    from dlacli.stages.motion.video import ClipDetections, unswap_left_right
 
     z = np.load(CACHE / f"{name}_s{seed}{SUFFIX}.npz")
     # the cache holds the tracked, cleaned detections; what `detect_clip` does after them:
@@ -253,8 +253,8 @@ def skating(jf, jt, fps=30.0):
 
 def run_fit(name, seed, steps=None):
     from dlacli.nn import lifter
-    from dlacli.stages import motion_fit as mf
-    from dlacli.stages import motion_video as mv
+    from dlacli.stages.motion import fit as mf
+    from dlacli.stages.motion import video as mv
 
     mf.LIMB_SOURCE = os.environ.get("LIMB_SOURCE", mf.LIMB_SOURCE)
     if os.environ.get("LIFTER"):

@@ -68,3 +68,19 @@ def frames_in():
 @pytest.fixture(scope="session")
 def formats_dir() -> Path:
     return FORMATS
+
+
+@pytest.fixture
+def dla(capsys):
+    """`dla(*argv)` runs the CLI in this process (so what a test registered is known to it) ->
+    (exit code, stdout, stderr)."""
+
+    def run(*argv) -> tuple[int, str, str]:
+        from dlacli.cli.app import main
+
+        with pytest.raises(SystemExit) as info:
+            main([str(a) for a in argv])
+        out, err = capsys.readouterr()
+        return info.value.code, out, err
+
+    return run

@@ -4,7 +4,7 @@ depth: module level, inside functions, under `if TYPE_CHECKING:`), plus the star
 
 Direction (an import may only point to a lower rank, or stay inside its own unit):
 
-    errors, paths, the package  <-  types, kernel_path  <-  geometry, kinematics, triangle_kernels
+    errors, paths, the package  <-  types, kernel_path, registry  <-  geometry, kinematics, triangle_kernels
         <-  body, render, io  <-  avatar  <-  nn  <-  data, stages  <-  train, bench  <-  cli
 
 body, render and io are one level and do not import each other, nor do data and stages; `ALLOWED`
@@ -33,6 +33,7 @@ RANK = {
     "dlacli.limits": 0,
     "dlacli.types": 1,
     "dlacli.kernel_path": 1,
+    "dlacli.registry": 1,
     "dlacli.geometry": 2,
     "dlacli.kinematics": 2,
     "dlacli.triangle_kernels": 2,
@@ -54,7 +55,7 @@ ALLOWED = {
         "body writes its UV-raster cache with the toolkit's one atomic writer (docs/architecture.md, Writing files); "
         "io.atomic is a leaf of io (it imports only errors and io.files)"
     ),
-    ("dlacli.data.poses", "dlacli.stages.motion_source"): (
+    ("dlacli.data.poses", "dlacli.stages.motion.source"): (
         "synthetic target poses take frames of motion clips loaded and retargeted as `dla animate` loads them; "
         "data -> stages is the one direction between the two (no stage imports dlacli.data)"
     ),
@@ -318,3 +319,25 @@ def test_no_module_imports_another_ones_private_names():
                     if a.name.startswith("_") and not a.name.startswith("__")
                 ]
     assert private == []
+
+
+def _calls(name: str) -> list[str]:
+    """The modules under src that call a function called `name` (by any import path), with the line."""
+    found = []
+    for module, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Call):
+                f = node.func
+                if (f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", None)) == name:
+                    found.append(f"{module} line {node.lineno}")
+    return found
+
+
+def test_one_route_from_an_avatar_to_pixels():
+    """docs/architecture.md: the renderer is called only by render/ and the avatar's pipeline
+    (avatar/posed.py), and no stage or training turns cameras into eyes itself."""
+    renders = _calls("render_gaussians")
+    assert renders, "the scan found no caller at all"
+    assert [c for c in renders if not c.startswith(("dlacli.render.", "dlacli.avatar."))] == []
+    eyes = _calls("camera_centers")
+    assert [c for c in eyes if c.startswith(("dlacli.stages.", "dlacli.train."))] == []

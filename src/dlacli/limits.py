@@ -24,7 +24,7 @@ BUDGET_TOLERANCE_DB = 0.2
 FIT_STEPS = 150  # optimisation steps of dream's body fit (docs/fit.md: 300 fitted no better)
 LANDMARKS = ("lite", "full", "heavy")  # MediaPipe Pose landmark models (dlacli.io.detect; docs/motion.md)
 DEFAULT_LANDMARKS = "full"  # the one the mediapipe wheel ships
-DEFAULT_PRIOR = "shipped"  # dream's body backend: its completion prior (dlacli.stages.completion; docs/dream.md)
+DEFAULT_PRIOR = "shipped"  # dream's body backend: its completion prior (dlacli.stages.dream.completion; docs/dream.md)
 LIFT_STEPS = 40  # refinement steps of the default lift (0 = mesh unprojection only), at LIFT_LR: on held-out
 # novel views and poses at least as accurate as the session-3 default (50 steps at 131,072 Gaussians) in half its
 # time (docs/lift.md "Cost and accuracy")

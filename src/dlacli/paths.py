@@ -20,3 +20,13 @@ def cache_dir(sub: str = "") -> Path:
 def checkpoints_dir() -> Path:
     """Where installed network checkpoints live, one folder per content hash (formats/checkpoint.md)."""
     return cache_dir("checkpoints")
+
+
+def sample_photo() -> Path:
+    """The photo `dla dream` and the demo start from (assets/sample_photo.png, licence in assets/LICENSES.md)."""
+    return Path(__file__).resolve().parent / "assets" / "sample_photo.png"
+
+
+def sample_keypoints() -> Path:
+    """The sample photo's COCO-17 keypoints (`dla dream --keypoints`; also its 3D landmarks)."""
+    return sample_photo().with_name("sample_photo_keypoints.json")

@@ -167,7 +167,7 @@ def test_a_tiny_run_writes_photo_rows(monkeypatch, tmp_path):
         assert set(r["dreamed_per_view"]) == {"90", "180", "270"}
     assert len(points(rows, "dreamed_views")) == 1
 
-    import dlacli.stages.dream as dream_stage
+    import dlacli.stages.dream.views as dream_stage
 
     def no_person(photo, out, **_):
         raise DlaInputError(str(photo), "no person detected")
@@ -263,7 +263,7 @@ def test_rows_of_each_input_are_labelled_apart():
 def test_backends_and_inputs_are_checked(capsys):
     from dlacli.bench.single_photo import check_backends
     from dlacli.cli.app import main
-    from dlacli.stages.dream import BACKENDS
+    from dlacli.stages.dream.backends import BACKENDS
 
     assert check_backends([" template", "template", ""]) == ["template"]
     assert check_backends(list(BACKENDS)) == list(BACKENDS)  # every backend dream knows

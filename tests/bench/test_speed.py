@@ -130,7 +130,7 @@ def test_a_tiny_dream_run(monkeypatch):
     and one run per case, ~10 s each here) are replaced by a recorder of what would run."""
     from dlacli.bench import speed_stages
     from dlacli.bench.speed_config import quick_config
-    from dlacli.stages.dream import sample_keypoints, sample_photo
+    from dlacli.paths import sample_keypoints, sample_photo
 
     ran = []
     monkeypatch.setattr(speed_stages, "cli_seconds", lambda argv: (ran.append(argv), (0.5 + len(ran), True))[1])

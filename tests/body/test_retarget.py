@@ -31,7 +31,7 @@ from dlacli.errors import DlaInputError
 from dlacli.io.amass import SMPL_REST_JOINTS
 from dlacli.io.asf_amc import read_amc
 from dlacli.io.bvh import read_bvh
-from dlacli.stages.motion_source import load_motion
+from dlacli.stages.motion.source import load_motion
 from dlacli.types import Motion
 
 SEGMENTS = [  # (anny bone, anny bone at the segment's end)

@@ -13,7 +13,7 @@ from dlacli.cli.app import main
 from dlacli.errors import DlaInputError
 from dlacli.io.asf_amc import read_amc
 from dlacli.io.bvh import read_bvh
-from dlacli.stages.motion_source import load_motion
+from dlacli.stages.motion.source import load_motion
 
 # CMU MotionBuilder-style names (as in cmu_01_01.bvh), metres, Y up, facing +Z, left on +X
 MB = [  # (name, parent, offset)

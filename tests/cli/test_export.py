@@ -181,7 +181,7 @@ def test_glb_is_gltf_axes_of_the_same_gaussians(avatar_path, tmp_path, capsys):
 def test_motion_frame_and_sequence(avatar, avatar_path, tmp_path, capsys):
     from dlacli.body.builtin_motions import builtin_motion
     from dlacli.body.model import get_body_model
-    from dlacli.stages.motion_source import _resample
+    from dlacli.stages.motion.source import _resample
 
     motion = _resample(builtin_motion("wave"), 2.0)  # what --fps 2 loads
     t = motion.num_frames

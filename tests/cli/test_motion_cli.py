@@ -218,8 +218,8 @@ def test_from_video_reports_filled_frames(tmp_path, monkeypatch, capsys):
     """The command's thin layer: the stage's result (stubbed: no detector here) is written as a
     motion and the frames with no person are reported on stderr, as ranges."""
     from dlacli.io.video import write_video
-    from dlacli.stages import motion_video
-    from dlacli.stages.motion_video import ClipDetections, VideoMotion
+    from dlacli.stages.motion import video as motion_video
+    from dlacli.stages.motion.video import ClipDetections, VideoMotion
     from dlacli.types import Motion
 
     clip = tmp_path / "clip.mp4"

@@ -67,7 +67,7 @@ def page(avatar_path):
 def reference(avatar_path):
     """The rig and joint matrices the page should hold (built independently of the page)."""
     from dlacli.io.avatar import read_avatar
-    from dlacli.stages.motion_source import load_motion
+    from dlacli.stages.motion.source import load_motion
     from dlacli.stages.rig import build_rig, skinning_matrices
 
     av = read_avatar(avatar_path)

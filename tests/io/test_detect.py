@@ -44,7 +44,7 @@ LOG_MARKERS = ("W0000", "I0000", "E0000", "XNNPACK", "TensorFlow Lite", "absl::I
 
 def _case(name: str, third_party_data: Path) -> tuple[Path, Path]:
     if name == "sample":
-        from dlacli.stages.dream import sample_keypoints, sample_photo
+        from dlacli.paths import sample_keypoints, sample_photo
 
         return sample_photo(), sample_keypoints()
     return third_party_data / "images" / f"{name}.png", KP_DIR / f"{name}.json"
@@ -129,7 +129,7 @@ _RAW = (  # the same model without quiet_fd2: the control that shows the lines e
 
 def test_detection_is_silent_on_the_terminal():
     """MediaPipe's C++ logs go to fd 2; with detect_person nothing reaches stderr at all."""
-    from dlacli.stages.dream import sample_photo
+    from dlacli.paths import sample_photo
 
     raw = subprocess.run([sys.executable, "-c", _RAW, str(sample_photo())], capture_output=True, text=True, timeout=120)
     assert raw.returncode == 0 and raw.stdout.strip() == "True"
@@ -198,7 +198,8 @@ def test_cli_dream_detects_the_person_without_keypoints(third_party_data, tmp_pa
 def test_dream_without_mediapipe_names_the_missing_option(monkeypatch, tmp_path):
     """Where mediapipe has no wheel: one DlaInputError naming the photo and --keypoints (the
     sample has alpha, so the mask is not asked for), and no output."""
-    from dlacli.stages.dream import dream, sample_photo
+    from dlacli.paths import sample_photo
+    from dlacli.stages.dream.views import dream
 
     monkeypatch.setitem(sys.modules, "mediapipe", None)  # makes `import mediapipe` fail
     with pytest.raises(DlaInputError, match=r"sample_photo\.png: mediapipe is not installed .*: pass --keypoints$"):

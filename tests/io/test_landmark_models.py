@@ -95,7 +95,7 @@ def test_an_altered_model_is_refused_by_its_checksum(monkeypatch, tmp_path, no_d
 
 def test_the_cli_says_so_in_one_line_and_writes_nothing(monkeypatch, tmp_path, capsys, no_download):
     from dlacli.cli.app import main
-    from dlacli.stages.dream import sample_photo
+    from dlacli.paths import sample_photo
 
     _moved(monkeypatch, tmp_path, "heavy", None)
     video = tmp_path / "clip.mp4"

@@ -24,7 +24,7 @@ from dlacli.io.bvh import MAX_DEPTH, MAX_FRAMES, MAX_JOINTS, read_bvh
 from dlacli.io.files import MAX_TEXT_BYTES
 from dlacli.io.motion import read_motion
 from dlacli.io.npz_bounds import MAX_MEMBERS, check_npz_bounds
-from dlacli.stages.motion_source import load_motion
+from dlacli.stages.motion.source import load_motion
 from dlacli.types import Motion
 
 MiB = 1 << 20

@@ -141,8 +141,8 @@ def _limb_angles(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
 def test_shipped_lifter_recovers_limb_depth_on_unseen_motions():
     from dlacli.body.keypoints import PointRig
     from dlacli.body.model import get_body_model
-    from dlacli.stages.fit import photo_intrinsics
-    from dlacli.stages.motion_source import load_motion
+    from dlacli.stages.fit.photo import photo_intrinsics
+    from dlacli.stages.motion.source import load_motion
 
     model = get_body_model()
     rig = PointRig(model=model)

@@ -82,7 +82,7 @@ def subject():
     from dlacli.body.keypoints import coco_keypoints
     from dlacli.body.model import get_body_model
     from dlacli.render.raster import render_mesh
-    from dlacli.stages.fit import FitResult
+    from dlacli.stages.fit.photo import FitResult
 
     m = get_body_model()
     body = BodyParams()
@@ -162,8 +162,8 @@ def test_orbit_skeleton_turns_around(subject):
     half-way frame (azimuth 180) it is on the left; at N/4 (camera on +X) it is nearer."""
     from dlacli.body.keypoints import coco_keypoints
     from dlacli.nn.video_diffusion import project_points
-    from dlacli.stages.dream import orbit_frame_azimuths, view_frames
-    from dlacli.stages.orbit import body_pivot, orbit_cameras
+    from dlacli.stages.dream.backends.diffusion import orbit_frame_azimuths, view_frames
+    from dlacli.stages.dream.orbit import body_pivot, orbit_cameras
 
     _, _, fit = subject
     az = orbit_frame_azimuths(80)
@@ -185,7 +185,7 @@ def test_dream_diffusion_end_to_end(tiny, subject, tmp_path):
     reads back; view 0 is the photo, the others come from the video frames N/4, N/2, 3N/4."""
     from dlacli.io.views import read_views
     from dlacli.nn.video_diffusion import load_pipeline
-    from dlacli.stages.dream import build_views, frame_crop, write_dream_folder
+    from dlacli.stages.dream.views import build_views, frame_crop, write_dream_folder
 
     folder, _ = tiny
     rgb, alpha, fit = subject

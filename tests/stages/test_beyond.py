@@ -1,4 +1,4 @@
-"""The layer beyond the body (dlacli.stages.beyond) against a synthetic oracle: the body-backend
+"""The layer beyond the body (dlacli.stages.dream.beyond) against a synthetic oracle: the body-backend
 scene of test_texture (a posed body with a known texture photographed by a known camera, the
 true body as the fit) with a uniformly coloured bun added above the head, a one-pixel fringe
 around the whole mask and a detached blob. Oracles: the bun's known pixels, colour and place in
@@ -21,7 +21,7 @@ def bun_photo():
     from dlacli.body.model import get_body_model, rotations_to_pose
     from dlacli.data.subject import relaxed_pose
     from dlacli.render.raster import rasterize
-    from dlacli.stages.dream import frame_crop
+    from dlacli.stages.dream.views import frame_crop
 
     m = get_body_model()
     rot = relaxed_pose(np.random.default_rng(3), m.bone_labels, 20.0)
@@ -49,7 +49,7 @@ def bun_photo():
 
 
 def test_only_the_bun_lies_beyond_the_body(bun_photo):
-    from dlacli.stages.beyond import beyond_pixels
+    from dlacli.stages.dream.beyond import beyond_pixels
 
     s = bun_photo
     kept = beyond_pixels(s["alpha"] > 0.5, s["body"])
@@ -61,7 +61,7 @@ def test_only_the_bun_lies_beyond_the_body(bun_photo):
 def test_a_mask_that_took_the_background_makes_no_layer(bun_photo):
     """A rectangle of background beside the body (larger than a quarter of the body's
     silhouette) is the segmentation's error, not clothing: no layer, the bun stays."""
-    from dlacli.stages.beyond import MAX_SHARE, beyond_pixels
+    from dlacli.stages.dream.beyond import MAX_SHARE, beyond_pixels
 
     s = bun_photo
     ys, xs = np.nonzero(s["body"])
@@ -78,9 +78,9 @@ def test_the_bun_is_seen_from_every_side(bun_photo):
     unprojected at the head's mid depth, projects, in the bun's colour; the body alone (the
     offset bound) cuts it off. Seen from the
     side, its round profile makes it about as deep as it is high."""
-    from dlacli.stages.beyond import layer_mesh
-    from dlacli.stages.shell import _unproject, body_depth_layers
-    from dlacli.stages.texture import body_views, render_body, textured_body
+    from dlacli.stages.dream.beyond import layer_mesh
+    from dlacli.stages.dream.shell import _unproject, body_depth_layers
+    from dlacli.stages.dream.texture import body_views, render_body, textured_body
 
     s = bun_photo
     images, masks, cams, settings = body_views(s["rgb"], s["alpha"], s["cam"], s["verts"])
@@ -122,9 +122,9 @@ def test_the_body_renders_the_same_bits_where_the_layer_is_not(bun_photo):
     """The layer's colours sit beside the body's UV map in one texture: every pixel the layer
     does not touch is the body's own render, bit for bit."""
     from dlacli.render.raster import render_textured
-    from dlacli.stages.beyond import layer_mesh, render_with_layer
-    from dlacli.stages.orbit import body_pivot, orbit_cameras
-    from dlacli.stages.texture import render_body, textured_body
+    from dlacli.stages.dream.beyond import layer_mesh, render_with_layer
+    from dlacli.stages.dream.orbit import body_pivot, orbit_cameras
+    from dlacli.stages.dream.texture import render_body, textured_body
 
     s = bun_photo
     body = textured_body(s["rgb"], s["alpha"], s["cam"], s["verts"])
@@ -143,8 +143,8 @@ def test_the_layer_takes_the_photos_colour_beyond_the_body_only(bun_photo):
     to the join inside the head, whose skin does not bleed in."""
     from dlacli.body.model import get_body_model
     from dlacli.render.raster import rasterize
-    from dlacli.stages.beyond import layer_colours, layer_mesh
-    from dlacli.stages.texture import displaced_body
+    from dlacli.stages.dream.beyond import layer_colours, layer_mesh
+    from dlacli.stages.dream.texture import displaced_body
 
     s = bun_photo
     displaced, _ = displaced_body(s["alpha"], s["cam"], s["verts"])
@@ -159,7 +159,7 @@ def test_the_layer_takes_the_photos_colour_beyond_the_body_only(bun_photo):
 def test_each_piece_stands_at_one_depth():
     """A piece touching two body parts at different depths (2 m and 4 m) is not stretched
     between them (a sheet): it stands at one mid depth, the median of what it touches."""
-    from dlacli.stages.beyond import layer_depths
+    from dlacli.stages.dream.beyond import layer_depths
 
     h = w = 64
     fid = np.full((h, w), -1)

@@ -1,4 +1,4 @@
-"""Dream's completion prior (stages/completion.py): an untrained network gives the rule's views
+"""Dream's completion prior (stages/dream/completion.py): an untrained network gives the rule's views
 bit for bit; a known correction moves exactly the texels the photo does not see, by the stated
 formula; bad priors are one-line errors (the loader, and `dla dream` end to end)."""
 
@@ -20,7 +20,7 @@ def photo(subject):
     """The subject's view 0 framed at 128 px, its camera and true posed body (as a perfect fit)."""
     from dlacli.bench.single_photo import truth_fit
     from dlacli.io.views import read_views
-    from dlacli.stages.dream import frame_crop
+    from dlacli.stages.dream.views import frame_crop
 
     views = read_views(subject)
     fit = truth_fit(subject)
@@ -39,8 +39,8 @@ def _prior(bias: float | None = None, resolution: int = 32):
 
 
 def test_an_untrained_prior_gives_the_rules_views_bit_for_bit(photo):
-    from dlacli.stages.completion import CompletionPrior
-    from dlacli.stages.texture import body_views
+    from dlacli.stages.dream.completion import CompletionPrior
+    from dlacli.stages.dream.texture import body_views
 
     rule = body_views(*photo)
     prior = body_views(*photo, prior=CompletionPrior(_prior()))
@@ -51,8 +51,8 @@ def test_an_untrained_prior_gives_the_rules_views_bit_for_bit(photo):
 def test_a_known_correction_moves_only_what_the_photo_does_not_see(photo):
     """t = tanh(0.5) everywhere: each texel moves toward white by t (1 - a) of its distance,
     a = min(weight / SEEN, 1), computed here from the formula in float64."""
-    from dlacli.stages.completion import correct, photo_evidence, prior_inputs
-    from dlacli.stages.texture import SEEN, bake, complete, displaced_body
+    from dlacli.stages.dream.completion import correct, photo_evidence, prior_inputs
+    from dlacli.stages.dream.texture import SEEN, bake, complete, displaced_body
 
     rgb, alpha, cam, verts = photo
     displaced, _ = displaced_body(alpha, cam, verts)
@@ -72,7 +72,7 @@ def test_a_known_correction_moves_only_what_the_photo_does_not_see(photo):
 
 def test_load_prior_refuses_what_is_not_a_completion_prior(tmp_path):
     from dlacli.avatar.checkpoint import save_checkpoint
-    from dlacli.stages.completion import load_prior
+    from dlacli.stages.dream.completion import load_prior
     from dlacli.stages.lift.residual import SHIPPED as RESIDUAL
 
     assert load_prior("none") is None and load_prior(None) is None
@@ -94,7 +94,7 @@ def test_load_prior_refuses_what_is_not_a_completion_prior(tmp_path):
 
 
 def test_dream_reports_a_bad_prior_in_one_line(tmp_path):
-    from dlacli.stages.dream import sample_photo
+    from dlacli.paths import sample_photo
     from dlacli.stages.lift.residual import SHIPPED as RESIDUAL
 
     env = {**os.environ, "PYTHONWARNINGS": "ignore"}
@@ -122,7 +122,7 @@ def test_the_shipped_prior_beats_the_rule_on_a_new_subject(tmp_path):
     third of the PSNR gain measured on the validation subjects); and it carries its hash."""
     from dlacli.avatar.checkpoint import load_checkpoint
     from dlacli.data.synth import synth
-    from dlacli.stages.completion import SHIPPED, load_prior
+    from dlacli.stages.dream.completion import SHIPPED, load_prior
     from dlacli.train.completion import Samples, _psnr, corrected_maps, make_sample
 
     floor_db = 0.3  # validation (24 held-out training-wardrobe subjects): measured in docs/dream.md

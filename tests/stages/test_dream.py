@@ -39,7 +39,7 @@ def posed():
     from dlacli.body.model import get_body_model, rotations_to_pose
     from dlacli.data.subject import relaxed_pose
     from dlacli.render.raster import render_mesh
-    from dlacli.stages.fit import FitResult
+    from dlacli.stages.fit.photo import FitResult
 
     m = get_body_model()
     rot = relaxed_pose(np.random.default_rng(SEED), m.bone_labels, 20.0)
@@ -66,7 +66,7 @@ def posed():
 
 @pytest.fixture(scope="module")
 def folder(posed, tmp_path_factory):
-    from dlacli.stages.dream import build_views, write_dream_folder
+    from dlacli.stages.dream.views import build_views, write_dream_folder
 
     views = build_views(posed["rgb"], posed["alpha"], posed["fit"], backend="shell", res=RES)
     out = tmp_path_factory.mktemp("dream") / "views"
@@ -181,7 +181,7 @@ def test_silhouette_excess_measures_what_sticks_out(folder, posed):
     from dlacli.body.model import get_body_model
     from dlacli.io.views import read_views
     from dlacli.render.raster import rasterize
-    from dlacli.stages.plausibility import silhouette_excess
+    from dlacli.stages.dream.plausibility import silhouette_excess
 
     vs = read_views(folder)
     verts = posed["verts"]
@@ -222,7 +222,7 @@ def test_back_colours_are_the_mirrored_front():
     """Where front and back layers are the same part the back takes the front colour; where they
     differ (face over the back of the head) it is filled from the same part's known pixels."""
     from dlacli.body.regions import PARTS
-    from dlacli.stages.shell import back_colours
+    from dlacli.stages.dream.shell import back_colours
 
     h, w = 20, 10
     rgb = np.zeros((h, w, 3))
@@ -239,7 +239,7 @@ def test_back_colours_are_the_mirrored_front():
 
 def test_crop_camera_maps_pixels(posed):
     """The crop's camera projects any point to (u - x0) * s of the photo's camera."""
-    from dlacli.stages.dream import crop_box, frame_crop
+    from dlacli.stages.dream.views import crop_box, frame_crop
 
     cam = posed["fit"].camera
     rgb, alpha, cc = frame_crop(posed["rgb"], posed["alpha"], cam, RES)
@@ -258,7 +258,7 @@ def test_crop_camera_maps_pixels(posed):
 
 
 def test_errors(posed, tmp_path):
-    from dlacli.stages.dream import build_views, crop_box, dream
+    from dlacli.stages.dream.views import build_views, crop_box, dream
 
     with pytest.raises(DlaInputError, match="empty"):
         crop_box(np.zeros((100, 100)))
@@ -277,7 +277,7 @@ def test_errors(posed, tmp_path):
 
 def test_backend_names(posed):
     """ "body" is the default; "template" is the legacy name of "shell" and gives the same views."""
-    from dlacli.stages.dream import build_views
+    from dlacli.stages.dream.views import build_views
 
     default = build_views(posed["rgb"], posed["alpha"], posed["fit"], res=64)
     assert default.extra["dream"]["backend"] == "body"
@@ -290,7 +290,7 @@ def test_backend_names(posed):
 
 def test_failed_write_leaves_nothing(posed, tmp_path):
     """A view set that cannot be written (an empty view) leaves no output folder."""
-    from dlacli.stages.dream import build_views, write_dream_folder
+    from dlacli.stages.dream.views import build_views, write_dream_folder
 
     views = build_views(posed["rgb"], posed["alpha"], posed["fit"], res=64)
     views.masks[2] = 0.0
@@ -314,7 +314,7 @@ KEYPOINTS = Path(__file__).resolve().parent.parent / "data" / "keypoints"
 @pytest.mark.parametrize("stem", PHOTOS)
 def test_real_photo(stem, third_party_data, tmp_path):
     from dlacli.io.views import read_views
-    from dlacli.stages.dream import dream
+    from dlacli.stages.dream.views import dream
 
     photo = third_party_data / "images" / f"{stem}.png"
     kp = KEYPOINTS / f"{stem}.json"
@@ -327,11 +327,11 @@ def test_real_photo(stem, third_party_data, tmp_path):
     for i in range(1, 4):  # novel views are about the person's size
         assert 0.3 < (vs.masks[i] > 0.5).sum() / (vs.masks[0] > 0.5).sum() < 3.0
     assert (out / "fit_overlay.png").is_file() and alpha.any()
-    # no body-wide sheets: the per-part excess (stages/plausibility.py) measured 0.020-0.055 on
+    # no body-wide sheets: the per-part excess (stages/dream/plausibility.py) measured 0.020-0.055 on
     # these photos at these settings (the seated woman's hoodie bulging behind her back 0.055, 0.095
     # with 300 fit steps); a side view smeared to twice the body's width would score ~1
     from dlacli.body.model import get_body_model
-    from dlacli.stages.plausibility import silhouette_excess
+    from dlacli.stages.dream.plausibility import silhouette_excess
 
     verts = get_body_model().forward_body(vs.body).vertices[0].numpy()
     assert silhouette_excess(vs.masks, vs.cameras, verts).max() < 0.15
@@ -352,7 +352,7 @@ def _man(third_party_data):
 def test_gray16_photo_with_mask_file(third_party_data, tmp_path):
     """A 16-bit grayscale PNG without alpha plus a separate mask PNG gives a valid folder."""
     from dlacli.io.views import read_views
-    from dlacli.stages.dream import dream
+    from dlacli.stages.dream.views import dream
 
     rgba, kp = _man(third_party_data)
     gray = (rgba[..., :3].astype(np.float64) @ [0.299, 0.587, 0.114]) * 257.0
@@ -373,7 +373,7 @@ def test_unusable_photos_leave_nothing(third_party_data, tmp_path, monkeypatch):
     one DlaInputError each and no output folder."""
     import sys
 
-    from dlacli.stages.dream import dream
+    from dlacli.stages.dream.views import dream
 
     monkeypatch.setitem(sys.modules, "mediapipe", None)  # as on a platform without its wheels
 
@@ -407,7 +407,7 @@ def test_cli_one_line_error(tmp_path, monkeypatch, capsys):
 
 
 def test_sample_photo_is_shipped():
-    from dlacli.stages.dream import sample_photo
+    from dlacli.paths import sample_photo
 
     im = Image.open(sample_photo())
     assert im.mode == "RGBA" and im.size[1] <= 512

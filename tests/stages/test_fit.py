@@ -19,8 +19,8 @@ from dlacli.body.keypoints import COCO_NAMES, PointRig, coco_keypoints, coco_reg
 from dlacli.body.model import get_body_model
 from dlacli.errors import DlaInputError
 from dlacli.render.raster import render_mesh
-from dlacli.stages.fit import FitResult, fit_body
-from dlacli.stages.fit_report import overlay_png
+from dlacli.stages.fit.photo import FitResult, fit_body
+from dlacli.stages.fit.report import overlay_png
 from dlacli.types import Cameras
 
 KP_DIR = Path(__file__).resolve().parents[1] / "data" / "keypoints"

@@ -20,8 +20,8 @@ from scipy.spatial.transform import Rotation
 from dlacli.body.keypoints import COCO_NAMES, coco_keypoints
 from dlacli.body.model import get_body_model
 from dlacli.render.raster import render_mesh
-from dlacli.stages.fit import _limb_targets, fit_body, limb_loss
-from dlacli.stages.fit_report import fit_info, fit_warning, overlay_png
+from dlacli.stages.fit.photo import _limb_targets, fit_body, limb_loss
+from dlacli.stages.fit.report import fit_info, fit_warning, overlay_png
 from dlacli.types import Cameras
 
 W, H = 256, 320  # person ~190 px tall: 3 % of the height is ~6 px
@@ -149,7 +149,7 @@ def test_limb_prior_axes_match_mediapipes_frame():
 def test_fit_with_landmarks_gets_limb_depth(name):
     """The fit holds every limb (worst joint, depth order, 3D shape), and dream's default views of
     the textured photo made from that fit are plausible in every view (no sheet, no streak)."""
-    from dlacli.stages.dream import build_views
+    from dlacli.stages.dream.views import build_views
 
     subj = make_pose(name)
     image = subj["image"]

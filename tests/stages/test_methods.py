@@ -56,51 +56,42 @@ def toy(monkeypatch):
     methods.METHODS.pop(toy_method.NAME)
 
 
-def _main(argv, capsys) -> tuple[int, str, str]:
-    from dlacli.cli.app import main
-
-    with pytest.raises(SystemExit) as info:
-        main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return info.value.code, out, err
-
-
-def test_a_new_method_is_known_by_one_name_everywhere(toy, tmp_path, capsys):
+def test_a_new_method_is_known_by_one_name_everywhere(toy, tmp_path, dla):
     from dlacli.bench.rows import label, read_rows
     from dlacli.data.synth import synth
     from dlacli.io.avatar import read_avatar
 
     views = synth(8103, tmp_path / "views", res=32, novel_views=0, novel_poses=0)
     # dla lift: the spec's options and the flags that set the toy's config fields
-    code, _, err = _main(["lift", views, "--method", "toy:gaussians=1024", "-o", tmp_path / "a.npz"], capsys)
+    code, _, err = dla("lift", views, "--method", "toy:gaussians=1024", "-o", tmp_path / "a.npz")
     assert code == 0, err
     avatar = read_avatar(tmp_path / "a.npz")
     assert avatar.encoder == "toy" and avatar.extra["toy"] == {"gaussians": 1024}
-    code, _, err = _main(["lift", views, "--method", "toy", "--gaussians", "512", "-o", tmp_path / "b.npz"], capsys)
+    code, _, err = dla("lift", views, "--method", "toy", "--gaussians", "512", "-o", tmp_path / "b.npz")
     assert code == 0 and read_avatar(tmp_path / "b.npz").extra["toy"] == {"gaussians": 512}, err
-    code, _, err = _main(["lift", views, "--method", "toy", "--resolution", "64", "-o", tmp_path / "c.npz"], capsys)
+    code, _, err = dla("lift", views, "--method", "toy", "--resolution", "64", "-o", tmp_path / "c.npz")
     assert code == 2 and "--method toy takes no resolution" in err and not (tmp_path / "c.npz").exists()
-    code, _, err = _main(["lift", views, "--method", "nosuch", "-o", tmp_path / "c.npz"], capsys)
+    code, _, err = dla("lift", views, "--method", "nosuch", "-o", tmp_path / "c.npz")
     assert code == 2 and "one of: learned, residual, toy, unproject" in err
 
     # dla bench accuracy (its lift runs in a fresh process) and stability: rows named "toy"
     rows_file = tmp_path / "rows.jsonl"
     argv = ["bench", "accuracy", "--methods", "toy:gaussians=1024", "--seeds", "8102", "--res", "32", "--json"]
-    code, out, err = _main([*argv, "--jsonl", rows_file], capsys)
+    code, out, err = dla(*argv, "--jsonl", rows_file)
     assert code == 0, err
     printed = [json.loads(line) for line in out.splitlines()]
     assert len(printed) == 3 and {r["method"] for r in printed} == {"toy"}
     assert all(r["config"]["gaussians"] == 1024 and r["metrics"]["iou"] > 0.3 for r in printed)
     argv = ["bench", "stability", "--methods", "toy,unproject", "--seeds", "8104", "--res", "32"]
     argv += ["--perturbations", "fewer_views", "--levels", "2", "--jsonl", rows_file]
-    code, _, err = _main(argv, capsys)
+    code, _, err = dla(*argv)
     assert code == 0, err
     rows = read_rows(rows_file)
     assert [r["method"] for r in rows].count("toy") == 3 + 4 and all(r.get("status", "ok") == "ok" for r in rows)
     assert {label(r) for r in rows} == {"toy gaussians=1024", "toy gaussians=2048", "unproject steps=0"}
 
     # the report's tables and failures know it by the same name
-    code, _, err = _main(["bench", "report", rows_file, "-o", tmp_path / "page.md"], capsys)
+    code, _, err = dla("bench", "report", rows_file, "-o", tmp_path / "page.md")
     assert code == 0, err
     page = (tmp_path / "page.md").read_text()
     assert "| **toy gaussians=1024** | 1 |" in page or "| toy gaussians=1024 | 1 |" in page

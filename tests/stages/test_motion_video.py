@@ -13,8 +13,8 @@ import pytest
 
 from dlacli.body.keypoints import COCO_MIRROR
 from dlacli.errors import DlaInputError
-from dlacli.stages.motion_fit import foot_contacts
-from dlacli.stages.motion_video import clean_keypoints, fill_missing, keep_tracked, missing_ranges, unswap_left_right
+from dlacli.stages.motion.fit import foot_contacts
+from dlacli.stages.motion.video import clean_keypoints, fill_missing, keep_tracked, missing_ranges, unswap_left_right
 
 MAJOR = (
     "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R", "foot.L", "foot.R", "upperarm01.L",
@@ -141,8 +141,8 @@ def test_limb_directions_are_the_mean_of_lifter_and_landmarks_where_both_see():
     import torch
 
     from dlacli.nn.lifter import PoseLifter, lift_keypoints
-    from dlacli.stages import motion_fit as mf
-    from dlacli.stages.fit import photo_intrinsics
+    from dlacli.stages.fit.photo import photo_intrinsics
+    from dlacli.stages.motion import fit as mf
 
     rng = np.random.default_rng(0)
     kp = np.concatenate([rng.uniform(100, 200, (2, 17, 2)), np.ones((2, 17, 1))], -1).astype(np.float32)
@@ -171,8 +171,8 @@ def test_a_segment_no_estimate_sees_takes_mediapipes_guess_at_a_low_weight():
     import torch
 
     from dlacli.nn.lifter import PoseLifter
-    from dlacli.stages import motion_fit as mf
-    from dlacli.stages.fit import photo_intrinsics
+    from dlacli.stages.fit.photo import photo_intrinsics
+    from dlacli.stages.motion import fit as mf
 
     rng = np.random.default_rng(1)
     kp = np.concatenate([rng.uniform(100, 200, (3, 17, 2)), np.ones((3, 17, 1))], -1).astype(np.float32)
@@ -242,8 +242,8 @@ def test_from_video_on_a_synthetic_clip(third_party_data, tmp_path):
     from dlacli.data.video import render_motion_video
     from dlacli.io.motion import read_motion, write_motion
     from dlacli.io.video import open_video
-    from dlacli.stages.motion_source import load_motion
-    from dlacli.stages.motion_video import video_to_motion
+    from dlacli.stages.motion.source import load_motion
+    from dlacli.stages.motion.video import video_to_motion
     from dlacli.types import Motion
 
     truth = load_motion(third_party_data / "motion" / "131_01.bvh", fps=FPS)  # 75 frames, 2.5 s
@@ -281,7 +281,7 @@ def test_from_video_on_a_synthetic_clip(third_party_data, tmp_path):
 def test_no_person_anywhere(tmp_path):
     pytest.importorskip("mediapipe")
     from dlacli.io.video import open_video, write_video
-    from dlacli.stages.motion_video import video_to_motion
+    from dlacli.stages.motion.video import video_to_motion
 
     path = tmp_path / "empty.mp4"
     write_video([np.full((64, 64, 3), 0.4, np.float32)] * 5, path, 10)
@@ -315,7 +315,7 @@ def test_from_video_on_a_real_clip(third_party_data):
     pytest.importorskip("mediapipe")
     from dlacli.body.model import get_body_model
     from dlacli.io.video import open_video
-    from dlacli.stages.motion_video import video_to_motion
+    from dlacli.stages.motion.video import video_to_motion
 
     result = video_to_motion(open_video(third_party_data / "video" / "pexels-4838220-squats.mp4"))
     motion = result.motion

@@ -1,4 +1,4 @@
-"""Plausibility of dreamed views (stages/plausibility.py) on synthetic view sets whose answer is
+"""Plausibility of dreamed views (stages/dream/plausibility.py) on synthetic view sets whose answer is
 known: the true body's own renders (nothing added: ~0), a slab of known area (its area ratio), a
 garment the photo shows on the legs (allowed there, not around the arms), colours stretched along
 the photo camera's rays (streaks) and real stripes the photo also shows (no streaks)."""
@@ -38,8 +38,8 @@ def scene():
     from dlacli.body.model import get_body_model, rotations_to_pose
     from dlacli.data.subject import relaxed_pose
     from dlacli.render.raster import render_mesh
-    from dlacli.stages.dream import frame_crop
-    from dlacli.stages.orbit import AZIMUTHS, body_pivot, orbit_cameras
+    from dlacli.stages.dream.orbit import AZIMUTHS, body_pivot, orbit_cameras
+    from dlacli.stages.dream.views import frame_crop
 
     m = get_body_model()
     rot = relaxed_pose(np.random.default_rng(3), m.bone_labels, 20.0)
@@ -70,7 +70,7 @@ def _body_masks(scene) -> np.ndarray:
 def test_true_body_is_plausible(scene, texture):
     """The true body's own renders add nothing: excess 0 in every view (their antialiased outline
     stays within the 2 px margin of the body raster) and streak < 0.02 (measured 0.000)."""
-    from dlacli.stages.plausibility import plausibility
+    from dlacli.stages.dream.plausibility import plausibility
 
     images, masks = scene["views"][texture]
     got = plausibility(images, masks, scene["cams"], scene["verts"])
@@ -82,7 +82,7 @@ def test_true_body_is_plausible(scene, texture):
 def test_slab_scores_its_area_ratio(scene):
     """A slab pasted beside the body in one side view (the photo's mask is the body itself, so every
     part's allowance is 0 and only the 2 px margin is allowed) scores its area / the body's area."""
-    from dlacli.stages.plausibility import silhouette_excess
+    from dlacli.stages.dream.plausibility import silhouette_excess
 
     body = _body_masks(scene)
     assert np.allclose(silhouette_excess(body, scene["cams"], scene["verts"]), 0.0)
@@ -116,7 +116,7 @@ def test_garment_is_allowed_around_its_own_part(scene):
     around the arms is not: it scores at least 0.4 of the arm band's area beyond the 2 px margin
     (measured 0.55: the band's pixels nearest the hips take the legs' allowance), where a single
     global allowance (the old rule) would let it all through."""
-    from dlacli.stages.plausibility import silhouette_excess
+    from dlacli.stages.dream.plausibility import silhouette_excess
 
     lower = ("left_leg", "right_leg", "left_foot", "right_foot")
     arms = ("left_arm", "right_arm")
@@ -165,7 +165,7 @@ def test_streaks_along_the_photo_rays(scene):
     """Side views whose colours are stretched 8x along the photo camera's rays (lines through its
     centre's image, the epipole) score a high streak (> 0.3); the back view, where those rays are
     seen end-on, scores 0 by definition."""
-    from dlacli.stages.plausibility import streak_fractions
+    from dlacli.stages.dream.plausibility import streak_fractions
 
     images, masks = scene["views"]["noise"]
     cams = scene["cams"]
@@ -182,7 +182,7 @@ def test_streaks_along_the_photo_rays(scene):
 def test_stripes_the_photo_shows_are_not_streaks(scene):
     """Horizontal stripes on the body run along the side views' ray direction too, but the photo
     shows them: streak < 0.02, while the raw share of ray-aligned texture is high (> 0.5)."""
-    from dlacli.stages.plausibility import ray_streak_share, streak_fractions
+    from dlacli.stages.dream.plausibility import ray_streak_share, streak_fractions
 
     images, masks = scene["views"]["stripes"]
     cams = scene["cams"]
@@ -198,8 +198,8 @@ def test_dream_records_plausibility(scene, tmp_path):
     dream.plausibility (excess, streak per view, score) and dream.silhouette_excess = its excess;
     the template's side views stretch colours along the photo's rays at the torso's and limbs'
     grazing sides, so they score a clear streak (> 0.05), while the true body's renders score 0."""
-    from dlacli.stages.dream import build_views, write_dream_folder
-    from dlacli.stages.fit import FitResult
+    from dlacli.stages.dream.views import build_views, write_dream_folder
+    from dlacli.stages.fit.photo import FitResult
 
     rgb, alpha = scene["photos"]["noise"]
     body = BodyParams()  # the views do not depend on the recorded parameters
@@ -221,8 +221,8 @@ def test_body_views_are_plausible(scene):
     of a textured body, not stretched photo pixels: no sheet in any view and streaks well under the
     shell's (> 0.05 above): what remains (0.03 measured) is the blurred fill of the texels the
     photo does not see, smooth bands the structure tensor finds coherent."""
-    from dlacli.stages.dream import build_views
-    from dlacli.stages.fit import FitResult
+    from dlacli.stages.dream.views import build_views
+    from dlacli.stages.fit.photo import FitResult
 
     rgb, alpha = scene["photos"]["noise"]
     fit = FitResult(BodyParams(), scene["camera"], scene["verts"], np.zeros((17, 3), np.float32), 0.0, 1.0)

@@ -1,4 +1,4 @@
-"""Dream's body backend (dlacli.stages.texture) against a synthetic oracle: a posed body with a known
+"""Dream's body backend (dlacli.stages.dream.texture) against a synthetic oracle: a posed body with a known
 UV texture, rendered through a known camera as the "photo", with the true body as the fit.
 Oracles: the true texture per texel, the true textured body rendered from the orbit cameras,
 render_mesh with the equivalent vertex colours, a mask grown by a known margin."""
@@ -44,7 +44,7 @@ def _true_texels(kind: str) -> np.ndarray:
     kind "pattern": asymmetric pattern; "symmetric": a function of |x|; "face": the face pure red,
     everything else blue-green."""
     from dlacli.body.regions import PARTS
-    from dlacli.stages.texture import _rest, texel_points, texel_samples
+    from dlacli.stages.dream.texture import _rest, texel_points, texel_samples
 
     _, _, part = texel_samples(UV)
     p = texel_points(_rest(), UV)
@@ -61,7 +61,7 @@ def _true_texels(kind: str) -> np.ndarray:
 
 
 def _map(texels: np.ndarray) -> np.ndarray:
-    from dlacli.stages.texture import texture_map
+    from dlacli.stages.dream.texture import texture_map
 
     return texture_map(texels.astype(np.float32), UV)
 
@@ -83,7 +83,7 @@ def _straight(rgba):
 def scene():
     from dlacli.body.model import get_body_model, rotations_to_pose
     from dlacli.data.subject import relaxed_pose
-    from dlacli.stages.dream import frame_crop
+    from dlacli.stages.dream.views import frame_crop
 
     m = get_body_model()
     rot = relaxed_pose(np.random.default_rng(SEED), m.bone_labels, 20.0)
@@ -102,7 +102,7 @@ def test_render_textured_matches_vertex_colours(scene):
     those vertex colours (same rasteriser, same supersampling): the only difference is the
     bilinear resampling of the texture (UV 512: < 1/2 texel), so > 35 dB and equal coverage."""
     from dlacli.render.raster import render_mesh
-    from dlacli.stages.texture import _rest, texel_samples, texture_map
+    from dlacli.stages.dream.texture import _rest, texel_samples, texture_map
 
     r = 512
     col = 0.5 + 0.35 * np.sin(_rest() * [7.0, 5.0, 3.0] + [0.0, 1.0, 2.0])  # smooth [V, 3]
@@ -125,7 +125,7 @@ def test_bake_sees_the_true_texture_face_on(scene):
     sampled back (bilinear): each step blurs by < 1 texel / pixel, and the pattern's shortest
     wavelength (2 pi / 23 m, ~27 cm) spans ~25 crop pixels, so the loss is ~(pi / 25)^2 / 2 of
     the 0.2 amplitude: PSNR > 40 dB (measured 55.8); part borders are not baked at all."""
-    from dlacli.stages.texture import bake
+    from dlacli.stages.dream.texture import bake
 
     s = scene["pattern"]
     colour, weight = bake(s["rgb"], s["alpha"], s["cam"], scene["verts"], UV)
@@ -141,8 +141,8 @@ def test_symmetry_recovers_the_hidden_side(scene):
     left/right symmetric texture, the completion gives the hidden texels whose mirror is seen
     face-on their true colour: > 35 dB (measured 48.5; the mirror map lands within one texel of the
     mirror point and the bake of those texels is ~1 texel of blur)."""
-    from dlacli.stages.dream import frame_crop
-    from dlacli.stages.texture import SEEN, bake, complete, mirror_texels
+    from dlacli.stages.dream.texture import SEEN, bake, complete, mirror_texels
+    from dlacli.stages.dream.views import frame_crop
 
     s = scene["symmetric"]
     cam0 = _camera(azimuth=70.0)
@@ -163,7 +163,7 @@ def test_no_face_on_the_back_of_the_head(scene):
     """(c) a pure red face: the hair texels the photo does not see (the back of the head) take no
     red at all, and neither does the back view's head."""
     from dlacli.body.regions import PARTS
-    from dlacli.stages.texture import bake, complete, texel_samples
+    from dlacli.stages.dream.texture import bake, complete, texel_samples
 
     s = scene["face"]
     colour, weight = bake(s["rgb"], s["alpha"], s["cam"], scene["verts"], UV)
@@ -178,8 +178,8 @@ def test_no_face_on_the_back_of_the_head(scene):
 
 @pytest.fixture(scope="module")
 def novel(scene):
-    from dlacli.stages.shell import template_views
-    from dlacli.stages.texture import body_views
+    from dlacli.stages.dream.shell import template_views
+    from dlacli.stages.dream.texture import body_views
 
     s = scene["pattern"]
     body = body_views(s["rgb"], s["alpha"], s["cam"], scene["verts"])
@@ -228,7 +228,7 @@ def test_thickness_from_a_grown_mask(scene):
 
     from dlacli.body.regions import PARTS, face_parts
     from dlacli.render.raster import rasterize
-    from dlacli.stages.texture import (
+    from dlacli.stages.dream.texture import (
         _normals,
         _vertex_parts_and_adjacency,
         clothing_offsets,
@@ -281,7 +281,7 @@ def test_render_textured_refuses_bad_input(scene):
 
 
 def test_uv_resolution_rule():
-    from dlacli.stages.texture import uv_resolution
+    from dlacli.stages.dream.texture import uv_resolution
 
     assert [uv_resolution(r) for r in (64, 256, 300, 512, 700, 4096)] == [256, 256, 256, 512, 512, 1024]
 
@@ -292,8 +292,8 @@ def hand_on_thigh(scene):
     blue-green body, photographed from the front (a 512 px crop); the "fit" is the same body with
     the hand 5 cm off to the side and 3 cm higher (an occluder the fit misplaced by ~14 px)."""
     from dlacli.body.regions import PARTS
-    from dlacli.stages.dream import frame_crop
-    from dlacli.stages.texture import _rest, _vertex_parts_and_adjacency, texel_points, texel_samples
+    from dlacli.stages.dream.texture import _rest, _vertex_parts_and_adjacency, texel_points, texel_samples
+    from dlacli.stages.dream.views import frame_crop
 
     part, _ = _vertex_parts_and_adjacency()
     hand, leg = part == PARTS.index("left_hand"), part == PARTS.index("left_leg")
@@ -323,8 +323,8 @@ def test_an_occluder_the_fit_misplaced_leaves_no_colour_on_what_it_covers(hand_o
     by the depth test; without the occluder rule it bakes the hand's red (the test can fail),
     with it no thigh texel is baked red and the completed thigh takes its own colour there, while
     the texels away from the hand keep their weights exactly."""
-    import dlacli.stages.occluders as occ
-    import dlacli.stages.texture as tx
+    import dlacli.stages.dream.occluders as occ
+    import dlacli.stages.dream.texture as tx
 
     s, leg = hand_on_thigh, hand_on_thigh["leg"]
     colour, weight = tx.bake(s["rgb"], s["alpha"], s["cam"], s["fitted"], UV)
@@ -351,8 +351,8 @@ def test_the_photos_colour_trust_keeps_the_limb_in_front_off_what_it_covers_in_t
     take the real hand's red from the photo (the test can fail); with it no texel sees red on
     the thigh, the trust only takes views away, and what it keeps bakes the same colours."""
     from dlacli.body.regions import PARTS, part_map
+    from dlacli.stages.dream.texture import photo_trust
     from dlacli.stages.lift.bake import bake_colours, body_depth_maps, texel_views
-    from dlacli.stages.texture import photo_trust
     from dlacli.types import ViewSet
 
     s = hand_on_thigh

@@ -20,7 +20,7 @@ def _fake_samples(dataset, resolution: int = 32) -> None:
     completion, and a target that is the completion darkened by half where the photo saw
     nothing (a correction a network can learn)."""
     from dlacli.io.atomic import atomic_path
-    from dlacli.stages.texture import complete, texel_samples
+    from dlacli.stages.dream.texture import complete, texel_samples
     from dlacli.train.completion import sample_path
     from dlacli.train.data import discover
 
@@ -115,7 +115,7 @@ def test_a_real_samples_target_agrees_with_its_photo(tmp_path):
     world would bake other garments' colours there: the rule's fill of hidden texels, for
     contrast, is ~7 % off); the targets cover most of the body."""
     from dlacli.data.synth import synth
-    from dlacli.stages.texture import SEEN
+    from dlacli.stages.dream.texture import SEEN
     from dlacli.train.completion import make_sample
 
     folder = synth(8133, tmp_path / "s", res=512, novel_views=0, novel_poses=0, appearance="lit")

@@ -29,20 +29,11 @@ def toy():
     methods.TRAININGS.pop("toy")
 
 
-def _main(argv, capsys) -> tuple[int, str, str]:
-    from dlacli.cli.app import main
-
-    with pytest.raises(SystemExit) as info:
-        main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return info.value.code, out, err
-
-
-def test_a_new_training_is_run_by_its_name(toy, tmp_path, capsys):
+def test_a_new_training_is_run_by_its_name(toy, tmp_path, dla):
     data = tmp_path / "data"
     data.mkdir()
     base = ["train", "--method", "toy", "--data", data, "-o", tmp_path / "run"]
-    code, out, err = _main([*base, "--steps-full", "5", "--targets", "3"], capsys)
+    code, out, err = dla(*base, "--steps-full", "5", "--targets", "3")
     assert code == 0, err
     assert out.strip() == str(tmp_path / "run" / "toy.json")
     record = json.loads((tmp_path / "run" / "toy.json").read_text())
@@ -57,14 +48,27 @@ def test_a_new_training_is_run_by_its_name(toy, tmp_path, capsys):
         (["--preset", "tiny"], "error: --preset: applies to --method learned or residual only"),
     ],
 )
-def test_options_a_training_does_not_take_are_refused(toy, tmp_path, capsys, extra, needle):
+def test_options_a_training_does_not_take_are_refused(toy, tmp_path, dla, extra, needle):
     data = tmp_path / "data"
     data.mkdir()
-    code, _, err = _main(["train", "--method", "toy", "--data", data, "-o", tmp_path / "run", *extra], capsys)
+    code, _, err = dla("train", "--method", "toy", "--data", data, "-o", tmp_path / "run", *extra)
     assert code == 2 and err.strip() == needle and not (tmp_path / "run").exists()
 
 
-def test_an_unknown_training_lists_the_known_ones(toy, tmp_path, capsys):
-    code, _, err = _main(["train", "--method", "nosuch", "--data", tmp_path, "-o", tmp_path / "run"], capsys)
+def test_an_unknown_training_lists_the_known_ones(toy, tmp_path, dla):
+    code, _, err = dla("train", "--method", "nosuch", "--data", tmp_path, "-o", tmp_path / "run")
     assert code == 2 and "unknown method 'nosuch' (one of: learned, residual, completion, lifter, toy)" in err
     assert err.count("\n") == 1
+
+
+def test_every_option_is_shared_or_taken_by_a_training():
+    """An option no training reads would be refused for every method: none is."""
+    import typer
+
+    from dlacli.cli.app import app
+
+    command = typer.main.get_command(app).commands["train"]
+    options = {p.name for p in command.params if p.opts}
+    takes = set().union(*(t.takes for t in methods.TRAININGS.values()))
+    assert "gain" in options and options - methods.SHARED - takes == set()
+    assert takes <= options and methods.SHARED <= options

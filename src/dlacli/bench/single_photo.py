@@ -85,7 +85,7 @@ def score_dream(
     from dlacli.data.synth import render_subject
     from dlacli.io.motion import read_motion
     from dlacli.io.views import read_views
-    from dlacli.stages.orbit import AZIMUTHS
+    from dlacli.stages.dream.orbit import AZIMUTHS
 
     model = get_body_model()
     faces = np.asarray(model.faces, np.int64)
@@ -165,8 +165,8 @@ def write_photo(subject: Path, path: Path) -> Path:
 
 
 def check_backends(names: list[str]) -> list[str]:
-    """Dream backends by name (dlacli.stages.dream.BACKENDS), in order, without repeats."""
-    from dlacli.stages.dream import BACKENDS
+    """Dream backends by name (dlacli.stages.dream.backends), in order, without repeats."""
+    from dlacli.stages.dream.backends import BACKENDS
 
     out = list(dict.fromkeys(n.strip() for n in names if n.strip()))
     if not out:
@@ -178,14 +178,14 @@ def check_backends(names: list[str]) -> list[str]:
 
 
 def truth_fit(subject: Path):
-    """The subject's true body and input camera as a body fit (`dlacli.stages.fit.FitResult`):
+    """The subject's true body and input camera as a body fit (`dlacli.stages.fit.photo.FitResult`):
     what `dream` would use if the fit were perfect (oracle "true_body")."""
     import torch
 
     from dlacli.body.model import get_body_model
     from dlacli.io.views import read_views
-    from dlacli.stages.fit import FitResult
-    from dlacli.stages.texture import mask_iou
+    from dlacli.stages.dream.texture import mask_iou
+    from dlacli.stages.fit.photo import FitResult
 
     truth = read_views(subject)
     with torch.no_grad():
@@ -226,7 +226,7 @@ def oracle_folder(
     from dlacli.body.model import get_body_model
     from dlacli.data.synth import render_subject
     from dlacli.io.views import read_views, write_views
-    from dlacli.stages.dream import build_views, write_dream_folder
+    from dlacli.stages.dream.views import build_views, write_dream_folder
 
     if oracle == "four_views":
         return subject
@@ -280,8 +280,8 @@ def run_photo(
     from dlacli.bench.rows import make_row
     from dlacli.io.avatar import read_avatar
     from dlacli.io.views import read_views
-    from dlacli.stages.completion import load_prior
-    from dlacli.stages.dream import dream
+    from dlacli.stages.dream.completion import load_prior
+    from dlacli.stages.dream.views import dream
 
     backends = check_backends(backends)
     priors = list(dict.fromkeys(priors or ["none"]))

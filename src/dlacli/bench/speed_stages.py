@@ -287,22 +287,23 @@ def dream_suite(cfg: SpeedConfig, row, log) -> list[dict]:
 
     from dlacli.io.detect import detect_person
     from dlacli.io.photo import read_photo
-    from dlacli.stages import dream as D
-    from dlacli.stages.completion import SHIPPED as SHIPPED_PRIOR
-    from dlacli.stages.completion import load_prior
-    from dlacli.stages.fit import fit_body
-    from dlacli.stages.fit_report import overlay_png
-    from dlacli.stages.plausibility import plausibility
-    from dlacli.stages.shell import template_views
-    from dlacli.stages.texture import body_views
+    from dlacli.paths import sample_keypoints, sample_photo
+    from dlacli.stages.dream import views as D
+    from dlacli.stages.dream.completion import SHIPPED as SHIPPED_PRIOR
+    from dlacli.stages.dream.completion import load_prior
+    from dlacli.stages.dream.plausibility import plausibility
+    from dlacli.stages.dream.shell import template_views
+    from dlacli.stages.dream.texture import body_views
+    from dlacli.stages.fit.photo import fit_body
+    from dlacli.stages.fit.report import overlay_png
 
-    photo, res, steps = D.sample_photo(), cfg.dream_res, cfg.dream_fit_steps
+    photo, res, steps = sample_photo(), cfg.dream_res, cfg.dream_fit_steps
     c = {"res": res, "fit_steps": steps}  # the command rows
     out = []
     with tempfile.TemporaryDirectory(prefix="dla-speed-dream-") as tmp:
         argv = ["dream", str(photo), "-o", str(Path(tmp) / "cli"), "--res", str(res), "--fit-steps", str(steps)]
         cli_seconds(argv)  # warm-up: caches on disk, .pyc files, the file-system cache
-        for case, extra in (("command", []), ("command_keypoints", ["--keypoints", str(D.sample_keypoints())])):
+        for case, extra in (("command", []), ("command_keypoints", ["--keypoints", str(sample_keypoints())])):
             times = [cli_seconds(argv + extra)[0] for _ in range(max(1, cfg.repeats))]
             med = statistics.median(times)
             out.append(row("dream", case, "cli", c, med, len(times), min_seconds=min(times)))
@@ -349,7 +350,7 @@ def dream_suite(cfg: SpeedConfig, row, log) -> list[dict]:
 
 def _motion_clip(name: str):
     """A built-in motion (`dla motion` names it), at 30 fps."""
-    from dlacli.stages.motion_source import load_motion
+    from dlacli.stages.motion.source import load_motion
 
     return load_motion(name, fps=30.0)
 
@@ -385,7 +386,7 @@ def motion_suite(cfg: SpeedConfig, row, log) -> list[dict]:
     from dlacli.data.video import render_motion_video
     from dlacli.io.video import open_video
     from dlacli.limits import DEFAULT_LANDMARKS
-    from dlacli.stages.motion_video import video_to_motion
+    from dlacli.stages.motion.video import video_to_motion
     from dlacli.types import Motion
 
     clip = _motion_clip(cfg.motion_clip)

@@ -55,7 +55,7 @@ def animate(
     from dlacli.io.usd import SCHEMAS
     from dlacli.io.video import write_video
     from dlacli.stages.animate import animation_preview_frames, pose_avatar, write_animation
-    from dlacli.stages.motion_source import load_motion, split_spec
+    from dlacli.stages.motion.source import load_motion, split_spec
 
     if schema not in SCHEMAS:
         raise DlaInputError("--schema", f"unknown schema {schema!r} (use one of {', '.join(SCHEMAS)})")

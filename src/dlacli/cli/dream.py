@@ -9,6 +9,11 @@ import typer
 
 from dlacli.cli import options
 from dlacli.limits import DEFAULT_PRIOR, FIT_STEPS
+from dlacli.stages.dream.backends import BACKENDS, DEFAULT
+
+_BACKEND_HELP = "How the novel views are made (dlacli.stages.dream.backends): " + "; ".join(
+    f"'{b.name}'{' (default)' if b.name == DEFAULT else ''}: {b.about}" for b in BACKENDS.values()
+)
 
 
 def dream(
@@ -18,14 +23,7 @@ def dream(
         help="Photo of one person (PNG/JPEG; RGBA: alpha = person mask). A sample ships with dla: see below.",
     ),
     output: Path = options.output("View folder to write (replaced whole, written atomically)."),
-    backend: str = typer.Option(
-        "body",
-        "--backend",
-        help="'body' (default; CPU, no weights: the photo baked onto the fitted body's UV map, completed by "
-        "symmetry, rendered from the fitted body with clothes and hair as a bounded thickness), 'shell' (CPU: the "
-        "photo on a 2.5D image-space shell; 'template' is its legacy name, same output) or 'diffusion' "
-        "(pose-controlled video diffusion; extra 'diffusion' and local weights).",
-    ),
+    backend: str = typer.Option(DEFAULT, "--backend", help=_BACKEND_HELP),
     keypoints: Optional[Path] = typer.Option(
         None, "--keypoints", help="COCO-17 keypoints JSON of the person (default: detected with MediaPipe Pose)."
     ),
@@ -67,16 +65,18 @@ def dream(
     """Dream novel views of a person from one photo: fit the body, then write a view folder with
     the photo (azimuth 0) and views at azimuths 90, 180, 270, plus body.json and fit_overlay.png.
 
-    Sample photo: python -c "from dlacli.stages.dream import sample_photo; print(sample_photo())"
+    Sample photo: python -c "from dlacli.paths import sample_photo; print(sample_photo())"
     """
     from dlacli.cli.progress import status
     from dlacli.io.atomic import check_outputs
     from dlacli.io.views import LAYOUT
 
     check_outputs(folders=[(output, (*LAYOUT, "fit_overlay.png"))], inputs=[photo, keypoints, mask])
-    detects = backend in ("body", "shell", "template")
+    from dlacli.stages.dream.backends import get
+
+    detects = get(backend).load is None  # a backend that loads a model first reads the photo after it
     detection = _start_detection(photo, mask, keypoints, landmarks) if detects else None
-    from dlacli.stages.dream import dream as run  # imports torch: the detection runs meanwhile
+    from dlacli.stages.dream.views import dream as run  # imports torch: the detection runs meanwhile
 
     warnings: list[str] = []
 

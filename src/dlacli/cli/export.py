@@ -61,7 +61,7 @@ def export(
     from dlacli.io.atomic import atomic_dir, check_outputs
     from dlacli.io.avatar import read_avatar
     from dlacli.stages.export import POSES, UPS
-    from dlacli.stages.motion_source import load_motion, split_spec
+    from dlacli.stages.motion.source import load_motion, split_spec
 
     if pose is not None and pose not in POSES:
         raise DlaInputError("--pose", f"unknown pose {pose!r} (use one of {', '.join(POSES)})")

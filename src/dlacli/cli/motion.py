@@ -32,7 +32,7 @@ def convert(
     """Retarget a motion onto anny's rig and write it as a native motion.npz."""
     from dlacli.io.atomic import check_outputs
     from dlacli.io.motion import write_motion
-    from dlacli.stages.motion_source import load_motion, split_spec
+    from dlacli.stages.motion.source import load_motion, split_spec
 
     check_outputs(files=[output], inputs=[*split_spec(source), asf])
     motion = load_motion(source, fps=fps, asf=asf, allow_missing_joints=allow_missing_joints)
@@ -52,8 +52,8 @@ def preview(
     """Render the default body doing a motion into an mp4 (left side blue, right side red)."""
     from dlacli.io.atomic import check_outputs
     from dlacli.io.video import write_video
-    from dlacli.stages.motion_preview import motion_preview_frames
-    from dlacli.stages.motion_source import load_motion, split_spec
+    from dlacli.stages.motion.preview import motion_preview_frames
+    from dlacli.stages.motion.source import load_motion, split_spec
 
     check_outputs(files=[output], inputs=split_spec(motion_spec))
     motion = load_motion(motion_spec, allow_missing_joints=allow_missing_joints)
@@ -94,7 +94,7 @@ def from_video(
     from dlacli.io.motion import write_motion
     from dlacli.io.video import open_video, write_video
     from dlacli.nn.lifter import load_lifter
-    from dlacli.stages.motion_video import preview_frames, video_to_motion
+    from dlacli.stages.motion.video import preview_frames, video_to_motion
 
     check_outputs(files=[output, preview], inputs=[video, lifter])
     landmark_model(landmarks)  # a model not installed fails before any work

@@ -44,7 +44,7 @@ def render(
     from dlacli.io.avatar import read_avatar
     from dlacli.io.video import write_video
     from dlacli.io.views import read_transforms
-    from dlacli.stages.motion_source import load_motion, split_spec
+    from dlacli.stages.motion.source import load_motion, split_spec
     from dlacli.stages.render import render_avatar, turntable_cameras
     from dlacli.types import Cameras
 

@@ -128,7 +128,8 @@ def train(
         help="Residual only: render targets N times larger and box-filter them (corrections that hold at any size).",
     ),
 ) -> None:
-    """Train the learned avatar networks end to end through skinning and splatting.
+    """Train a method's networks (--method; the learned and residual lifts end to end through
+    skinning and splatting).
 
     Runs on one process, or data-parallel under torchrun
     (`torchrun --nproc_per_node K $(which dla) train ...`: gloo on CPU, nccl on CUDA).

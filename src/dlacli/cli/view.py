@@ -31,7 +31,7 @@ def view(
     from dlacli.errors import DlaInputError
     from dlacli.io.atomic import check_outputs
     from dlacli.io.avatar import read_avatar
-    from dlacli.stages.motion_source import load_motion, split_spec
+    from dlacli.stages.motion.source import load_motion, split_spec
     from dlacli.stages.view import view_page, write_page
 
     if output is None:

@@ -14,5 +14,5 @@ bytes on every run. One concept per module, imported in this order:
 - `dataset`: many subjects in a dataset folder with a manifest (`dla synth --seeds`).
 
 Layer (docs/architecture.md, "The layers"): beside `dlacli.stages`; `poses` reads motion clips through the stage
-`dlacli.stages.motion_source` (the one edge between the two, listed in tests/test_layers.py).
+`dlacli.stages.motion.source` (the one edge between the two, listed in tests/test_layers.py).
 """

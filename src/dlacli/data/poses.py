@@ -61,7 +61,7 @@ def target_motion(seed: int, spec: SubjectSpec, n: int, clips: Sequence[str] = (
     the root is put above the origin and moved down or up as far as needed to keep the (naked)
     body between FRAME_Z[0] and FRAME_Z[1] metres, so the cameras see all of it."""
     from dlacli.body.model import get_body_model
-    from dlacli.stages.motion_source import load_motion
+    from dlacli.stages.motion.source import load_motion
 
     if not clips or n == 0:
         return novel_motion(seed, spec, n), [POSE_KINDS[t % len(POSE_KINDS)] for t in range(n)]

@@ -13,7 +13,7 @@ import torch
 from dlacli.types import Motion
 
 BACKGROUND = 0.45
-FOV_DEG = 50.0  # = stages.fit.FOV_Y_DEG: the focal length the from-video fit guesses
+FOV_DEG = 50.0  # = stages.fit.photo.FOV_Y_DEG: the focal length the from-video fit guesses
 DISTANCE = 3.6  # metres from the camera to the motion's mean root position (the camera on its -Y side)
 
 

@@ -1,7 +1,7 @@
 """The completion prior: a UV-space ConvNet that corrects the body backend's hand-written fill
 where the photo does not see the body (dream's `--prior`, docs/dream.md "The completion prior").
 
-    inputs (dlacli.stages.completion.prior_inputs) [B, INPUTS, R, R] at R = config.resolution:
+    inputs (dlacli.stages.dream.completion.prior_inputs) [B, INPUTS, R, R] at R = config.resolution:
         the rule's completed colour (3), the photo's baked colour x its confidence a (3), a (1),
         the valid-texel mask (1), the body part one-hot (11), the rest-pose texel point (3)
     --> U-Net (GroupNorm, SiLU; three downsamplings, a global context vector at the bottom)
@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as nnf
 from torch import nn
 
-INPUTS = 22  # channels of stages/completion.prior_inputs
+INPUTS = 22  # channels of stages/dream/completion.prior_inputs
 OUTPUTS = 3  # the colour correction t
 
 

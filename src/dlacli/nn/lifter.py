@@ -70,7 +70,7 @@ def lifter_inputs(rays: torch.Tensor, seen: torch.Tensor) -> torch.Tensor:
     """rays [B, 17, 2] (image-plane coordinates (u - cx) / f, (v - cy) / f), seen [B, 17] bool ->
     [B, NUM_INPUTS]: per keypoint (ray - hip centre) / torso length and the seen flag (0, 0, 0
     where unseen), then the hip centre and the torso length. Each row needs a seen hip and a seen
-    shoulder (a frame without them has no person, `motion_video`)."""
+    shoulder (a frame without them has no person, stages/motion/video.py)."""
     w = seen.float()
 
     def centre(idx: tuple[int, int]) -> torch.Tensor:

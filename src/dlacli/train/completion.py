@@ -5,7 +5,7 @@ A sample per subject (`make_sample`, cached in dla's cache folder, `completion_s
 subject's input view that faces it most (within 45 degrees of its front: the dataset's start yaw
 is random) is the photo; it goes through what `dla dream` does with a photo (MediaPipe detection
 on the cut-out, the body fit, the framing, the displaced body) and is baked at the network's UV
-resolution (stages/completion.photo_evidence): the network's inputs. The target: the true subject
+resolution (stages/dream/completion.photo_evidence): the network's inputs. The target: the true subject
 rendered from `TARGET_AZIMUTHS` around the fitted body (the dream's orbit, mapped into the
 subject's world through the bodies, as `dla bench accuracy --input photo` maps cameras) and baked
 onto the same displaced body, averaged with the bakes' weights. So the target is what the truth
@@ -109,11 +109,11 @@ def make_sample(folder: Path, resolution: int = 128, target_light: str = "world"
     from dlacli.data.synth import render_subject
     from dlacli.io.detect import detect_person
     from dlacli.io.views import read_views
-    from dlacli.stages.completion import photo_evidence
-    from dlacli.stages.dream import frame_crop
-    from dlacli.stages.fit import fit_body
-    from dlacli.stages.orbit import body_pivot, orbit_cameras
-    from dlacli.stages.texture import bake, displaced_body
+    from dlacli.stages.dream.completion import photo_evidence
+    from dlacli.stages.dream.orbit import body_pivot, orbit_cameras
+    from dlacli.stages.dream.texture import bake, displaced_body
+    from dlacli.stages.dream.views import frame_crop
+    from dlacli.stages.fit.photo import fit_body
 
     rec = synth_record(folder)
     seed, appearance, wardrobe = int(rec["seed"]), rec.get("appearance", "albedo"), rec.get("wardrobe", "default")
@@ -229,7 +229,7 @@ class Samples:
     """The samples of a list of subjects as flat texel arrays, and batches of network inputs."""
 
     def __init__(self, samples: list[dict[str, np.ndarray]], resolution: int):
-        from dlacli.stages.texture import mirror_texels
+        from dlacli.stages.dream.texture import mirror_texels
 
         self.samples, self.resolution = samples, resolution
         self.mirror = mirror_texels(resolution)
@@ -240,7 +240,7 @@ class Samples:
     def item(self, i: int, rng: np.random.Generator | None, cfg: CompletionTrainConfig):
         """(inputs [22, r, r], completed [3, r, r], unseen [1, r, r] = 1 - a, target [3, r, r],
         target weight [1, r, r]) of sample i, augmented when rng is given (module doc)."""
-        from dlacli.stages.completion import confidence, grid, prior_inputs
+        from dlacli.stages.dream.completion import confidence, grid, prior_inputs
 
         s = {k: self.samples[i][k] for k in FIELDS}
         if rng is not None:
@@ -262,7 +262,7 @@ class Samples:
 
 
 def corrected_maps(net, inputs, completed, unseen):
-    """The network's colours [B, 3, r, r] at its own resolution (stages/completion.correct's rule)."""
+    """The network's colours [B, 3, r, r] at its own resolution (stages/dream/completion.correct's rule)."""
     from dlacli.nn.completion import corrected_colour
 
     return corrected_colour(completed, net(inputs) * unseen)

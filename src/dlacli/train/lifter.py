@@ -33,7 +33,7 @@ from dlacli.nn.lifter import (
     lifter_targets,
     save_lifter,
 )
-from dlacli.stages.fit import FOV_Y_DEG, LIMB_SEGMENTS
+from dlacli.stages.fit.photo import FOV_Y_DEG, LIMB_SEGMENTS
 
 SHAPES = 40  # random bodies
 PER_SHAPE = 8000  # poses each
@@ -42,7 +42,7 @@ PER_SHAPE = 8000  # poses each
 def motion_poses(files: Sequence[str | Path], fps: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
     """Every frame of the motion files at `fps`, retargeted: rotations [P, J, 3] (rig order) and
     root rotations [P, 3]."""
-    from dlacli.stages.motion_source import load_motion
+    from dlacli.stages.motion.source import load_motion
 
     model = get_body_model()
     rots, roots = [], []
@@ -215,7 +215,7 @@ def limb_angle_error(model: PoseLifter, x: torch.Tensor, y: torch.Tensor) -> flo
 
 def motion_files(folder: Path) -> list[Path]:
     """The motion files of a folder (not its subfolders), sorted by name."""
-    from dlacli.stages.motion_source import SUFFIXES
+    from dlacli.stages.motion.source import SUFFIXES
 
     return sorted(p for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in SUFFIXES)
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dlacli.errors import DlaInputError
+from dlacli.registry import Registry
 
 # `dla train`'s options that every training reads, by parameter name
 SHARED = frozenset(
@@ -36,24 +36,14 @@ class Training:
     takes: frozenset[str] = frozenset()  # the options beyond SHARED it reads
 
 
-TRAININGS: dict[str, Training] = {}
-
-
-def register(training: Training) -> Training:
-    """Add (or replace) a training; returns it."""
-    TRAININGS[training.name] = training
-    return training
-
-
-def names() -> list[str]:
-    return list(TRAININGS)
+TRAININGS: Registry[Training] = Registry("method")
+register = TRAININGS.add  # add (or replace) an entry; returns it
+names = TRAININGS.names
 
 
 def get(name: str, where: str = "--method") -> Training:
-    """The training called `name`, else a one-line error listing the known ones."""
-    if name not in TRAININGS:
-        raise DlaInputError(where, f"unknown method {name[:40]!r} (one of: {', '.join(names())})")
-    return TRAININGS[name]
+    """The method called `name`, else a one-line error listing the known ones."""
+    return TRAININGS.choose(name, where)
 
 
 def taken_by(option: str) -> list[str]:

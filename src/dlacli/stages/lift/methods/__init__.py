@@ -38,6 +38,7 @@ from typing import Any
 
 from dlacli.errors import DlaInputError
 from dlacli.limits import LIFT_STEPS, MAX_LIST_CHARS
+from dlacli.registry import Registry
 
 Progress = Callable[[int, float], None]  # (step index, loss) after each refinement step
 LiftFn = Callable[[Any, Any, "Progress | None", Any], Any]  # (views, config, progress, novel) -> LiftResult
@@ -60,26 +61,23 @@ class Method:
     install: Callable[[Any], None] | None = None  # makes its avatars decodable elsewhere (a checkpoint's cache entry)
 
 
-METHODS: dict[str, Method] = {}
+METHODS: Registry[Method] = Registry("method", sort=True)
 
 
 def register(method: Method) -> Method:
     """Add (or replace) a method; returns it."""
     if not dataclasses.is_dataclass(method.config):
         raise TypeError(f"method {method.name!r}: config must be a dataclass")
-    METHODS[method.name] = method
-    return method
+    return METHODS.add(method)
 
 
 def names() -> list[str]:
-    return sorted(METHODS)
+    return METHODS.names()
 
 
 def get(name: str, where: str = "--method") -> Method:
     """The method called `name`, else a one-line error listing the known ones."""
-    if name not in METHODS:
-        raise DlaInputError(where, f"unknown method {name[:40]!r} (one of: {', '.join(names())})")
-    return METHODS[name]
+    return METHODS.choose(name, where)
 
 
 @dataclass(frozen=True)

@@ -185,7 +185,7 @@ def template_views(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices
     from dlacli.body.model import get_body_model
     from dlacli.body.regions import face_parts
     from dlacli.render.raster import render_mesh
-    from dlacli.stages.orbit import AZIMUTHS, body_pivot, orbit_cameras
+    from dlacli.stages.dream.orbit import AZIMUTHS, body_pivot, orbit_cameras
 
     faces = get_body_model().faces
     parts = face_parts()

@@ -11,7 +11,7 @@ corrects the hand-written fill (`texture.complete`) where the photo does not see
    colour = corrected_colour(rule colour, t (1 - a)), a = min(weight / SEEN, 1) the photo's own
    confidence at R: texels the photo sees well keep its colour.
 
-Texel arrays are flat over `dlacli.body.uv.valid_texels(r)` (row-major), as in stages/texture.py.
+Texel arrays are flat over `dlacli.body.uv.valid_texels(r)` (row-major), as in stages/dream/texture.py.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from dlacli.errors import DlaInputError
 from dlacli.limits import DEFAULT_PRIOR as DEFAULT_PRIOR
 from dlacli.types import Cameras
 
-SHIPPED = Path(__file__).resolve().parent.parent / "assets" / "weights" / "completion"
+SHIPPED = Path(__file__).resolve().parents[2] / "assets" / "weights" / "completion"
 PRIORS = ("none", "shipped")  # besides a checkpoint folder or hash
 
 
@@ -45,7 +45,7 @@ def static_inputs(resolution: int) -> np.ndarray:
     """[15, R, R] the texels' fixed features: valid (1), body part one-hot (11, PARTS order), the
     rest-pose point in metres (3; anny's rest body spans about +-1 m)."""
     from dlacli.body.regions import PARTS
-    from dlacli.stages.texture import rest_texel_points, texel_samples
+    from dlacli.stages.dream.texture import rest_texel_points, texel_samples
 
     _, _, part = texel_samples(resolution)
     onehot = np.zeros((part.size, len(PARTS)), np.float32)
@@ -56,7 +56,7 @@ def static_inputs(resolution: int) -> np.ndarray:
 
 def confidence(weight: np.ndarray) -> np.ndarray:
     """[N] the photo's confidence a = min(weight / SEEN, 1), as `texture.complete` uses it."""
-    from dlacli.stages.texture import SEEN
+    from dlacli.stages.dream.texture import SEEN
 
     return np.clip(np.asarray(weight, np.float32) / SEEN, 0.0, 1.0)
 
@@ -72,7 +72,7 @@ def prior_inputs(colour: np.ndarray, weight: np.ndarray, completed: np.ndarray, 
 def photo_evidence(rgb, alpha, camera: Cameras, displaced: np.ndarray, resolution: int):
     """Step 1: (colour [N, 3], weight [N], completed [N, 3]) of the framed photo on the
     displaced body [V, 3] at UV resolution `resolution`."""
-    from dlacli.stages.texture import bake, complete
+    from dlacli.stages.dream.texture import bake, complete
 
     colour, weight = bake(rgb, alpha, camera, displaced, resolution)
     return colour, weight, complete(colour, weight, resolution)

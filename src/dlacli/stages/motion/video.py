@@ -7,7 +7,7 @@
    person; so has a frame whose person jumped away from the tracked one (`keep_tracked`: another
    person was picked up), until the tracked one is back or `TRACK_RESET_S` passed. Left and
    right labels that change sides at once are swapped back (`unswap_left_right`).
-2. `stages.motion_fit.fit_motion`: one temporal fit over the detected frames.
+2. `stages.motion.fit.fit_motion`: one temporal fit over the detected frames.
 3. `fill_missing`: frames with no person are interpolated (rotations slerped, translations
    linear between the nearest fitted frames; held before the first and after the last).
 4. The motion's world: the fit's (camera at the origin, looking along +Y, +Z up, level), moved so
@@ -32,7 +32,7 @@ from dlacli.types import Motion
 
 if TYPE_CHECKING:
     from dlacli.nn.lifter import PoseLifter
-    from dlacli.stages.motion_fit import MotionFit
+    from dlacli.stages.motion.fit import MotionFit
 
 MIN_KEYPOINTS = 6  # confident keypoints a frame needs (with a shoulder and a hip) to count as seen
 TRACK_JUMP = 0.3  # a torso centre this far (person heights) from the last tracked one ...
@@ -233,7 +233,7 @@ def fill_missing(
 def to_motion(fit, found: np.ndarray, fps: float, ground_ankle_z: float, ankle_z: np.ndarray) -> Motion:
     """The fitted detected frames -> a Motion over all frames (module doc, steps 3-4); `ankle_z`
     [N, 2] the fitted ankles' heights in the fit world, `ground_ankle_z` the default body's."""
-    from dlacli.stages.motion_fit import VIDEO_BONES
+    from dlacli.stages.motion.fit import VIDEO_BONES
 
     frames = np.nonzero(found)[0]
     rot, rr, rt = fill_missing(frames, fit.rotations, fit.root_rotation, fit.root_translation, len(found))
@@ -273,7 +273,7 @@ def video_to_motion(
     from dlacli.body.keypoints import coco_keypoints
     from dlacli.body.model import get_body_model
     from dlacli.limits import VIDEO_FIT_STEPS
-    from dlacli.stages.motion_fit import ANKLES, VIDEO_BONES, fit_motion
+    from dlacli.stages.motion.fit import ANKLES, VIDEO_BONES, fit_motion
 
     t0 = time.perf_counter()
     det = detect_clip(clip, detect_progress, landmarks)
@@ -318,8 +318,8 @@ def preview_frames(clip: VideoClip, result: VideoMotion, batch: int = 16) -> Ite
 
     from dlacli.body.model import get_body_model
     from dlacli.render.raster import render_mesh
-    from dlacli.stages.fit import photo_camera
-    from dlacli.stages.motion_fit import VIDEO_BONES
+    from dlacli.stages.fit.photo import photo_camera
+    from dlacli.stages.motion.fit import VIDEO_BONES
 
     model = get_body_model()
     fit, det = result.fit, result.detections

@@ -42,7 +42,7 @@ from dlacli.body.keypoints import HIPS, MIN_CONF, NUM_KEYPOINTS, SHOULDERS, TORS
 from dlacli.body.model import get_body_model
 from dlacli.body.moving_rig import MovingRig
 from dlacli.limits import VIDEO_FIT_STEPS, VIDEO_FIT_WINDOW
-from dlacli.stages.fit import (
+from dlacli.stages.fit.photo import (
     BONE_PRIOR,
     FIT_BONES,
     FREE_PHENOTYPE,

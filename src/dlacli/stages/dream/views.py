@@ -2,20 +2,15 @@
 
 Steps (docs/dream.md):
 1. person mask (--mask, else the photo's alpha channel, else mediapipe) and COCO-17 keypoints
-   (--keypoints, else mediapipe); the body fit (`dlacli.stages.fit.fit_body`) gives the body and the photo's camera;
+   (--keypoints, else mediapipe); the body fit (stages/fit/photo.py `fit_body`) gives the body and
+   the photo's camera;
 2. framing: a square crop of the photo around the person, resampled to res x res; the crop's
    camera is the input camera with adjusted intrinsics (`frame_crop`);
 3. novel views at azimuths 90 / 180 / 270 degrees: the input camera turned about the vertical
-   (+Z) axis through the body's centre, counter-clockwise seen from above (stages/orbit.py), so
+   (+Z) axis through the body's centre, counter-clockwise seen from above (stages/dream/orbit.py), so
    azimuth 90 puts the camera on the +X side when the input camera is at azimuth 0 (-Y side);
-4. backend "body" (default; `dlacli.stages.texture.body_views`, CPU, no weights): the photo baked
-   onto the fitted body's UV map, completed by symmetry and per body part, on the body displaced
-   along its normals where the photo's mask shows clothes or hair beyond it, rendered textured;
-   backend "shell" (`dlacli.stages.shell.template_views`, CPU, no weights; "template" is its legacy alias): a 2.5D
-   shell built from the photo's silhouette and the fitted body's depth (`shell_mesh`), coloured
-   from the photo in front and from the mirrored front behind (`back_colours`), rendered by the
-   triangle rasteriser; backend "diffusion" (`diffusion_views`): the paper's pose-controlled video
-   diffusion (dlacli.nn.video_diffusion).
+4. the novel views, from the backend `--backend` names (stages/dream/backends/: body, the default,
+   shell and diffusion; each module says what it does).
 View 0 is always the cropped photo itself, so the input view is exact.
 """
 
@@ -24,105 +19,23 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
-from scipy import ndimage
 
 from dlacli.errors import DlaInputError
 from dlacli.limits import DEFAULT_LANDMARKS, FIT_STEPS
-from dlacli.stages.orbit import AZIMUTHS, body_pivot, orbit_cameras
-from dlacli.stages.plausibility import plausibility
+from dlacli.stages.dream.backends import BACKENDS, DEFAULT, get
+from dlacli.stages.dream.orbit import AZIMUTHS
+from dlacli.stages.dream.plausibility import plausibility
 from dlacli.types import Cameras, ViewSet
 
 MARGIN = 0.08  # crop margin around the person's bounding box, fraction of its longer side
 MIN_PERSON_PX = 32  # the person must be at least this many pixels tall in the photo
 
 
-@dataclass(frozen=True)
-class Backend:
-    """A way to make the novel views: `load(model, device, res, frames, say)` returns (what
-    `views(rgb, alpha, cam, vertices, loaded, frames=, steps=, seed=, say=, prior=)` needs, the
-    model name it loaded), and `views` returns (images, masks, cameras, settings to record in
-    dream's info). `prior`: the completion network (dlacli.stages.completion) or None; only the
-    body backend uses one (`dream` refuses --prior for the others)."""
-
-    views: Callable
-    load: Callable | None = None
-
-
-def _shell(rgb, alpha, cam, vertices, loaded, *, frames, steps, seed, say, prior=None):
-    from dlacli.stages.shell import template_views
-
-    say("rendering the shell views")
-    images, masks, cams = template_views(rgb, alpha, cam, vertices)
-    return images, masks, cams, {}
-
-
-def _body(rgb, alpha, cam, vertices, loaded, *, frames, steps, seed, say, prior=None):
-    from dlacli.stages.texture import body_views
-
-    say("baking the photo onto the body and rendering its views")
-    return body_views(rgb, alpha, cam, vertices, prior=prior)
-
-
-def _load_diffusion(model, device, res, frames, say):
-    from dlacli.nn.video_diffusion import DEFAULT_MODEL, load_pipeline
-
-    if res % 16:
-        raise DlaInputError("--res", f"the diffusion backend needs a multiple of 16, got {res}")
-    if frames < 4 or frames % 4:
-        raise DlaInputError("--frames", f"must be a positive multiple of 4, got {frames}")
-    say("loading the diffusion pipeline")
-    model = model or DEFAULT_MODEL
-    return load_pipeline(model, device=device), model
-
-
-def _diffusion(rgb, alpha, cam, vertices, pipe, *, frames, steps, seed, say, prior=None):
-    if pipe is None:
-        raise DlaInputError("--backend diffusion", "no pipeline loaded")
-    images, masks, cams, _ = diffusion_views(
-        rgb, alpha, cam, vertices, pipe, frames=frames, steps=steps, seed=seed, progress=say
-    )
-    return (
-        images,
-        masks,
-        cams,
-        {"steps": steps, "frames": frames, "seed": seed, "video_frames": [0, *view_frames(frames)]},
-    )
-
-
-BACKENDS: dict[str, Backend] = {
-    "body": Backend(_body),
-    "shell": Backend(_shell),
-    "template": Backend(_shell),  # legacy alias of "shell" (the default before "body"): same output
-    "diffusion": Backend(_diffusion, _load_diffusion),
-}
-DEFAULT_BACKEND = "body"
-
-
-def _backend(name: str) -> Backend:
-    if name not in BACKENDS:
-        raise DlaInputError("--backend", f"unknown backend {name!r} (choose {' or '.join(BACKENDS)})")
-    return BACKENDS[name]
-
-
 Progress = Callable[[str], None]
-
-
-def sample_photo() -> Path:
-    """The bundled sample photo (a Pexels photo, background removed; see assets/LICENSES.md)."""
-    return Path(__file__).resolve().parent.parent / "assets" / "sample_photo.png"
-
-
-def sample_keypoints() -> Path:
-    """COCO-17 keypoints of the sample photo (MediaPipe Pose output, scaled to its size)."""
-    return sample_photo().with_name("sample_photo_keypoints.json")
-
-
-# ------------------------------------------------------------------------------- framing
 
 
 def crop_box(mask: np.ndarray, margin: float = MARGIN) -> tuple[int, int, int]:
@@ -181,78 +94,6 @@ def frame_crop(
     return np.clip(rgb, 0.0, 1.0).astype(np.float32), alpha.astype(np.float32), cam
 
 
-# ------------------------------------------------------------------------------- diffusion
-
-
-def orbit_frame_azimuths(frames: int) -> np.ndarray:
-    """[frames + 1] azimuths (degrees) of the orbit video: frame k at 360 k / frames, so frame 0
-    is the input view and frame `frames` closes the circle (360 = 0). With the paper's 80 frames,
-    its 1-based frames 20 / 40 / 60 / 80 are our frames 20 / 40 / 60 / 80 at 90 / 180 / 270 / 360;
-    the leading frame 0 makes the video 81 frames long, which Wan needs (4 k + 1)."""
-    return 360.0 * np.arange(frames + 1) / frames
-
-
-def view_frames(frames: int) -> tuple[int, int, int]:
-    """Video frame indices of the novel views at azimuths 90, 180, 270."""
-    return frames // 4, frames // 2, 3 * frames // 4
-
-
-def key_masks(frames: np.ndarray, prior: np.ndarray, threshold: float = 0.1) -> np.ndarray:
-    """Person masks [N, H, W] of generated frames [N, H, W, 3] on a white background.
-
-    A pixel is the person where it differs from white by more than `threshold` (max over channels)
-    and lies within the dilated prior silhouette [N, H, W] (the template shell seen from the same
-    camera), which removes stray marks elsewhere; where keying finds less than 30 % of the
-    prior's area (a failed generation) the prior itself is used."""
-    out = np.empty(prior.shape, np.float32)
-    for i in range(frames.shape[0]):
-        p = prior[i] > 0.5
-        near = ndimage.binary_dilation(p, iterations=max(1, prior.shape[1] // 32))
-        keyed = (np.abs(1.0 - frames[i]).max(axis=-1) > threshold) & near
-        keyed = ndimage.binary_fill_holes(ndimage.binary_opening(keyed))
-        out[i] = keyed if keyed.sum() >= 0.3 * p.sum() else prior[i]
-    return out
-
-
-def diffusion_views(
-    rgb,
-    alpha,
-    camera: Cameras,
-    vertices: np.ndarray,
-    pipe,
-    *,
-    frames: int = 80,
-    steps: int = 50,
-    seed: int = 0,
-    progress: Progress | None = None,
-):
-    """The paper's procedure on a framed photo (see dlacli.nn.video_diffusion).
-
-    rgb [R, R, 3], alpha [R, R], camera (the crop's), vertices [V, 3] fitted body ->
-    (images [4, R, R, 3], masks [4, R, R], cameras, skeleton video [frames + 1, R, R, 3] uint8).
-    """
-    from dlacli.body.keypoints import COCO_SKELETON, coco_keypoints
-    from dlacli.nn.video_diffusion import draw_skeletons, generate_orbit, project_points
-
-    if frames < 4 or frames % 4:
-        raise DlaInputError("--frames", f"must be a positive multiple of 4, got {frames}")
-    orbit = orbit_cameras(camera, body_pivot(vertices), orbit_frame_azimuths(frames))
-    pts, front = project_points(coco_keypoints(np.asarray(vertices, np.float64)), orbit)
-    skeletons = draw_skeletons(pts, front, COCO_SKELETON, camera.width)
-    reference = rgb * alpha[..., None] + (1.0 - alpha[..., None])  # on white
-    if progress:
-        progress(f"diffusion: {frames + 1} frames, {steps} steps")
-    video = generate_orbit(pipe, reference, skeletons, steps=steps, seed=seed)
-    pick = list(view_frames(frames))
-    from dlacli.stages.shell import template_views
-
-    _, prior, cams = template_views(rgb, alpha, camera, vertices)
-    masks = key_masks(video[pick], prior[1:])
-    novel = np.where(masks[..., None] > 0, video[pick], 0.0)
-    images = np.concatenate([rgb[None], novel]).astype(np.float32)
-    return images, np.concatenate([alpha[None], masks]).astype(np.float32), cams, skeletons
-
-
 # ------------------------------------------------------------------------------- orchestration
 
 
@@ -293,7 +134,7 @@ def build_views(
     mask: np.ndarray,
     fit,
     *,
-    backend: str = DEFAULT_BACKEND,
+    backend: str = DEFAULT,
     res: int = 512,
     pipe=None,
     frames: int = 80,
@@ -302,10 +143,10 @@ def build_views(
     progress: Progress | None = None,
     prior=None,
 ) -> ViewSet:
-    """Photo [H, W, 3] + person mask [H, W] + body fit (`dlacli.stages.fit.FitResult`) -> the
-    4 views (azimuths 0, 90, 180, 270) as a ViewSet with the fitted body. `prior`: see `Backend`."""
-    from dlacli.stages.fit_report import fit_info
-    from dlacli.stages.texture import photo_trust
+    """Photo [H, W, 3] + person mask [H, W] + body fit (`dlacli.stages.fit.photo.FitResult`) -> the
+    4 views (azimuths 0, 90, 180, 270) as a ViewSet with the fitted body. `prior`: see stages/dream/backends/."""
+    from dlacli.stages.dream.texture import photo_trust
+    from dlacli.stages.fit.report import fit_info
 
     say = progress or (lambda msg: None)
     rgb, alpha, cam = frame_crop(image, mask, fit.camera, res)
@@ -315,7 +156,7 @@ def build_views(
         "fit_overlay": "fit_overlay.png",
         "fit": fit_info(fit),
     }
-    images, masks, cams, settings = _backend(backend).views(
+    images, masks, cams, settings = get(backend).views(
         rgb, alpha, cam, fit.vertices, pipe, frames=frames, steps=steps, seed=seed, say=say, prior=prior
     )
     info.update(settings)
@@ -344,7 +185,7 @@ def dream(
     photo: str | os.PathLike,
     output: str | os.PathLike,
     *,
-    backend: str = DEFAULT_BACKEND,
+    backend: str = DEFAULT,
     keypoints: str | os.PathLike | None = None,
     mask: str | os.PathLike | None = None,
     res: int = 512,
@@ -361,21 +202,22 @@ def dream(
 ) -> Path:
     """One photo -> a view folder at `output` (written atomically; see the module docstring).
     `detection`, `landmarks`: see `_read_inputs`. `prior`: the body backend's completion prior, "none",
-    "shipped" or a checkpoint (dlacli.stages.completion.load_prior); None: its default."""
-    from dlacli.stages.fit import fit_body
-    from dlacli.stages.fit_report import fit_warning, overlay_png
+    "shipped" or a checkpoint (dlacli.stages.dream.completion.load_prior); None: its default."""
+    from dlacli.stages.fit.photo import fit_body
+    from dlacli.stages.fit.report import fit_warning, overlay_png
 
     say = progress or (lambda msg: None)
-    chosen = _backend(backend)
+    chosen = get(backend)
     if not 64 <= res <= 4096:
         raise DlaInputError("--res", f"must be in [64, 4096], got {res}")
     if steps < 1:
         raise DlaInputError("--steps", f"must be >= 1, got {steps}")
-    from dlacli.stages.completion import DEFAULT_PRIOR, load_prior
+    from dlacli.stages.dream.completion import DEFAULT_PRIOR, load_prior
 
-    if backend != "body" and prior not in (None, "none"):
-        raise DlaInputError("--prior", "applies to --backend body only")
-    completion_prior = load_prior(DEFAULT_PRIOR if prior is None else prior) if backend == "body" else None
+    if not chosen.takes_prior and prior not in (None, "none"):
+        takers = [b.name for b in BACKENDS.values() if b.takes_prior]
+        raise DlaInputError("--prior", f"applies to --backend {' or '.join(takers)} only")
+    completion_prior = load_prior(DEFAULT_PRIOR if prior is None else prior) if chosen.takes_prior else None
     pipe = None
     if chosen.load is not None:
         pipe, model = chosen.load(model, device, res, frames, say)

@@ -1,5 +1,5 @@
 """The dream's cameras: the photo's camera turned about the vertical axis through the fitted
-body (docs/dream.md step 3), shared by dream, its backends (stages/texture.py, stages/shell.py)
+body (docs/dream.md step 3), shared by dream, its backends (stages/dream/texture.py, stages/dream/shell.py)
 and the completion prior's training targets."""
 
 from __future__ import annotations

@@ -9,8 +9,8 @@ import numpy as np
 from dlacli.body.keypoints import COCO_NAMES, COCO_SKELETON, MIN_CONF, NUM_KEYPOINTS, coco_keypoints
 from dlacli.errors import DlaInputError
 from dlacli.geometry import project_to_cameras
-from dlacli.stages.fit import FitResult
-from dlacli.stages.fit_silhouette import silhouette
+from dlacli.stages.fit.photo import FitResult
+from dlacli.stages.fit.silhouette import silhouette
 
 WORST_JOINT_WARN = 0.03  # dream warns when a confident keypoint is farther than this x the person's height
 

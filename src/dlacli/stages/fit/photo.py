@@ -40,7 +40,7 @@ from dlacli.body.uv import sample_surface
 from dlacli.errors import DlaInputError
 from dlacli.geometry import project_points, project_to_cameras
 from dlacli.limits import FIT_STEPS
-from dlacli.stages.fit_silhouette import SilhouetteTargets, silhouette_iou
+from dlacli.stages.fit.silhouette import SilhouetteTargets, silhouette_iou
 from dlacli.types import BodyParams, Cameras
 
 FOV_Y_DEG = 50.0

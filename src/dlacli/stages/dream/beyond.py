@@ -79,7 +79,7 @@ def layer_depths(person, pixels, cover, fid, fdepth, bdepth, focal: float):
     shell's round profile (`shell.round_profile`), sqrt(d (2 r - d)) x INFLATE with d the distance
     to the mask's outline and r the largest d on the layer nearby (not on the body, whose
     inside would make a thin curl as thick as the torso), at most MAX_HALF."""
-    from dlacli.stages.shell import round_profile
+    from dlacli.stages.dream.shell import round_profile
 
     body = fid >= 0
     body_mid = np.where(body, (fdepth + bdepth) / 2.0, np.nan)
@@ -100,7 +100,7 @@ def layer_mesh(alpha: np.ndarray, camera: Cameras, vertices: np.ndarray) -> Laye
     """The layer of a framed photo: alpha [R, R] its mask, camera (the crop's), vertices [V, 3]
     the displaced body. None when nothing lies beyond the body."""
     from dlacli.body.model import get_body_model
-    from dlacli.stages.shell import body_depth_layers, shell_mesh
+    from dlacli.stages.dream.shell import body_depth_layers, shell_mesh
 
     person = alpha > 0.5
     fid, fdepth, _, bdepth = body_depth_layers(vertices, get_body_model().faces, camera)

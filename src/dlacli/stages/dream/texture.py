@@ -13,7 +13,7 @@ does not see the body, and rendered from the orbit cameras (docs/dream.md "Backe
    mirror within the same part (`back_texels`), then the nearest well-seen texel of the same part
    in 3D, blurred (`FALLBACK` when a part is not seen at all: hands from the arm's end, feet from
    the leg's, the hair never from the face).
-4. Beyond the body (`dlacli.stages.beyond`): person pixels the displaced body does not cover
+4. Beyond the body (`dlacli.stages.dream.beyond`): person pixels the displaced body does not cover
    (a bun, a hat's tip, a skirt's hem) become a thin shell layer coloured from the photo.
 5. Render (`body_views`): the textured, displaced body and that layer in one z-buffer through
    `dlacli.render.raster.render_textured`.
@@ -339,7 +339,7 @@ def bake(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np.ndarr
     from dlacli.body.model import get_body_model
     from dlacli.body.regions import PARTS
     from dlacli.render.raster import sample_texture, world_to_camera
-    from dlacli.stages.occluders import covered_pixels
+    from dlacli.stages.dream.occluders import covered_pixels
 
     h, w = alpha.shape
     fid, bary, part = texel_samples(resolution)
@@ -399,7 +399,7 @@ def photo_trust(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: n
     in front of it that the fit placed elsewhere (`occluders.covered_pixels`: a hand on a thigh, a
     raised knee over the belly). The view folder records it as view 0's colour trust
     (formats/views.md), so that the lift does not give the covered surface the limb's colour."""
-    from dlacli.stages.occluders import covered_pixels
+    from dlacli.stages.dream.occluders import covered_pixels
 
     pimg, pure, depth = _photo_parts(np.asarray(vertices, np.float64), camera)
     return (~covered_pixels(rgb, pimg, pure, alpha > 0.5, depth)).astype(np.float32)
@@ -508,7 +508,7 @@ def textured_body(
     """Steps 1-3 on a framed photo (rgb [R, R, 3], alpha [R, R], its camera, the fitted body
     [V, 3]) -> dict(vertices = the displaced body [V, 3], offsets [V], texture [Ru, Ru, 3],
     weight [N] the bake's weights, resolution Ru). `prior`: a completion prior
-    (stages/completion.CompletionPrior) whose `fill` corrects step 3 where the photo does not
+    (stages/dream/completion.CompletionPrior) whose `fill` corrects step 3 where the photo does not
     see the body."""
     res = uv_resolution(rgb.shape[0]) if resolution is None else int(resolution)
     displaced, offsets = displaced_body(alpha, camera, vertices)
@@ -543,8 +543,8 @@ def body_views(rgb: np.ndarray, alpha: np.ndarray, camera: Cameras, vertices: np
     """The body backend on a framed photo: rgb [R, R, 3], alpha [R, R], camera (the crop's),
     vertices [V, 3] the fitted body -> (images [A, R, R, 3] straight colours, masks [A, R, R],
     cameras [A], settings dict). View 0 is the photo itself. `prior`: see `textured_body`."""
-    from dlacli.stages.beyond import layer_mesh, render_with_layer
-    from dlacli.stages.orbit import AZIMUTHS, body_pivot, orbit_cameras
+    from dlacli.stages.dream.beyond import layer_mesh, render_with_layer
+    from dlacli.stages.dream.orbit import AZIMUTHS, body_pivot, orbit_cameras
 
     azimuths = AZIMUTHS if azimuths is None else azimuths
     body = textured_body(rgb, alpha, camera, vertices, prior=prior)
