@@ -104,7 +104,12 @@ def lifted(subject):
     return lift(views, UnprojectConfig(steps=0, gaussians=N)).avatar, views
 
 
-def test_measure_budget_is_masked_psnr_of_the_renders(lifted):
+# float32 rounding steps a rendered pixel may differ by between two renders of the same scene on
+# another machine (the compositing of the Gaussians that cover it, each a few multiply-adds)
+PIXEL_OPS = 256
+
+
+def test_measure_budget_is_masked_psnr_of_the_renders(lifted, tol):
     from dlacli.bench.metrics import masked_psnr
     from dlacli.stages.render import render_avatar
 
@@ -112,13 +117,16 @@ def test_measure_budget_is_masked_psnr_of_the_renders(lifted):
     scores = measure_budget(avatar, views, COUNTS)
     assert list(scores) == list(COUNTS)
     gt = views.images * views.masks[..., None]
+    pixel = tol(np.float32, 1.0, ops=PIXEL_OPS)  # colours in [0, 1]
     for n in COUNTS:
         shots = sorted(render_avatar(avatar, views.cameras, views.times, n_gaussians=n), key=lambda s: s.camera)
         want = masked_psnr(np.stack([s.rgba[..., :3] for s in shots]), gt, views.masks)
-        assert scores[n] == pytest.approx(want, abs=1e-9)
+        # pixels off by <= d move the MSE by <= 2 d rmse (Cauchy-Schwarz), PSNR by 10 / ln 10 of its ratio
+        rmse = 10 ** (-want / 20)
+        assert scores[n] == pytest.approx(want, abs=10 / math.log(10) * 2 * pixel / rmse)
 
 
-def test_sampling_noise_is_half_the_difference_of_two_seeds(lifted):
+def test_sampling_noise_is_half_the_difference_of_two_seeds(lifted, tol):
     from dlacli.stages.render import render_avatar
 
     avatar, views = lifted
@@ -136,7 +144,10 @@ def test_sampling_noise_is_half_the_difference_of_two_seeds(lifted):
             for k in (0, 1)
         )
         sel = np.maximum(a[..., 3], b[..., 3]) > 0.5
-        assert s == pytest.approx(0.5 * np.mean((a[..., :3][sel].astype(np.float64) - b[..., :3][sel]) ** 2), rel=1e-9)
+        want = 0.5 * np.mean((a[..., :3][sel].astype(np.float64) - b[..., :3][sel]) ** 2)
+        # each render's pixels off by <= p move each difference by <= 2 p: s by <= 2 p sqrt(2 s)
+        pixel = tol(np.float32, 1.0, ops=PIXEL_OPS)
+        assert s == pytest.approx(want, abs=2 * pixel * math.sqrt(2 * want))
         assert s > 0  # two different sample sets do not draw the same image
 
 
