@@ -83,6 +83,31 @@ def test_the_fast_kernel_draws_the_exact_images_of_a_dense_random_scene():
     assert (exact.alpha < 1e-3).any() and exact.alpha.max() > 0.99
 
 
+def test_narrow_gaussians_at_every_place_in_a_tile_are_drawn_whole():
+    # the fast kernel evaluates a box under K.HALF pixels wide on HALF pixels from its first (moved
+    # left where it would leave the tile): sparse small Gaussians put such boxes at every column
+    # of a tile, at its right end too, beside wider ones; every pixel must match the exact kernel
+    from tests.render.test_splat import look_at_cameras, random_gaussians
+
+    from dlacli.render import binning_kernels as B
+    from dlacli.render.splat import binned_plain
+
+    g = random_gaussians(600, 0, seed=5, extent=1.0, scale=(0.002, 0.03)).to(torch.float32)
+    cams = look_at_cameras([(0.3, -2.5, 0.2)], 160, 128, 150.0, dtype=torch.float32)
+    exact, _ = _compare(g, cams)
+    params, _, _ = binned_plain(g, cams.viewmats, cams.Ks, 160, 128, 0)
+    drawn = params[:, 6] > 0  # culled rows are left unset: only the pairs with a cut-off
+    x0, x1 = params[drawn, 7].astype(int), params[drawn, 8].astype(int)
+    starts, wide = set(), False
+    for a, b in zip(x0, x1):  # each box clipped to the tile columns it spans, as the kernel sees it
+        for tx in range(a // B.TILE, b // B.TILE + 1):
+            lo, hi = max(a, tx * B.TILE) - tx * B.TILE, min(b, tx * B.TILE + B.TILE - 1) - tx * B.TILE
+            starts |= {lo} if hi - lo < K.HALF else set()
+            wide |= hi - lo >= K.HALF
+    assert starts == set(range(B.TILE)) and wide  # narrow boxes start at every column; wider ones too
+    assert exact.alpha.max() > 0.5
+
+
 def test_the_fast_kernel_gives_the_same_bits_run_to_run_and_for_1_or_2_threads(walking_avatar):
     anim, cams = walking_avatar
     g, cam = anim.frame(1), cams.select(1)

@@ -250,11 +250,39 @@ def _exp_neg_fast(s):
     return q * q
 
 
+HALF = TILE // 2  # pixels a row of a narrow box is evaluated at: half the vector work of a tile row
+
+
+@njit(cache=True, inline="always")
+def _composite_row(st, base, n, dmx, hca, bdy, ry, op, c0, c1, c2, c3):
+    """One Gaussian over pixels base .. base + n - 1 of the tile state `st` (n a constant where
+    inlined, so that the loop is one vector's width), without branches."""
+    f32 = np.float32
+    zero = f32(0.0)
+    for i in range(n):
+        p = np.uint64(base + i)
+        dx = dmx - f32(i)
+        sigma = (hca * dx + bdy) * dx + ry  # 0.5 (a dx^2 + c dy^2) + b dx dy
+        alpha = min(f32(ALPHA_MAX), op * _exp_neg_fast(min(max(sigma, zero), f32(FAST_SIGMA_MAX))))
+        t = st[0, p]
+        nt = t * (f32(1.0) - alpha)
+        ok = (sigma >= zero) & (alpha >= f32(ALPHA_MIN)) & (st[5, p] > zero)
+        use = ok & (nt > f32(T_MIN))
+        w = alpha * t if use else zero
+        st[1, p] += w * c0
+        st[2, p] += w * c1
+        st[3, p] += w * c2
+        st[4, p] += w * c3
+        st[0, p] = nt if use else t
+        st[5, p] = zero if (ok & (nt <= f32(T_MIN))) else st[5, p]
+
+
 @njit(parallel=True, cache=True)
 def raster_forward_fast(params, tile_offsets, lists, wptr, wtiles, ncam, width, height, out_acc, out_t, out_work):
     """`raster_forward` for renders without gradients, in float32 and vectorised across the pixels
-    of a tile's row: each Gaussian's rows of its box are evaluated for every pixel of the row at
-    once, without branches (the tests become selects), with `_exp_neg_fast`. The rules are the
+    of a tile's row: each row of a Gaussian's box is evaluated at once (`_composite_row`: the
+    whole row, or HALF of it where the box is narrower, as most are), without branches (the tests
+    become selects), with `_exp_neg_fast`. The rules are the
     exact kernel's (alpha = min(0.999, opacity exp(-sigma)), skipped when sigma < 0 or alpha <
     1/255, a pixel stops before the Gaussian whose T (1 - alpha) would be <= 1e-4), the order the
     same; out_acc [C, H, W, 4], out_t [C, H, W] (float64, from float32), out_work [C*TH*TW] the
@@ -302,7 +330,9 @@ def raster_forward_fast(params, tile_offsets, lists, wptr, wtiles, ncam, width, 
                 for j in range(nb):
                     by0 = max(int(buf[j, 9]), y0)
                     by1 = min(int(buf[j, 10]), y1 - 1)
-                    if int(buf[j, 7]) > x1 - 1 or int(buf[j, 8]) < x0 or by0 > by1:
+                    bx0 = max(int(buf[j, 7]), x0) - x0
+                    bx1 = min(int(buf[j, 8]), x1 - 1) - x0
+                    if bx0 > bx1 or by0 > by1:
                         continue
                     mx = f32(buf[j, 0])
                     my = f32(buf[j, 1])
@@ -314,32 +344,25 @@ def raster_forward_fast(params, tile_offsets, lists, wptr, wtiles, ncam, width, 
                     c1 = f32(buf[j, 13])
                     c2 = f32(buf[j, 14])
                     c3 = f32(buf[j, 15])
-                    dmx = mx - f32(x0 + 0.5)
+                    # the pixels of a row evaluated: HALF of them from the box's first (shifted
+                    # left to stay in the tile) where the box is that narrow, else the whole row;
+                    # the others lie outside the box, where alpha < 1/255 for certain
+                    narrow = bx1 - bx0 < HALF
+                    s0 = min(bx0, HALF) if narrow else 0
+                    dmx = mx - f32(x0 + s0 + 0.5)
                     for y in range(by0, by1 + 1):
                         r = y - y0
                         if rowlive[r] == zero:
                             continue
-                        work += nx
+                        work += HALF if narrow else TILE
                         dy = my - f32(y + 0.5)
                         ry = hcc * dy * dy
                         bdy = cb * dy
-                        base = r * TILE
-                        for i in range(nx):
-                            p = np.uint64(base + i)
-                            dx = dmx - f32(i)
-                            sigma = (hca * dx + bdy) * dx + ry  # 0.5 (a dx^2 + c dy^2) + b dx dy
-                            alpha = min(f32(ALPHA_MAX), op * _exp_neg_fast(min(max(sigma, zero), f32(FAST_SIGMA_MAX))))
-                            t = st[0, p]
-                            nt = t * (f32(1.0) - alpha)
-                            ok = (sigma >= zero) & (alpha >= f32(ALPHA_MIN)) & (st[5, p] > zero)
-                            use = ok & (nt > f32(T_MIN))
-                            w = alpha * t if use else zero
-                            st[1, p] += w * c0
-                            st[2, p] += w * c1
-                            st[3, p] += w * c2
-                            st[4, p] += w * c3
-                            st[0, p] = nt if use else t
-                            st[5, p] = zero if (ok & (nt <= f32(T_MIN))) else st[5, p]
+                        base = r * TILE + s0
+                        if narrow:
+                            _composite_row(st, base, HALF, dmx, hca, bdy, ry, op, c0, c1, c2, c3)
+                        else:
+                            _composite_row(st, base, TILE, dmx, hca, bdy, ry, op, c0, c1, c2, c3)
             out_work[tid] = work
             for y in range(y0, y1):
                 for x in range(x0, x1):
