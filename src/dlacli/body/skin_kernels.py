@@ -115,17 +115,18 @@ def skin_samples(verts, faces, vn, dpdu, scale, face_id, bary, dxyz, dquat, ds, 
         if s3 > top:
             best, top = 3, s3
         piv = np.sqrt(max(top, 0.1))
-        if best == 0:
-            qw, qx, qy, qz = piv * piv, m21 - m12, m02 - m20, m10 - m01
-        elif best == 1:
-            qw, qx, qy, qz = m21 - m12, piv * piv, m10 + m01, m02 + m20
-        elif best == 2:
-            qw, qx, qy, qz = m02 - m20, m10 + m01, piv * piv, m12 + m21
-        else:
-            qw, qx, qy, qz = m10 - m01, m20 + m02, m21 + m12, piv * piv
+        pp = piv * piv
+        # the pivot's quaternion picked by selects, not branches: which one varies from Gaussian
+        # to Gaussian, and mispredicted branches cost more than the sums of all four
+        a01, s01 = m10 - m01, m10 + m01
+        a02, s02 = m02 - m20, m02 + m20
+        a12, s12 = m21 - m12, m21 + m12
+        qw = pp if best == 0 else (a12 if best == 1 else (a02 if best == 2 else a01))
+        qx = a12 if best == 0 else (pp if best == 1 else (s01 if best == 2 else s02))
+        qy = a02 if best == 0 else (s01 if best == 1 else (pp if best == 2 else s12))
+        qz = a01 if best == 0 else (s02 if best == 1 else (s12 if best == 2 else pp))
         inv = 1.0 / np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-        if qw < 0:
-            inv = -inv
+        inv = -inv if qw < 0 else inv
         qw, qx, qy, qz = qw * inv, qx * inv, qy * inv, qz * inv
         # skinning
         x0, x1, x2 = np.float64(dxyz[g, 0]), np.float64(dxyz[g, 1]), np.float64(dxyz[g, 2])
