@@ -1,4 +1,4 @@
-"""The fast compositing kernel (`render_gaussians(exact=False)`, splat_kernels.raster_forward_fast)
+"""The fast compositing kernel (`render_gaussians(exact=False)`, fast_kernels.raster_forward_fast)
 against the exact kernel, which stays the reference.
 
 Oracles: float64 `np.exp` for its exponential; the exact path's images of a held-out avatar (a
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import torch
 
-from dlacli.render import splat_kernels as K
+from dlacli.render import fast_kernels as K
 from dlacli.render.splat import render_gaussians
 
 FLIP = 1.1 / 255.0  # one Gaussian at the alpha cut, or the remainder under the stop rule

@@ -31,6 +31,7 @@ from dlacli.errors import DlaInputError
 from dlacli.kernel_path import takes_kernels
 from dlacli.render import binning_kernels as B
 from dlacli.render import camera_kernels
+from dlacli.render import fast_kernels as F
 from dlacli.render import splat_kernels as K
 from dlacli.render.sh import eval_sh_colors
 from dlacli.types import Cameras, Gaussians
@@ -47,12 +48,11 @@ class RenderOutput(NamedTuple):
     depth: torch.Tensor  # [C, H, W] expected z-depth sum(w_i z_i) / alpha, 0 where alpha == 0
 
     def rgba(self, k: int = 0) -> np.ndarray:
-        """Camera k's image as a numpy RGBA [H, W, 4] (a copy; torch.cat along the last axis took
-        ~1 ms for 512^2)."""
-        rgb = self.rgb[k].detach().cpu().numpy()
+        """Camera k's image as a numpy RGBA [H, W, 4] (a copy, `K.pack_rgba`)."""
+        rgb = np.ascontiguousarray(self.rgb[k].detach().cpu().numpy())
+        alpha = np.ascontiguousarray(self.alpha[k].detach().cpu().numpy(), dtype=rgb.dtype)
         out = np.empty((*rgb.shape[:2], 4), dtype=rgb.dtype)
-        out[..., :3] = rgb
-        out[..., 3] = self.alpha[k].detach().cpu().numpy()
+        K.pack_rgba(rgb, alpha, out)
         return out
 
 
@@ -295,14 +295,14 @@ def _raster_cpu(means2d, conics, colors, opacities, radii, depths, width, height
 def composite_lists(params, offsets, lists, ncam, width, height, exact: bool = True):
     """`K.raster_forward` over the binned pairs -> (acc [C, H, W, 4] in params' dtype, t_final
     [C, H, W] float64, (t_final, last, work) for the backward pass); `exact=False` (float32
-    params only): `K.raster_forward_fast`, whose third item is (t_final, None, work)."""
+    params only): `F.raster_forward_fast`, whose third item is (t_final, None, work)."""
     cost = np.diff(offsets).astype(np.float64)
     wptr, wtiles = B.assign_workers(cost, K.num_threads())
     acc = np.empty((ncam, height, width, 4), dtype=params.dtype)
     tfin = np.empty((ncam, height, width), dtype=np.float64)
     work = np.zeros(cost.shape[0], dtype=np.float64)
     if not exact and params.dtype == np.float32:
-        K.raster_forward_fast(params, offsets, lists, wptr, wtiles, ncam, width, height, acc, tfin, work)
+        F.raster_forward_fast(params, offsets, lists, wptr, wtiles, ncam, width, height, acc, tfin, work)
         return acc, tfin, (tfin, None, work)
     last = np.empty((ncam, height, width), dtype=np.int64)
     K.raster_forward(params, offsets, lists, wptr, wtiles, ncam, width, height, acc, tfin, last, work)
@@ -350,7 +350,7 @@ def _render_plain_cpu(
 ) -> RenderOutput:
     """`render_gaussians` without autograd on the CPU: `binned_plain`, then the same compositing
     and `K.compose` as the autograd route, whose images it equals bit for bit
-    (tests/render/test_splat.py); `exact=False` composites with `K.raster_forward_fast` (float32;
+    (tests/render/test_splat.py); `exact=False` composites with `F.raster_forward_fast` (float32;
     tests/render/test_splat_fast.py)."""
     dtype = g.means.dtype
     ncam = viewmats.shape[0]
@@ -501,7 +501,7 @@ def render_gaussians(
     gsplat installed -> gsplat; otherwise the numba CPU path (CUDA tensors without gsplat, or
     not float32, are rendered on the CPU and the results moved back). `exact=False`: where no
     gradient is asked for, float32 on the CPU composites with the fast kernel
-    (`splat_kernels.raster_forward_fast`: a polynomial exponential, float32 state; images within
+    (`fast_kernels.raster_forward_fast`: a polynomial exponential, float32 state; images within
     the tolerance docs/rendering.md states of the exact ones, the same bits run to run); ignored
     elsewhere.
     """
