@@ -65,18 +65,20 @@ def test_ratios_pair_rows_of_one_run():
     assert "Run b" in md and "Run a" not in md  # only the latest run of a suite is shown
 
 
-def test_the_render_table_keeps_the_latest_run_of_each_gaussian_count():
+def test_the_render_table_keeps_the_latest_run_of_each_gaussian_count_and_size():
     rows = [
-        speed_row("render", case, "cpu", {"gaussians": n, "size": 512, "frames": 30}, s, 3, run, "cpu")
-        for run, n, case, s in (
-            ("r1", 32768, "playback_frame", 0.050),
-            ("r2", 32768, "playback_frame", 0.040),
-            ("r3", 131072, "playback_frame", 0.080),
-            ("r3", 131072, "animation_frame", 0.050),
+        speed_row("render", case, "cpu", {"gaussians": n, "size": size, "frames": 30}, s, 3, run, "cpu")
+        for run, n, size, case, s in (
+            ("r1", 32768, 512, "playback_frame", 0.050),
+            ("r2", 32768, 512, "playback_frame", 0.040),
+            ("r3", 131072, 512, "playback_frame", 0.080),
+            ("r3", 131072, 512, "animation_frame", 0.050),
+            ("r4", 131072, 1024, "playback_frame", 0.200),  # a later run at another size keeps r3
         )
     ]
     md = "\n".join(speed_markdown(rows))
-    assert "Runs r2, r3 on cpu." in md and "r1" not in md
+    assert "Runs r2, r3, r4 on cpu." in md and "r1" not in md
+    assert "| playback_frame | frames=30 gaussians=131072 size=1024 | cpu | 200.0 | - | 5.0 fps |" in md
     assert "| playback_frame | frames=30 gaussians=32768 size=512 | cpu | 40.0 | - | 25.0 fps |" in md
     assert "| animation_frame | frames=30 gaussians=131072 size=512 | cpu | 50.0 | - | 20.0 fps |" in md
 

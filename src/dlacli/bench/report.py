@@ -234,7 +234,7 @@ def speed_markdown(rows: list[dict], intro: bool = True) -> list[str]:
         "## Speed",
         "",
         "`dla bench speed`: medians per call after a warm-up (repeats = 1: one timed run); the latest run of each",
-        "suite (render: of each Gaussian count). Ratios pair rows of the same run.",
+        "suite (render: of each Gaussian count and image size). Ratios pair rows of the same run.",
         "",
     ]
     lines = lines if intro else []
@@ -252,9 +252,12 @@ def speed_markdown(rows: list[dict], intro: bool = True) -> list[str]:
         {r["suite"] for r in speed} - set(SUITES)
     ):
         sel = [r for r in speed if r["suite"] == suite]
-        if suite == "render":  # playback at each Gaussian count: the latest run of each
-            counts = {r["config"].get("gaussians") for r in sel}
-            runs = sorted({max(r["run"] for r in sel if r["config"].get("gaussians") == n) for n in counts})
+        if suite == "render":  # playback at each Gaussian count and image size: the latest run of each
+
+            def case(r):
+                return r["config"].get("gaussians"), r["config"].get("size")
+
+            runs = sorted({max(r["run"] for r in sel if case(r) == c) for c in {case(r) for r in sel}})
         else:
             runs = [max(r["run"] for r in sel)]
         sel = [r for r in sel if r["run"] in runs]
