@@ -13,9 +13,8 @@ from numba import njit, prange
 from dlacli.render.binning_kernels import NPARAM, TILE
 from dlacli.render.splat_kernels import ALPHA_MAX, ALPHA_MIN, BATCH, T_MIN, load_batch, tile_box
 
-# The fast forward pass (`raster_forward_fast`, renders without gradients that ask for it: the
-# animation preview's playback): exp(-sigma) = q^16, q = exp(-sigma / 16) by its Taylor polynomial
-# of degree 6 (sigma / 16 <= 0.35 where alpha >= 1/255), in float32. Its relative error is below
+# The exponential: exp(-sigma) = q^16, q = exp(-sigma / 16) by its Taylor polynomial of degree 6
+# (sigma / 16 <= 0.35 where alpha >= 1/255), in float32. Its relative error is below
 # FAST_EXP_REL_ERROR for 0 <= sigma <= 5.6 (1/255 = opacity exp(-sigma) needs sigma <= 5.54),
 # measured against float64 exp on 2 million points (tests/render/test_splat_fast.py).
 FAST_EXP_REL_ERROR = 5e-6
@@ -77,12 +76,12 @@ def raster_forward_fast(params, tile_offsets, lists, wptr, wtiles, ncam, width, 
     """`raster_forward` for renders without gradients, in float32 and vectorised across the pixels
     of a tile's row: each row of a Gaussian's box is evaluated at once (`_composite_row`: the
     whole row, or HALF of it where the box is narrower, as most are), without branches (the tests
-    become selects), with `_exp_neg_fast`. The rules are the
-    exact kernel's (alpha = min(0.999, opacity exp(-sigma)), skipped when sigma < 0 or alpha <
-    1/255, a pixel stops before the Gaussian whose T (1 - alpha) would be <= 1e-4), the order the
-    same; out_acc [C, H, W, 4], out_t [C, H, W] (float64, from float32), out_work [C*TH*TW] the
-    pixel evaluations. Each tile is one worker's, walked in a fixed order: the same bits for any
-    thread count. No `last` (the backward pass uses the exact kernel's)."""
+    become selects), with `_exp_neg_fast`. The rules are the exact kernel's (alpha = min(0.999,
+    opacity exp(-sigma)), skipped when sigma < 0 or alpha < 1/255, a pixel stops before the
+    Gaussian whose T (1 - alpha) would be <= 1e-4), the order the same; out_acc [C, H, W, 4],
+    out_t [C, H, W] (float64, from float32), out_work [C*TH*TW] the pixel evaluations. Each tile is
+    one worker's, walked in a fixed order: the same bits for any thread count. No `last` (the
+    backward pass uses the exact kernel's)."""
     tw = (width + TILE - 1) // TILE
     th = (height + TILE - 1) // TILE
     ntiles = tw * th
